@@ -1,0 +1,23 @@
+//! Quadrotor racing simulator: dynamics, race environment, vectorised environment, reference
+//! pilot and evaluation harness. Pure computation, no I/O.
+
+
+pub mod observation;
+pub mod params;
+
+pub mod quadrotor;
+pub mod race;
+pub mod randomization;
+
+pub mod reward;
+pub mod track;
+pub mod vec_env;
+
+pub use nalgebra;
+pub use observation::STATE_OBS_DIM;
+pub use params::{GRAVITY, QuadrotorParams, RaceParams};
+pub use race::{CrashCause, EnvConfig, EpisodeStats, RaceEnv, StepOutcome};
+pub use randomization::RandomizationParams;
+pub use reward::{RewardParams, RewardTerms};
+pub use track::{Arena, Gate, Pose, Track};
+pub use vec_env::{ACTION_DIM, VecEnv};

@@ -1,0 +1,480 @@
+//! One racing environment: a quadrotor on a track, stepped at the policy rate (SPEC §4, §12).
+//!
+//! `RaceEnv::step` reads in stage order: action → command → substeps (controller → motors →
+//! forces → RK4 → crash check) → gate pass and laps → reward → episode bookkeeping.
+
+use std::sync::Arc;
+
+use nalgebra::Vector3;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::observation::{STATE_OBS_DIM, write_state_observation};
+use crate::params::{QuadrotorParams, RaceParams};
+use crate::quadrotor::{BodyState, Command, Quadrotor};
+use crate::randomization::RandomizationParams;
+use crate::reward::{ActionFilter, RewardParams, RewardTerms, StepFacts};
+use crate::track::Track;
+
+/// Camera tilt above the body x axis (rad): the forward camera of the vision profile (SPEC §5).
+pub const CAMERA_TILT: f64 = 30.0 * std::f64::consts::PI / 180.0;
+
+/// Everything that configures an environment except its track.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EnvConfig {
+    /// Nominal vehicle; the low-level controller always believes these values.
+    pub quadrotor: QuadrotorParams,
+    /// Per-episode randomisation around the nominal vehicle and start pose.
+    pub randomization: RandomizationParams,
+    /// Timing and episode length.
+    pub race: RaceParams,
+    /// Reward weights.
+    pub reward: RewardParams,
+}
+
+impl EnvConfig {
+    /// The evaluation setting of SPEC §9: nominal dynamics, 1000-step episodes.
+    pub fn evaluation() -> Self {
+        Self {
+            randomization: RandomizationParams::evaluation(),
+            race: RaceParams { max_episode_steps: 1000, ..RaceParams::default() },
+            ..Self::default()
+        }
+    }
+}
+
+/// Why an episode terminated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CrashCause {
+    /// Below the ground plane z = 0.
+    Ground,
+    /// Outside the arena box.
+    Arena,
+    /// The collision sphere touched the frame of this gate.
+    Gate(usize),
+}
+
+impl std::fmt::Display for CrashCause {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            CrashCause::Ground => write!(f, "ground"),
+            CrashCause::Arena => write!(f, "arena"),
+            CrashCause::Gate(i) => write!(f, "gate {i}"),
+        }
+    }
+}
+
+/// Summary of one finished episode.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeStats {
+    /// Sum of step rewards.
+    pub episode_return: f64,
+    /// Number of policy steps.
+    pub length: u32,
+    /// Completed laps.
+    pub laps: u32,
+    /// Fastest completed lap (s).
+    pub fastest_lap: Option<f64>,
+    /// Target gates passed.
+    pub gates_passed: u32,
+    /// Crash that ended the episode, if any.
+    pub crash: Option<CrashCause>,
+}
+
+/// The result of one policy step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepOutcome {
+    /// Reward terms of this step.
+    pub reward: RewardTerms,
+    /// The episode ended in a crash.
+    pub terminated: bool,
+    /// The episode reached its step limit without crashing.
+    pub truncated: bool,
+    /// Index and traversal error of the gate passed in this step.
+    pub passed_gate: Option<(usize, f64)>,
+    /// Crash cause, when terminated.
+    pub crash: Option<CrashCause>,
+    /// Lap time, when this step completed a lap.
+    pub lap_time: Option<f64>,
+}
+
+impl StepOutcome {
+    /// True when the episode is over for either reason.
+    pub fn done(&self) -> bool {
+        self.terminated || self.truncated
+    }
+}
+
+/// A single racing environment with its own random stream.
+#[derive(Clone, Debug)]
+pub struct RaceEnv {
+    config: EnvConfig,
+    track: Arc<Track>,
+    rng: ChaCha8Rng,
+    quad: Quadrotor,
+    delay_substeps: u32,
+    /// The command in force before the current step's command arrives (latency buffer).
+    previous_command: Command,
+    target: usize,
+    steps: u32,
+    time: f64,
+    previous_action: [f64; 4],
+    filter: ActionFilter,
+    last_gate0_pass: Option<f64>,
+    stats: EpisodeStats,
+}
+
+impl RaceEnv {
+    /// A new environment, already reset; `stream` separates environments sharing a seed.
+    pub fn new(track: Arc<Track>, config: EnvConfig, seed: u64, stream: u64) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        rng.set_stream(stream);
+        let body = BodyState::at_rest(track.start.position, track.start.yaw);
+        let mut env = Self {
+            quad: Quadrotor::new(config.quadrotor, config.quadrotor, body),
+            config,
+            track,
+            rng,
+            delay_substeps: 0,
+            previous_command: Command::hover(),
+            target: 0,
+            steps: 0,
+            time: 0.0,
+            previous_action: [0.0; 4],
+            filter: ActionFilter::default(),
+            last_gate0_pass: None,
+            stats: EpisodeStats::default(),
+        };
+        env.reset();
+        env
+    }
+
+    /// Starts a new episode with a fresh randomisation draw.
+    pub fn reset(&mut self) {
+        let c = &self.config;
+        let draw = c.randomization.sample(&c.quadrotor, &self.track.start, c.race.substep(), &mut self.rng);
+        self.quad = Quadrotor::new(c.quadrotor, draw.plant, draw.start);
+        self.delay_substeps = draw.delay_substeps;
+        // Before the first action arrives the flight controller holds a hover.
+        self.previous_command = Command::hover();
+        self.target = 0;
+        self.steps = 0;
+        self.time = 0.0;
+        self.previous_action = [0.0; 4];
+        self.filter = ActionFilter::default();
+        self.last_gate0_pass = None;
+        self.stats = EpisodeStats::default();
+    }
+
+    /// Replaces the track and starts a new episode on it (task switching).
+    pub fn set_track(&mut self, track: Arc<Track>) {
+        self.track = track;
+        self.reset();
+    }
+
+    /// Advances one policy step with a normalised action (clipped to [-1, 1] before any use).
+    pub fn step(&mut self, action: &[f32; 4]) -> StepOutcome {
+        let action = action.map(|a| f64::from(a).clamp(-1.0, 1.0));
+        let gate = self.track.gates[self.target];
+        let start = self.quad.body.position;
+        let distance_before = (start - gate.position).norm();
+
+        let command = Command::from_action(&action, &self.config.quadrotor);
+        let crash = self.integrate(&command);
+        self.previous_command = command;
+        self.steps += 1;
+        self.time = f64::from(self.steps) * self.config.race.dt;
+
+        let end = self.quad.body.position;
+        let passed = gate.crossing(&start, &end);
+        let passed_gate = passed.map(|c| (self.target, c.error));
+        let lap_time = passed.and_then(|_| self.advance_target());
+
+        let alpha = self.config.reward.filter_alpha(self.config.race.dt);
+        let action_change = self.filter.update(&action, alpha);
+        let limits = &self.config.quadrotor.rate_limits;
+        let w = self.quad.body.body_rates;
+        let reward = self.config.reward.terms(&StepFacts {
+            distance_before,
+            distance_after: (end - gate.position).norm(),
+            pass_error: passed.map(|c| c.error),
+            crashed: crash.is_some(),
+            body_rates_xy: [w.x, w.y],
+            rate_limits_xy: [limits[0], limits[1]],
+            action_change,
+            view_alignment: self.camera_axis().dot(&gate.normal()).max(0.0),
+        });
+        self.previous_action = action;
+
+        let terminated = crash.is_some();
+        let truncated = !terminated && self.steps >= self.config.race.max_episode_steps;
+        self.stats.episode_return += reward.total();
+        self.stats.length = self.steps;
+        self.stats.crash = crash;
+        StepOutcome { reward, terminated, truncated, passed_gate, crash, lap_time }
+    }
+
+    /// Runs the substeps of one policy step; stops at the first crashing substep.
+    fn integrate(&mut self, command: &Command) -> Option<CrashCause> {
+        let h = self.config.race.substep();
+        let mut crash = None;
+        for j in 0..self.config.race.substeps {
+            let applied = if j < self.delay_substeps { self.previous_command } else { *command };
+            self.quad.substep(&applied, h);
+            crash = self.crash_cause();
+            if crash.is_some() {
+                break;
+            }
+        }
+        self.quad.normalize_attitude();
+        crash
+    }
+
+    /// Crash test on the current state (SPEC §12.2): ground, arena, then gate frames.
+    fn crash_cause(&self) -> Option<CrashCause> {
+        let p = &self.quad.body.position;
+        if p.z < 0.0 {
+            return Some(CrashCause::Ground);
+        }
+        if !self.track.arena.contains(p) {
+            return Some(CrashCause::Arena);
+        }
+        let radius = self.quad.plant().collision_radius;
+        self.track.gates.iter().position(|g| g.frame_touches_sphere(p, radius)).map(CrashCause::Gate)
+    }
+
+    /// Target gate was passed: count it, close a lap when it was gate 0, move to the next gate.
+    fn advance_target(&mut self) -> Option<f64> {
+        self.stats.gates_passed += 1;
+        let mut lap = None;
+        if self.target == 0 {
+            // Targets advance strictly in order, so a repeat pass of gate 0 closes a full lap.
+            if let Some(previous) = self.last_gate0_pass {
+                let lap_time = self.time - previous;
+                self.stats.laps += 1;
+                self.stats.fastest_lap = Some(self.stats.fastest_lap.map_or(lap_time, |f| f.min(lap_time)));
+                lap = Some(lap_time);
+            }
+            self.last_gate0_pass = Some(self.time);
+        }
+        self.target = self.track.next_index(self.target);
+        lap
+    }
+
+    /// Forward camera axis in the world (tilted up by [`CAMERA_TILT`]).
+    fn camera_axis(&self) -> Vector3<f64> {
+        self.quad.body.rotation() * Vector3::new(CAMERA_TILT.cos(), 0.0, CAMERA_TILT.sin())
+    }
+
+    /// Writes the state observation into `out` (length [`STATE_OBS_DIM`]).
+    pub fn observe(&self, out: &mut [f32]) {
+        write_state_observation(&self.quad.body, &self.previous_action, &self.track, self.target, out);
+    }
+
+    /// The state observation as a new array.
+    pub fn observation(&self) -> [f32; STATE_OBS_DIM] {
+        let mut out = [0f32; STATE_OBS_DIM];
+        self.observe(&mut out);
+        out
+    }
+
+    /// Rigid-body state.
+    pub fn body(&self) -> &BodyState {
+        &self.quad.body
+    }
+
+    /// Actual motor speeds (rad/s), rotor order fr, bl, br, fl.
+    pub fn motor_speeds(&self) -> [f64; 4] {
+        self.quad.motor_speeds.into()
+    }
+
+    /// The track being flown.
+    pub fn track(&self) -> &Arc<Track> {
+        &self.track
+    }
+
+    /// Configuration of this environment.
+    pub fn config(&self) -> &EnvConfig {
+        &self.config
+    }
+
+    /// Index of the gate to pass next.
+    pub fn target_gate(&self) -> usize {
+        self.target
+    }
+
+    /// Time since the episode start (s).
+    pub fn time(&self) -> f64 {
+        self.time
+    }
+
+    /// Statistics of the episode so far.
+    pub fn stats(&self) -> &EpisodeStats {
+        &self.stats
+    }
+
+    /// Command delay of this episode in substeps.
+    pub fn delay_substeps(&self) -> u32 {
+        self.delay_substeps
+    }
+
+    /// The previous (clipped) action, as the observation carries it.
+    pub fn previous_action(&self) -> &[f64; 4] {
+        &self.previous_action
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::track::{Arena, Gate, Pose};
+
+    /// Two gates on the x axis, 6 m apart, facing +x then -x; no randomisation.
+    fn straight_env(start: Vector3<f64>) -> RaceEnv {
+        let gates = vec![
+            Gate::new(Vector3::new(0.0, 0.0, 2.0), 0.0),
+            Gate::new(Vector3::new(6.0, 0.0, 2.0), 0.0),
+            Gate::new(Vector3::new(3.0, 5.0, 2.0), std::f64::consts::PI),
+        ];
+        let track = Track::new("straight", gates, Some(Pose { position: start, yaw: 0.0 }), Arena::default()).unwrap();
+        let config = EnvConfig { randomization: RandomizationParams::none(), ..EnvConfig::default() };
+        RaceEnv::new(Arc::new(track), config, 0, 0)
+    }
+
+    /// Puts the drone at `p` moving with `v`, level, motors at hover.
+    fn place(env: &mut RaceEnv, p: Vector3<f64>, v: Vector3<f64>) {
+        env.quad.body = BodyState { velocity: v, ..BodyState::at_rest(p, 0.0) };
+    }
+
+    fn hover_action(env: &RaceEnv) -> [f32; 4] {
+        Command::hover().to_action(&env.config.quadrotor).map(|a| a as f32)
+    }
+
+    #[test]
+    fn flying_through_the_centre_passes_with_zero_error_and_rewards_one() {
+        let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
+        place(&mut env, Vector3::new(-0.05, 0.0, 2.0), Vector3::new(10.0, 0.0, 0.0));
+        let out = env.step(&hover_action(&env));
+        let (gate, error) = out.passed_gate.expect("passes gate 0");
+        assert_eq!(gate, 0);
+        assert!(error < 1e-3, "error {error}");
+        assert!((out.reward.pass - (1.0 - error / 0.75)).abs() < 1e-12);
+        assert!(!out.terminated);
+        assert_eq!(env.target_gate(), 1);
+    }
+
+    #[test]
+    fn flying_into_the_frame_crashes_on_that_gate() {
+        let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
+        place(&mut env, Vector3::new(-0.3, 0.85, 2.0), Vector3::new(10.0, 0.0, 0.0));
+        let out = env.step(&hover_action(&env));
+        assert!(out.terminated);
+        assert_eq!(out.crash, Some(CrashCause::Gate(0)));
+        assert_eq!(out.reward.crash, -4.0);
+        // Integration stopped at the crashing substep, before reaching the gate plane.
+        assert!(env.body().position.x < 0.0);
+    }
+
+    #[test]
+    fn beside_backwards_or_non_target_gates_do_nothing() {
+        // Beside gate 0.
+        let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
+        place(&mut env, Vector3::new(-0.05, 2.5, 2.0), Vector3::new(10.0, 0.0, 0.0));
+        let out = env.step(&hover_action(&env));
+        assert!(out.passed_gate.is_none() && !out.terminated);
+        assert_eq!(env.target_gate(), 0);
+        // Backwards through gate 0.
+        let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
+        place(&mut env, Vector3::new(0.05, 0.0, 2.0), Vector3::new(-10.0, 0.0, 0.0));
+        let out = env.step(&hover_action(&env));
+        assert!(out.passed_gate.is_none() && !out.terminated);
+        // Through gate 1 while gate 0 is the target.
+        let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
+        place(&mut env, Vector3::new(5.95, 0.0, 2.0), Vector3::new(10.0, 0.0, 0.0));
+        let out = env.step(&hover_action(&env));
+        assert!(out.passed_gate.is_none() && !out.terminated && out.reward.pass == 0.0);
+        assert_eq!(env.target_gate(), 0);
+    }
+
+    #[test]
+    fn ground_and_arena_exits_terminate_with_their_cause() {
+        let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
+        place(&mut env, Vector3::new(-5.0, -5.0, 0.05), Vector3::new(0.0, 0.0, -5.0));
+        assert_eq!(env.step(&hover_action(&env)).crash, Some(CrashCause::Ground));
+        let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
+        place(&mut env, Vector3::new(-11.95, -5.0, 2.0), Vector3::new(-5.0, 0.0, 0.0));
+        assert_eq!(env.step(&hover_action(&env)).crash, Some(CrashCause::Arena));
+    }
+
+    #[test]
+    fn progress_uses_the_target_at_the_start_of_the_step() {
+        let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
+        place(&mut env, Vector3::new(-0.05, 0.0, 2.0), Vector3::new(10.0, 0.0, 0.0));
+        let before = 0.05;
+        let out = env.step(&hover_action(&env));
+        let after = (env.body().position - Vector3::new(0.0, 0.0, 2.0)).norm();
+        assert!((out.reward.progress - (before - after)).abs() < 1e-9);
+    }
+
+    #[test]
+    fn laps_are_counted_and_timed_between_passes_of_gate_zero() {
+        let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
+        let action = hover_action(&env);
+        let mut laps = Vec::new();
+        // Teleport through the gates in order: 0 at step 1, 1 at step 11, 2 at step 21, 0 at step 31.
+        let crossings = [(0usize, 1u32), (1, 11), (2, 21), (0, 31), (1, 41), (2, 51), (0, 61)];
+        let mut k = 0;
+        for step in 1..=61u32 {
+            if k < crossings.len() && crossings[k].1 == step {
+                let g = env.track.gates[crossings[k].0];
+                let p = g.to_world(&Vector3::new(-0.02, 0.0, 0.0));
+                place(&mut env, p, g.normal() * 5.0);
+                k += 1;
+            } else {
+                place(&mut env, Vector3::new(-8.0, -8.0, 3.0), Vector3::zeros());
+            }
+            let out = env.step(&action);
+            assert!(!out.terminated);
+            if let Some(t) = out.lap_time {
+                laps.push(t);
+            }
+        }
+        assert_eq!(laps.len(), 2);
+        assert!((laps[0] - 30.0 * 0.02).abs() < 1e-9, "{laps:?}");
+        assert!((laps[1] - 30.0 * 0.02).abs() < 1e-9);
+        assert_eq!(env.stats().laps, 2);
+        assert_eq!(env.stats().gates_passed, 7);
+        assert!((env.stats().fastest_lap.unwrap() - 0.6).abs() < 1e-9);
+    }
+
+    #[test]
+    fn episodes_truncate_at_the_step_limit() {
+        let mut env = straight_env(Vector3::new(-8.0, -8.0, 3.0));
+        env.config.race.max_episode_steps = 5;
+        let action = hover_action(&env);
+        for i in 1..=5 {
+            let out = env.step(&action);
+            assert!(!out.terminated);
+            assert_eq!(out.truncated, i == 5);
+        }
+    }
+
+    #[test]
+    fn command_delay_holds_the_previous_command_for_whole_substeps() {
+        let mut a = straight_env(Vector3::new(-8.0, -8.0, 3.0));
+        let mut b = a.clone();
+        b.delay_substeps = 8;
+        let full = [1.0f32, 0.0, 0.0, 0.0];
+        a.step(&full);
+        b.step(&full);
+        // With a full-step delay, b hovered through the first step and only now climbs
+        // (the motors' 33 ms lag keeps the first step's climb rate modest).
+        assert!(a.body().velocity.z > 0.1, "{}", a.body().velocity.z);
+        assert!(b.body().velocity.z.abs() < 1e-9);
+        b.step(&full);
+        assert!(b.body().velocity.z > 0.1);
+    }
+}

@@ -1,0 +1,229 @@
+//! N race environments stepped in parallel into contiguous f32 buffers.
+//!
+//! Each environment owns its random stream, so results are bit-identical whatever the number
+//! of rayon threads. Finished episodes reset automatically; the observation that ended them is
+//! kept in `final_observations` so a learner can bootstrap truncated episodes.
+
+use std::sync::Arc;
+
+use rayon::prelude::*;
+
+use crate::observation::STATE_OBS_DIM;
+use crate::race::{EnvConfig, EpisodeStats, RaceEnv, StepOutcome};
+use crate::track::Track;
+
+/// Actions per environment.
+pub const ACTION_DIM: usize = 4;
+
+/// An episode that ended during the last step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FinishedEpisode {
+    /// Environment index.
+    pub env: usize,
+    /// Its statistics.
+    pub stats: EpisodeStats,
+}
+
+/// Vectorised race environment with automatic reset.
+pub struct VecEnv {
+    envs: Vec<RaceEnv>,
+    /// Current observations, `n × STATE_OBS_DIM`, row-major.
+    pub observations: Vec<f32>,
+    /// Rewards of the last step.
+    pub rewards: Vec<f32>,
+    /// Which environments terminated (crashed) in the last step.
+    pub terminated: Vec<bool>,
+    /// Which environments were truncated in the last step.
+    pub truncated: Vec<bool>,
+    /// Observation at the end of the last step before any reset; meaningful where done.
+    pub final_observations: Vec<f32>,
+    /// Episodes that finished in the last step, in environment order.
+    pub finished: Vec<FinishedEpisode>,
+}
+
+impl VecEnv {
+    /// One environment per track, environment `i` on random stream `i` of `seed`.
+    pub fn new(tracks: Vec<Arc<Track>>, config: EnvConfig, seed: u64) -> Self {
+        let envs: Vec<RaceEnv> =
+            tracks.into_iter().enumerate().map(|(i, t)| RaceEnv::new(t, config, seed, i as u64)).collect();
+        let n = envs.len();
+        let mut v = Self {
+            envs,
+            observations: vec![0.0; n * STATE_OBS_DIM],
+            rewards: vec![0.0; n],
+            terminated: vec![false; n],
+            truncated: vec![false; n],
+            final_observations: vec![0.0; n * STATE_OBS_DIM],
+            finished: Vec::new(),
+        };
+        v.write_all_observations();
+        v
+    }
+
+    /// Number of environments.
+    pub fn len(&self) -> usize {
+        self.envs.len()
+    }
+
+    /// True when there are no environments.
+    pub fn is_empty(&self) -> bool {
+        self.envs.is_empty()
+    }
+
+    /// Length of one observation row.
+    pub fn observation_dim(&self) -> usize {
+        STATE_OBS_DIM
+    }
+
+    /// Steps every environment with its row of `actions` (`n × 4`).
+    pub fn step(&mut self, actions: &[f32]) {
+        assert_eq!(actions.len(), self.envs.len() * ACTION_DIM, "one action row per environment");
+        let results: Vec<(StepOutcome, Option<EpisodeStats>)> = self
+            .envs
+            .par_iter_mut()
+            .zip(actions.par_chunks(ACTION_DIM))
+            .zip(self.observations.par_chunks_mut(STATE_OBS_DIM))
+            .zip(self.final_observations.par_chunks_mut(STATE_OBS_DIM))
+            .with_min_len(4)
+            .map(|(((env, action), obs), final_obs)| {
+                let outcome = env.step(&[action[0], action[1], action[2], action[3]]);
+                let mut finished = None;
+                if outcome.done() {
+                    env.observe(final_obs);
+                    finished = Some(*env.stats());
+                    env.reset();
+                }
+                env.observe(obs);
+                (outcome, finished)
+            })
+            .collect();
+        self.finished.clear();
+        for (i, (outcome, finished)) in results.into_iter().enumerate() {
+            self.rewards[i] = outcome.reward.total() as f32;
+            self.terminated[i] = outcome.terminated;
+            self.truncated[i] = outcome.truncated;
+            if let Some(stats) = finished {
+                self.finished.push(FinishedEpisode { env: i, stats });
+            }
+        }
+    }
+
+    /// Gives environment `i` a new track and starts a fresh episode on it; the interrupted
+    /// episode is not reported as finished.
+    pub fn set_track(&mut self, i: usize, track: Arc<Track>) {
+        self.envs[i].set_track(track);
+        self.envs[i].observe(&mut self.observations[i * STATE_OBS_DIM..(i + 1) * STATE_OBS_DIM]);
+    }
+
+    /// The environments, for inspection.
+    pub fn envs(&self) -> &[RaceEnv] {
+        &self.envs
+    }
+
+    fn write_all_observations(&mut self) {
+        for (env, obs) in self.envs.iter().zip(self.observations.chunks_mut(STATE_OBS_DIM)) {
+            env.observe(obs);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::track::{Arena, Gate};
+    use nalgebra::Vector3;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    fn tracks(n: usize) -> Vec<Arc<Track>> {
+        let track = Arc::new(
+            Track::new(
+                "square",
+                vec![
+                    Gate::new(Vector3::new(5.0, 0.0, 2.0), 1.57),
+                    Gate::new(Vector3::new(0.0, 5.0, 3.0), 3.14),
+                    Gate::new(Vector3::new(-5.0, 0.0, 2.0), -1.57),
+                    Gate::new(Vector3::new(0.0, -5.0, 2.5), 0.0),
+                ],
+                None,
+                Arena::default(),
+            )
+            .unwrap(),
+        );
+        vec![track; n]
+    }
+
+    /// Runs 300 steps of random actions and returns every buffer's bits.
+    fn run(threads: usize) -> (Vec<u32>, Vec<u32>, Vec<bool>, usize) {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| {
+            let mut env = VecEnv::new(tracks(16), EnvConfig::default(), 42);
+            let mut rng = ChaCha8Rng::seed_from_u64(3);
+            let mut rewards = Vec::new();
+            let mut dones = Vec::new();
+            let mut episodes = 0;
+            for _ in 0..300 {
+                let actions: Vec<f32> = (0..16 * 4).map(|_| rng.random_range(-1.0..1.0)).collect();
+                env.step(&actions);
+                rewards.extend(env.rewards.iter().map(|r| r.to_bits()));
+                dones.extend(env.terminated.iter().zip(&env.truncated).map(|(a, b)| *a || *b));
+                episodes += env.finished.len();
+            }
+            let obs = env.observations.iter().map(|o| o.to_bits()).collect();
+            (obs, rewards, dones, episodes)
+        })
+    }
+
+    #[test]
+    fn same_seed_gives_bit_identical_results_on_one_and_two_threads() {
+        let one = run(1);
+        let two = run(2);
+        assert!(one.3 > 0, "random actions crash and reset some episodes");
+        assert_eq!(one, two);
+    }
+
+    #[test]
+    fn done_environments_reset_and_keep_their_final_observation() {
+        let mut env = VecEnv::new(tracks(2), EnvConfig::default(), 1);
+        // Full thrust straight up leaves the 6 m arena within a few dozen steps.
+        let actions = [1.0f32, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+        let mut steps = 0;
+        while !env.terminated[0] {
+            env.step(&actions);
+            steps += 1;
+            assert!(steps < 200);
+        }
+        let fin = &env.finished[0];
+        assert_eq!(fin.env, 0);
+        assert!(fin.stats.crash.is_some());
+        assert_eq!(fin.stats.length, steps);
+        // The reset observation differs from the final one and starts with zero previous action.
+        let (obs, final_obs) = (&env.observations[..STATE_OBS_DIM], &env.final_observations[..STATE_OBS_DIM]);
+        assert_ne!(obs, final_obs);
+        assert_eq!(&obs[12..16], &[0.0; 4]);
+        assert_eq!(&final_obs[12..16], &[1.0, 0.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn replacing_a_track_restarts_that_environment_only() {
+        let mut env = VecEnv::new(tracks(2), EnvConfig::default(), 1);
+        env.step(&[0.0; 8]);
+        let other_before = env.observations[STATE_OBS_DIM..].to_vec();
+        let new_track = Arc::new(
+            Track::new(
+                "pair",
+                vec![Gate::new(Vector3::new(-3.0, 0.0, 2.0), 0.0), Gate::new(Vector3::new(3.0, 0.0, 2.0), 0.0)],
+                None,
+                Arena::default(),
+            )
+            .unwrap(),
+        );
+        env.set_track(0, new_track.clone());
+        assert_eq!(env.envs()[0].track().name, "pair");
+        assert_eq!(env.envs()[0].stats().length, 0);
+        assert_eq!(&env.observations[STATE_OBS_DIM..], &other_before[..]);
+        // δp1 now points at the new gate 0 (start 2 m behind it, ±0.8 m randomisation).
+        let dx = env.observations[16];
+        assert!((dx - 2.0).abs() < 1.0, "{dx}");
+    }
+}

@@ -1,0 +1,1 @@
+//! Racetracks: track files, the hand-designed library, generation and task switching.
