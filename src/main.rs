@@ -1,1 +1,47 @@
-fn main() {}
+//! The `dronerace` command: parses arguments and dispatches to the library crates.
+
+mod commands;
+mod plot;
+
+use clap::{Parser, Subcommand};
+
+/// Train drone-racing policies that fly racetracks they have never seen.
+#[derive(Parser)]
+#[command(name = "dronerace", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Inspect, draw and validate track files.
+    #[command(subcommand)]
+    Tracks(commands::tracks::TracksCommand),
+    /// Evaluate a controller on a set of tracks (S_pw, success, lap times).
+    Eval(commands::eval::EvalArgs),
+    /// Simulator tools: replay action files, measure stepping speed.
+    #[command(subcommand)]
+    Sim(commands::sim::SimCommand),
+}
+
+fn main() -> std::process::ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let result = match Cli::parse().command {
+        Command::Tracks(c) => commands::tracks::run(c),
+        Command::Eval(a) => commands::eval::run(a),
+        Command::Sim(c) => commands::sim::run(c),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

@@ -1,14 +1,14 @@
 //! Quadrotor racing simulator: dynamics, race environment, vectorised environment, reference
 //! pilot and evaluation harness. Pure computation, no I/O.
 
-
+pub mod eval;
 pub mod observation;
 pub mod params;
-
+pub mod pilot;
 pub mod quadrotor;
 pub mod race;
 pub mod randomization;
-
+pub mod replay;
 pub mod reward;
 pub mod track;
 pub mod vec_env;
@@ -16,6 +16,7 @@ pub mod vec_env;
 pub use nalgebra;
 pub use observation::STATE_OBS_DIM;
 pub use params::{GRAVITY, QuadrotorParams, RaceParams};
+pub use pilot::{Controller, PilotParams, ReferencePilot};
 pub use race::{CrashCause, EnvConfig, EpisodeStats, RaceEnv, StepOutcome};
 pub use randomization::RandomizationParams;
 pub use reward::{RewardParams, RewardTerms};

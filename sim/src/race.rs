@@ -177,7 +177,12 @@ impl RaceEnv {
 
     /// Advances one policy step with a normalised action (clipped to [-1, 1] before any use).
     pub fn step(&mut self, action: &[f32; 4]) -> StepOutcome {
-        let action = action.map(|a| f64::from(a).clamp(-1.0, 1.0));
+        self.step_f64(&action.map(f64::from))
+    }
+
+    /// [`RaceEnv::step`] with a double-precision action, for exact replays.
+    pub fn step_f64(&mut self, action: &[f64; 4]) -> StepOutcome {
+        let action = action.map(|a| a.clamp(-1.0, 1.0));
         let gate = self.track.gates[self.target];
         let start = self.quad.body.position;
         let distance_before = (start - gate.position).norm();

@@ -1,0 +1,241 @@
+//! Evaluation protocol (SPEC §9): deployments per track with a deterministic controller,
+//! success = at least one lap and no crash, S_pw = mean of success / fastest lap.
+
+use std::sync::Arc;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::pilot::Controller;
+use crate::race::{CrashCause, EnvConfig, RaceEnv};
+use crate::track::Track;
+
+/// How an evaluation is run.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvalConfig {
+    /// Deployments per track. Default 25.
+    pub runs: usize,
+    /// Steps per deployment. Default 1000.
+    pub steps: u32,
+    /// Seed of the start perturbations; deployment k of track t uses stream `t · runs + k`.
+    pub seed: u64,
+    /// Environment setting; default nominal dynamics with start-position perturbation.
+    pub env: EnvConfig,
+}
+
+impl Default for EvalConfig {
+    fn default() -> Self {
+        Self { runs: 25, steps: 1000, seed: 0, env: EnvConfig::evaluation() }
+    }
+}
+
+/// Outcome of one deployment.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Deployment {
+    /// At least one lap and no crash.
+    pub success: bool,
+    /// Every completed lap time (s).
+    pub lap_times: Vec<f64>,
+    /// Crash that ended it, if any.
+    pub crash: Option<CrashCause>,
+    /// Target gates passed.
+    pub gates_passed: u32,
+    /// Steps flown.
+    pub steps: u32,
+}
+
+impl Deployment {
+    /// Fastest completed lap (s).
+    pub fn fastest_lap(&self) -> Option<f64> {
+        self.lap_times.iter().copied().reduce(f64::min)
+    }
+
+    /// This deployment's S_pw contribution: success / fastest lap (s⁻¹).
+    pub fn score(&self) -> f64 {
+        match (self.success, self.fastest_lap()) {
+            (true, Some(t)) => 1.0 / t,
+            _ => 0.0,
+        }
+    }
+}
+
+/// Results on one track.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrackResult {
+    /// Track name.
+    pub track: String,
+    /// Fraction of successful deployments.
+    pub success_rate: f64,
+    /// Mean over the laps of successful deployments (s).
+    pub mean_lap: Option<f64>,
+    /// Fastest lap of any successful deployment (s).
+    pub fastest_lap: Option<f64>,
+    /// This track's S_pw (s⁻¹).
+    pub s_pw: f64,
+    /// Every deployment.
+    pub deployments: Vec<Deployment>,
+}
+
+/// A full evaluation report.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvalReport {
+    /// Name of the controller evaluated.
+    pub controller: String,
+    /// How it was run.
+    pub config: EvalConfig,
+    /// S_pw over all deployments of all tracks (s⁻¹).
+    pub s_pw: f64,
+    /// Fraction of all deployments that succeeded.
+    pub success_rate: f64,
+    /// Per-track results, in the order the tracks were given.
+    pub tracks: Vec<TrackResult>,
+}
+
+/// Flies one deployment and records it.
+pub fn deploy(track: Arc<Track>, controller: &mut dyn Controller, config: &EvalConfig, stream: u64) -> Deployment {
+    let mut env_config = config.env;
+    env_config.race.max_episode_steps = config.steps;
+    let mut env = RaceEnv::new(track, env_config, config.seed, stream);
+    controller.reset(&env);
+    let mut lap_times = Vec::new();
+    let mut crash = None;
+    for _ in 0..config.steps {
+        let out = env.step(&controller.act(&env));
+        lap_times.extend(out.lap_time);
+        if out.done() {
+            crash = out.crash;
+            break;
+        }
+    }
+    Deployment {
+        success: crash.is_none() && !lap_times.is_empty(),
+        lap_times,
+        crash,
+        gates_passed: env.stats().gates_passed,
+        steps: env.stats().length,
+    }
+}
+
+/// Evaluates a controller on `tracks`; all deployments run in parallel, each with a fresh
+/// controller from `make_controller`.
+pub fn evaluate(
+    controller_name: &str,
+    tracks: &[Arc<Track>],
+    make_controller: &(dyn Fn() -> Box<dyn Controller> + Sync),
+    config: &EvalConfig,
+) -> EvalReport {
+    let jobs: Vec<(usize, usize)> = (0..tracks.len()).flat_map(|t| (0..config.runs).map(move |k| (t, k))).collect();
+    let deployments: Vec<Deployment> = jobs
+        .par_iter()
+        .map(|&(t, k)| {
+            let mut controller = make_controller();
+            deploy(tracks[t].clone(), controller.as_mut(), config, (t * config.runs + k) as u64)
+        })
+        .collect();
+    let mut per_track = deployments.chunks(config.runs.max(1));
+    let results: Vec<TrackResult> = tracks
+        .iter()
+        .map(|track| {
+            let runs = per_track.next().map(<[Deployment]>::to_vec).unwrap_or_default();
+            summarise(&track.name, runs)
+        })
+        .collect();
+    let total = deployments.len().max(1) as f64;
+    EvalReport {
+        controller: controller_name.to_owned(),
+        config: *config,
+        s_pw: deployments.iter().map(Deployment::score).sum::<f64>() / total,
+        success_rate: deployments.iter().filter(|d| d.success).count() as f64 / total,
+        tracks: results,
+    }
+}
+
+fn summarise(track: &str, deployments: Vec<Deployment>) -> TrackResult {
+    let n = deployments.len().max(1) as f64;
+    let laps: Vec<f64> = deployments.iter().filter(|d| d.success).flat_map(|d| d.lap_times.iter().copied()).collect();
+    TrackResult {
+        track: track.to_owned(),
+        success_rate: deployments.iter().filter(|d| d.success).count() as f64 / n,
+        mean_lap: (!laps.is_empty()).then(|| laps.iter().sum::<f64>() / laps.len() as f64),
+        fastest_lap: laps.iter().copied().reduce(f64::min),
+        s_pw: deployments.iter().map(Deployment::score).sum::<f64>() / n,
+        deployments,
+    }
+}
+
+impl EvalReport {
+    /// A Markdown table: one row per track, then the totals.
+    pub fn to_markdown(&self) -> String {
+        let secs = |t: Option<f64>| t.map_or("–".to_owned(), |t| format!("{t:.3}"));
+        let mut out = format!(
+            "## Evaluation of `{}`\n\n{} deployments × {} steps per track, seed {}.\n\n",
+            self.controller, self.config.runs, self.config.steps, self.config.seed
+        );
+        out.push_str("| track | success | mean lap (s) | fastest lap (s) | S_pw (1/s) |\n|---|---:|---:|---:|---:|\n");
+        for t in &self.tracks {
+            out.push_str(&format!(
+                "| {} | {:.0} % | {} | {} | {:.4} |\n",
+                t.track,
+                100.0 * t.success_rate,
+                secs(t.mean_lap),
+                secs(t.fastest_lap),
+                t.s_pw
+            ));
+        }
+        out.push_str(&format!(
+            "| **all {} tracks** | **{:.0} %** | | | **{:.4}** |\n",
+            self.tracks.len(),
+            100.0 * self.success_rate,
+            self.s_pw
+        ));
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pilot::ReferencePilot;
+    use crate::track::{Arena, Gate};
+    use nalgebra::Vector3;
+
+    /// Hovers in place: never passes a gate, never crashes.
+    struct Hover;
+    impl Controller for Hover {
+        fn reset(&mut self, _: &RaceEnv) {}
+        fn act(&mut self, env: &RaceEnv) -> [f32; 4] {
+            crate::quadrotor::Command::hover().to_action(&env.config().quadrotor).map(|a| a as f32)
+        }
+    }
+
+    fn oval() -> Arc<Track> {
+        let g = |x, y, yaw_deg: f64| Gate::new(Vector3::new(x, y, 2.5), yaw_deg.to_radians());
+        let gates = vec![g(0.0, -6.0, 0.0), g(9.0, 0.0, 90.0), g(0.0, 6.0, 180.0), g(-9.0, 0.0, -90.0)];
+        Arc::new(Track::new("oval", gates, None, Arena::default()).unwrap())
+    }
+
+    #[test]
+    fn s_pw_is_the_mean_of_success_over_fastest_lap() {
+        let ok = |t: &[f64]| Deployment { success: true, lap_times: t.to_vec(), crash: None, gates_passed: 9, steps: 1000 };
+        let crashed =
+            Deployment { success: false, lap_times: vec![2.0], crash: Some(CrashCause::Ground), gates_passed: 5, steps: 300 };
+        let r = summarise("t", vec![ok(&[5.0, 4.0]), ok(&[8.0]), crashed]);
+        assert!((r.s_pw - (0.25 + 0.125 + 0.0) / 3.0).abs() < 1e-12);
+        assert!((r.success_rate - 2.0 / 3.0).abs() < 1e-12);
+        assert_eq!(r.fastest_lap, Some(4.0));
+        assert!((r.mean_lap.unwrap() - 17.0 / 3.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_hovering_controller_scores_zero_and_the_pilot_scores_on_an_oval() {
+        let config = EvalConfig { runs: 4, steps: 600, ..EvalConfig::default() };
+        let hover = evaluate("hover", &[oval()], &|| Box::new(Hover), &config);
+        assert_eq!(hover.s_pw, 0.0);
+        assert!(hover.tracks[0].deployments.iter().all(|d| d.crash.is_none() && d.lap_times.is_empty()));
+        let pilot = evaluate("pilot", &[oval()], &|| Box::new(ReferencePilot::default()), &config);
+        assert_eq!(pilot.success_rate, 1.0, "{:#?}", pilot.tracks[0].deployments);
+        assert!(pilot.s_pw > 0.0);
+        // Deterministic: the same seed reproduces the report exactly.
+        assert_eq!(pilot, evaluate("pilot", &[oval()], &|| Box::new(ReferencePilot::default()), &config));
+    }
+}

@@ -1,0 +1,63 @@
+//! `dronerace eval`: the evaluation harness of SPEC §9 for any controller.
+
+use std::path::PathBuf;
+
+use clap::{Args, ValueEnum};
+use ::sim::eval::{EvalConfig, evaluate};
+use ::sim::{Controller, ReferencePilot};
+
+use super::{load_tracks, write_atomic};
+
+/// Which controller flies.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum ControllerKind {
+    /// The non-learned reference pilot.
+    Pilot,
+}
+
+/// Arguments of `dronerace eval`.
+#[derive(Args)]
+pub struct EvalArgs {
+    /// Controller to evaluate.
+    #[arg(long, value_enum, default_value = "pilot")]
+    controller: ControllerKind,
+    /// Track files or directories; the built-in library when omitted.
+    #[arg(long, num_args = 1..)]
+    tracks: Vec<PathBuf>,
+    /// Deployments per track.
+    #[arg(long, default_value_t = 25)]
+    runs: usize,
+    /// Steps per deployment.
+    #[arg(long, default_value_t = 1000)]
+    steps: u32,
+    /// Seed of the start perturbations.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Directory for `eval.json` and `eval.md`.
+    #[arg(long, default_value = "runs/eval")]
+    out: PathBuf,
+}
+
+/// Runs the evaluation, prints the table and writes JSON and Markdown.
+pub fn run(args: EvalArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(args.runs > 0, "--runs must be at least 1");
+    anyhow::ensure!(args.steps > 0, "--steps must be at least 1");
+    let tracks = load_tracks(&args.tracks)?;
+    let config = EvalConfig { runs: args.runs, steps: args.steps, seed: args.seed, ..EvalConfig::default() };
+    let (name, make): (&str, Box<dyn Fn() -> Box<dyn Controller> + Sync>) = match args.controller {
+        ControllerKind::Pilot => ("pilot", Box::new(|| Box::new(ReferencePilot::default()))),
+    };
+    let started = std::time::Instant::now();
+    let report = evaluate(name, &tracks, make.as_ref(), &config);
+    let markdown = report.to_markdown();
+    println!("{markdown}");
+    tracing::info!(
+        deployments = tracks.len() * args.runs,
+        seconds = started.elapsed().as_secs_f64(),
+        "evaluation finished"
+    );
+    write_atomic(&args.out.join("eval.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
+    write_atomic(&args.out.join("eval.md"), markdown.as_bytes())?;
+    println!("wrote {} and {}", args.out.join("eval.json").display(), args.out.join("eval.md").display());
+    Ok(())
+}

@@ -1,0 +1,39 @@
+//! One module per subcommand: argument types and the glue that calls the crates.
+
+pub mod eval;
+pub mod sim;
+pub mod tracks;
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::Context;
+use ::sim::Track;
+
+/// Tracks from files and directories of `*.toml`; the built-in library when `paths` is empty.
+pub fn load_tracks(paths: &[PathBuf]) -> anyhow::Result<Vec<Arc<Track>>> {
+    let mut tracks = Vec::new();
+    if paths.is_empty() {
+        tracks = taskctl::library()?;
+    }
+    for path in paths {
+        if path.is_dir() {
+            let found = taskctl::read_track_dir(path)?;
+            anyhow::ensure!(!found.is_empty(), "{}: no *.toml track files in this directory", path.display());
+            tracks.extend(found);
+        } else {
+            tracks.push(taskctl::read_track(path)?);
+        }
+    }
+    Ok(tracks.into_iter().map(Arc::new).collect())
+}
+
+/// Writes `contents` to `path` atomically, creating parent directories.
+pub fn write_atomic(path: &Path, contents: &[u8]) -> anyhow::Result<()> {
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
+    }
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, contents).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
+}

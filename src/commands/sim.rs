@@ -1,0 +1,138 @@
+//! `dronerace sim …`: replay action files exactly; measure stepping speed.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::{Context, bail};
+use clap::Subcommand;
+use rand::{Rng, SeedableRng};
+use ::sim::nalgebra::Vector3;
+use ::sim::{EnvConfig, Pose, VecEnv};
+
+use super::{load_tracks, write_atomic};
+
+/// Simulator subcommands.
+#[derive(Subcommand)]
+pub enum SimCommand {
+    /// Replay normalised actions from rest at the start pose and write the state per step.
+    Replay {
+        /// Track file.
+        #[arg(long)]
+        track: PathBuf,
+        /// CSV with one action row `a0,a1,a2,a3` per policy step (an optional header is skipped).
+        #[arg(long)]
+        actions: PathBuf,
+        /// CSV to write (columns: see `::sim::replay::CSV_HEADER`).
+        #[arg(long)]
+        out: PathBuf,
+        /// Start pose `x,y,z,yaw_deg` instead of the track's.
+        #[arg(long, allow_hyphen_values = true)]
+        start: Option<String>,
+    },
+    /// Measure environment steps per second with random actions.
+    Bench {
+        /// Parallel environments.
+        #[arg(long, default_value_t = 96)]
+        envs: usize,
+        /// Worker threads (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Vectorised steps to time.
+        #[arg(long, default_value_t = 3000)]
+        steps: usize,
+    },
+}
+
+/// Runs a simulator subcommand.
+pub fn run(command: SimCommand) -> anyhow::Result<()> {
+    match command {
+        SimCommand::Replay { track, actions, out, start } => {
+            let track = Arc::new(taskctl::read_track(&track)?);
+            let start = start.as_deref().map(parse_start).transpose()?;
+            let actions = read_actions(&actions)?;
+            let rows = ::sim::replay::replay(track, start, &actions);
+            let mut csv = Vec::new();
+            ::sim::replay::write_csv(&rows, &mut csv)?;
+            write_atomic(&out, &csv)?;
+            let ended = if rows.last().is_some_and(|r| r.terminated) { " (stopped at a crash)" } else { "" };
+            println!("wrote {} rows to {}{ended}", rows.len(), out.display());
+            Ok(())
+        }
+        SimCommand::Bench { envs, threads, steps } => bench(envs, threads, steps),
+    }
+}
+
+/// Parses `x,y,z,yaw_deg`.
+fn parse_start(text: &str) -> anyhow::Result<Pose> {
+    let values = parse_numbers(text).with_context(|| format!("--start {text:?}"))?;
+    let [x, y, z, yaw_deg] = values[..] else {
+        bail!("--start {text:?}: expected x,y,z,yaw_deg (4 numbers), found {}", values.len());
+    };
+    Ok(Pose { position: Vector3::new(x, y, z), yaw: yaw_deg.to_radians() })
+}
+
+fn parse_numbers(text: &str) -> anyhow::Result<Vec<f64>> {
+    text.split(',')
+        .enumerate()
+        .map(|(i, field)| {
+            let field = field.trim();
+            match field.parse::<f64>() {
+                Ok(x) if x.is_finite() => Ok(x),
+                _ => bail!("column {}: {field:?} is not a finite number", i + 1),
+            }
+        })
+        .collect()
+}
+
+/// Reads one 4-number action per line; blank lines and `#` comments are skipped, and so is a
+/// first line with no numbers in it (a header).
+fn read_actions(path: &Path) -> anyhow::Result<Vec<[f64; 4]>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let mut actions = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let is_header = actions.is_empty() && line.split(',').all(|f| f.trim().parse::<f64>().is_err());
+        if is_header {
+            continue;
+        }
+        let values = parse_numbers(line).with_context(|| format!("{}:{}", path.display(), i + 1))?;
+        let [a0, a1, a2, a3] = values[..] else {
+            bail!("{}:{}: expected 4 action values, found {}", path.display(), i + 1, values.len());
+        };
+        actions.push([a0, a1, a2, a3]);
+    }
+    anyhow::ensure!(!actions.is_empty(), "{}: no action rows", path.display());
+    Ok(actions)
+}
+
+/// Steps `envs` environments (library tracks, round robin) with uniform random actions.
+fn bench(envs: usize, threads: Option<usize>, steps: usize) -> anyhow::Result<()> {
+    anyhow::ensure!(envs > 0 && steps > 0, "--envs and --steps must be at least 1");
+    let threads = threads.unwrap_or_else(rayon::current_num_threads);
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
+    let library = load_tracks(&[])?;
+    let tracks = (0..envs).map(|i| library[i % library.len()].clone()).collect();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
+    let actions: Vec<Vec<f32>> =
+        (0..64).map(|_| (0..envs * 4).map(|_| rng.random_range(-1.0..1.0)).collect()).collect();
+    let (seconds, episodes) = pool.install(|| {
+        let mut env = VecEnv::new(tracks, EnvConfig::default(), 0);
+        let mut episodes = 0;
+        let started = std::time::Instant::now();
+        for k in 0..steps {
+            env.step(&actions[k % actions.len()]);
+            episodes += env.finished.len();
+        }
+        (started.elapsed().as_secs_f64(), episodes)
+    });
+    let rate = (envs * steps) as f64 / seconds;
+    println!(
+        "{envs} envs x {steps} steps on {threads} thread(s): {rate:.0} env-steps/s ({:.0} per thread), \
+         {episodes} episodes ended, {seconds:.2} s",
+        rate / threads as f64
+    );
+    Ok(())
+}

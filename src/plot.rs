@@ -1,0 +1,133 @@
+//! Track drawings: per track a top view (x–y) and a side view (x–z) with the arena, the gates
+//! as oriented bars with index and direction, the start pose and the reference pilot's line.
+
+use std::path::Path;
+use std::sync::{Arc, Once};
+
+use anyhow::Context;
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use sim::nalgebra::Vector3;
+use sim::{ReferencePilot, Track};
+
+/// Pixel width of one track's cell.
+const CELL_WIDTH: u32 = 480;
+/// Height of the side view, as a fraction of the cell width.
+const SIDE_VIEW_FRACTION: f64 = 0.42;
+
+const GATE: RGBColor = RGBColor(200, 40, 40);
+const LINE: RGBColor = RGBColor(120, 160, 220);
+const START: RGBColor = RGBColor(20, 140, 60);
+const ARENA: RGBColor = RGBColor(90, 90, 90);
+
+/// Draws every track into one PNG, in a grid of about square shape.
+pub fn draw_tracks(tracks: &[Arc<Track>], out: &Path) -> anyhow::Result<()> {
+    anyhow::ensure!(!tracks.is_empty(), "no tracks to draw");
+    register_font();
+    let cols = (tracks.len() as f64).sqrt().ceil() as u32;
+    let rows = (tracks.len() as u32).div_ceil(cols);
+    let cell_height = CELL_WIDTH + (CELL_WIDTH as f64 * SIDE_VIEW_FRACTION) as u32 + 30;
+    if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
+    }
+    let root = BitMapBackend::new(out, (cols * CELL_WIDTH, rows * cell_height)).into_drawing_area();
+    root.fill(&WHITE)?;
+    for (area, track) in root.split_evenly((rows as usize, cols as usize)).iter().zip(tracks) {
+        draw_track(area, track).with_context(|| format!("drawing {}", track.name))?;
+    }
+    root.present().with_context(|| format!("writing {}", out.display()))?;
+    Ok(())
+}
+
+/// The font is compiled in, so drawings look the same on every machine.
+fn register_font() {
+    static ONCE: Once = Once::new();
+    ONCE.call_once(|| {
+        plotters::style::register_font("sans-serif", FontStyle::Normal, epaint_default_fonts::UBUNTU_LIGHT)
+            .unwrap_or_else(|_| panic!("the bundled font is a valid TrueType font"));
+    });
+}
+
+/// Which world axes a view shows.
+#[derive(Clone, Copy)]
+enum View {
+    Top,
+    Side,
+}
+
+impl View {
+    fn project(self, p: &Vector3<f64>) -> (f64, f64) {
+        match self {
+            View::Top => (p.x, p.y),
+            View::Side => (p.x, p.z),
+        }
+    }
+}
+
+fn draw_track(area: &DrawingArea<BitMapBackend<'_>, Shift>, track: &Track) -> anyhow::Result<()> {
+    let title = format!("{} ({} gates)", track.name, track.gates.len());
+    let area = area.margin(8, 0, 0, 0).titled(&title, ("sans-serif", 20))?;
+    let side_height = (CELL_WIDTH as f64 * SIDE_VIEW_FRACTION) as u32;
+    let (top, side) = area.split_vertically(area.dim_in_pixel().1 - side_height);
+    let line = ReferencePilot::default().racing_line(track);
+    draw_view(&top, track, &line, View::Top)?;
+    draw_view(&side, track, &line, View::Side)?;
+    Ok(())
+}
+
+fn draw_view(
+    area: &DrawingArea<BitMapBackend<'_>, Shift>,
+    track: &Track,
+    line: &[Vector3<f64>],
+    view: View,
+) -> anyhow::Result<()> {
+    let (lo, hi) = (view.project(&track.arena.min), view.project(&track.arena.max));
+    let pad = 0.5;
+    let (y_label, x_label) = match view {
+        View::Top => ("y (m)", "x (m)"),
+        View::Side => ("z (m)", "x (m)"),
+    };
+    let mut chart = ChartBuilder::on(area)
+        .margin(6)
+        .x_label_area_size(28)
+        .y_label_area_size(36)
+        .build_cartesian_2d((lo.0 - pad)..(hi.0 + pad), (lo.1 - pad)..(hi.1 + pad))?;
+    chart
+        .configure_mesh()
+        .light_line_style(WHITE.mix(0.0))
+        .bold_line_style(BLACK.mix(0.08))
+        .x_desc(x_label)
+        .y_desc(y_label)
+        .label_style(("sans-serif", 12))
+        .draw()?;
+    // Arena.
+    chart.draw_series(std::iter::once(Rectangle::new([lo, hi], ARENA.stroke_width(2))))?;
+    // Racing line of the reference pilot.
+    let mut closed: Vec<(f64, f64)> = line.iter().map(|p| view.project(p)).collect();
+    closed.extend(closed.first().copied());
+    chart.draw_series(std::iter::once(PathElement::new(closed, LINE.stroke_width(1))))?;
+    // Gates: the outer frame as a bar, an arrow along the flight direction, the index.
+    for (i, gate) in track.gates.iter().enumerate() {
+        let outer = match view {
+            // Seen from above the frame is a 2 m bar across the flight direction.
+            View::Top => [Vector3::new(0.0, -1.0, 0.0), Vector3::new(0.0, 1.0, 0.0)],
+            // From the side, its vertical extent at the gate's lateral ends.
+            View::Side => [Vector3::new(0.0, 0.0, -1.0), Vector3::new(0.0, 0.0, 1.0)],
+        };
+        let bar: Vec<(f64, f64)> = outer.iter().map(|l| view.project(&gate.to_world(l))).collect();
+        chart.draw_series(std::iter::once(PathElement::new(bar, GATE.stroke_width(4))))?;
+        let tip = view.project(&(gate.position + gate.normal() * 1.2));
+        let base = view.project(&gate.position);
+        chart.draw_series(std::iter::once(PathElement::new(vec![base, tip], GATE.stroke_width(2))))?;
+        chart.draw_series(std::iter::once(Circle::new(tip, 3, GATE.filled())))?;
+        let label = view.project(&gate.to_world(&Vector3::new(-0.6, 1.3, 1.3)));
+        chart.draw_series(std::iter::once(Text::new(i.to_string(), label, ("sans-serif", 15).into_font().color(&BLACK))))?;
+    }
+    // Start pose: a dot and its heading.
+    let start = view.project(&track.start.position);
+    let heading = Vector3::new(track.start.yaw.cos(), track.start.yaw.sin(), 0.0);
+    let ahead = view.project(&(track.start.position + heading * 1.0));
+    chart.draw_series(std::iter::once(Circle::new(start, 5, START.filled())))?;
+    chart.draw_series(std::iter::once(PathElement::new(vec![start, ahead], START.stroke_width(2))))?;
+    Ok(())
+}

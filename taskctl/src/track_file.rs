@@ -1,0 +1,215 @@
+//! Track files: TOML, one track per file (SPEC §6), read strictly and written back exactly.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use sim::nalgebra::Vector3;
+use sim::{Arena, Gate, Pose, Track};
+
+/// A track file that could not be read, parsed or validated.
+#[derive(Debug, thiserror::Error)]
+pub enum TrackFileError {
+    /// The file could not be read or written.
+    #[error("{file}: {source}")]
+    Io {
+        /// The file.
+        file: PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+    /// The TOML is malformed or has unknown, missing or mistyped fields.
+    #[error("{file}: {message}")]
+    Syntax {
+        /// The file.
+        file: PathBuf,
+        /// The parser's description, naming the key and line.
+        message: String,
+    },
+    /// The values parse but break a rule of SPEC §6.
+    #[error("{file}: {field}: {message}")]
+    Invalid {
+        /// The file.
+        file: PathBuf,
+        /// Field path, e.g. `gate[2].position`.
+        field: String,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// On-disk layout of a track file.
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TrackToml {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    name: Option<String>,
+    #[serde(rename = "gate", default)]
+    gates: Vec<PoseToml>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    start: Option<PoseToml>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    arena: Option<ArenaToml>,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PoseToml {
+    position: [f64; 3],
+    yaw_deg: f64,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ArenaToml {
+    min: [f64; 3],
+    max: [f64; 3],
+}
+
+impl PoseToml {
+    fn to_pose(&self) -> Pose {
+        Pose { position: Vector3::from(self.position), yaw: self.yaw_deg.to_radians() }
+    }
+
+    fn from_pose(position: &Vector3<f64>, yaw: f64) -> Self {
+        Self { position: (*position).into(), yaw_deg: yaw.to_degrees() }
+    }
+}
+
+/// Parses track TOML; `file` names the source in errors and gives the default name (its stem).
+pub fn parse_track(text: &str, file: &Path) -> Result<Track, TrackFileError> {
+    let raw: TrackToml = toml::from_str(text)
+        .map_err(|e| TrackFileError::Syntax { file: file.to_path_buf(), message: e.to_string().trim_end().to_owned() })?;
+    let name = raw
+        .name
+        .unwrap_or_else(|| file.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default());
+    let gates = raw.gates.iter().map(|g| {
+        let p = g.to_pose();
+        Gate::new(p.position, p.yaw)
+    });
+    let arena = raw.arena.map_or_else(Arena::default, |a| Arena { min: a.min.into(), max: a.max.into() });
+    Track::new(name, gates.collect(), raw.start.as_ref().map(PoseToml::to_pose), arena).map_err(|e| {
+        TrackFileError::Invalid { file: file.to_path_buf(), field: e.field, message: e.message }
+    })
+}
+
+/// Reads and validates a track file.
+pub fn read_track(path: &Path) -> Result<Track, TrackFileError> {
+    let text =
+        std::fs::read_to_string(path).map_err(|source| TrackFileError::Io { file: path.to_path_buf(), source })?;
+    parse_track(&text, path)
+}
+
+/// Reads every `*.toml` in `dir`, sorted by file name.
+pub fn read_track_dir(dir: &Path) -> Result<Vec<Track>, TrackFileError> {
+    let io = |source| TrackFileError::Io { file: dir.to_path_buf(), source };
+    let mut paths: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(io)?
+        .map(|e| e.map(|e| e.path()))
+        .collect::<Result<_, _>>()
+        .map_err(io)?;
+    paths.retain(|p| p.extension().is_some_and(|e| e == "toml"));
+    paths.sort();
+    paths.iter().map(|p| read_track(p)).collect()
+}
+
+/// Serialises a track to TOML that [`parse_track`] reads back to the same track.
+pub fn track_to_toml(track: &Track) -> String {
+    let raw = TrackToml {
+        name: Some(track.name.clone()),
+        gates: track.gates.iter().map(|g| PoseToml::from_pose(&g.position, g.yaw)).collect(),
+        start: Some(PoseToml::from_pose(&track.start.position, track.start.yaw)),
+        arena: Some(ArenaToml { min: track.arena.min.into(), max: track.arena.max.into() }),
+    };
+    toml::to_string(&raw).expect("a track always serialises")
+}
+
+/// Writes a track file atomically (temporary file, then rename).
+pub fn write_track(track: &Track, path: &Path) -> Result<(), TrackFileError> {
+    let io = |source| TrackFileError::Io { file: path.to_path_buf(), source };
+    let tmp = path.with_extension("toml.tmp");
+    std::fs::write(&tmp, track_to_toml(track)).map_err(io)?;
+    std::fs::rename(&tmp, path).map_err(io)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const VALID: &str = r#"
+name = "Pair"
+[[gate]]
+position = [0.0, 0.0, 2.0]
+yaw_deg = 0.0
+[[gate]]
+position = [6.0, 3.0, 2.5]
+yaw_deg = 90.0
+"#;
+
+    fn err(text: &str) -> String {
+        parse_track(text, Path::new("tracks/bad.toml")).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn a_valid_file_parses_with_defaults() {
+        let t = parse_track(VALID, Path::new("x.toml")).unwrap();
+        assert_eq!(t.name, "Pair");
+        assert_eq!(t.gates.len(), 2);
+        assert!((t.gates[1].yaw - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+        assert!((t.start.position - Vector3::new(-2.0, 0.0, 2.0)).norm() < 1e-12);
+        assert_eq!(t.arena, Arena::default());
+    }
+
+    #[test]
+    fn the_name_defaults_to_the_file_stem() {
+        let t = parse_track(&VALID.replace("name = \"Pair\"", ""), Path::new("dir/my_track.toml")).unwrap();
+        assert_eq!(t.name, "my_track");
+    }
+
+    #[test]
+    fn write_then_read_gives_the_same_track() {
+        let dir = tempfile::tempdir().unwrap();
+        let t = parse_track(VALID, Path::new("x.toml")).unwrap();
+        let path = dir.path().join("pair.toml");
+        write_track(&t, &path).unwrap();
+        let back = read_track(&path).unwrap();
+        assert_eq!(back.name, t.name);
+        assert_eq!(back.start.position, t.start.position);
+        for (a, b) in back.gates.iter().zip(&t.gates) {
+            assert_eq!(a.position, b.position);
+            assert!((a.yaw - b.yaw).abs() < 1e-15);
+        }
+    }
+
+    #[test]
+    fn every_invalid_case_names_the_file_and_the_field() {
+        let cases: Vec<(String, &str)> = vec![
+            (VALID.replace("yaw_deg = 90.0", "yaw_deg = 90.0\ncolour = \"red\""), "colour"),
+            (format!("{VALID}\nlaps = 3\n"), "laps"),
+            (VALID.replace("yaw_deg = 90.0", ""), "yaw_deg"),
+            (VALID.replace("[6.0, 3.0, 2.5]", "[6.0, 3.0]"), "length 2"),
+            (VALID.replace("[6.0, 3.0, 2.5]", "[6.0, \"3\", 2.5]"), "position"),
+            (VALID.replace("[6.0, 3.0, 2.5]", "[6.0, nan, 2.5]"), "gate[1].position"),
+            (VALID.replace("yaw_deg = 90.0", "yaw_deg = inf"), "gate[1].yaw_deg"),
+            ("name = \"one\"\n[[gate]]\nposition = [0.0, 0.0, 2.0]\nyaw_deg = 0.0\n".into(), "at least 2 gates"),
+            ("name = \"none\"\n".into(), "at least 2 gates"),
+            (VALID.replace("[6.0, 3.0, 2.5]", "[13.0, 3.0, 2.5]"), "gate[1].position"),
+            (VALID.replace("[6.0, 3.0, 2.5]", "[0.5, 0.0, 2.5]"), "overlaps"),
+            (format!("{VALID}[start]\nposition = [0.0, -12.5, 2.0]\nyaw_deg = 0.0\n"), "start.position"),
+            (format!("{VALID}[start]\nposition = [0.0, -1.0, nan]\nyaw_deg = 0.0\n"), "start"),
+            (format!("{VALID}[arena]\nmin = [0.0, 0.0, 0.0]\nmax = [0.0, 10.0, 6.0]\n"), "arena"),
+            (format!("{VALID}[arena]\nmin = [-5.0, -5.0, 0.0]\nmax = [5.0, 5.0, 6.0]\n"), "gate[1].position"),
+            ("name = \"Pair\"\n[[gate]\n".into(), "line 2"),
+        ];
+        for (text, field) in cases {
+            let message = err(&text);
+            assert!(message.starts_with("tracks/bad.toml: "), "{message}");
+            assert!(message.contains(field), "expected {field:?} in: {message}");
+        }
+    }
+
+    #[test]
+    fn stacked_gates_like_split_s_are_valid() {
+        let text = VALID.replace("[6.0, 3.0, 2.5]", "[0.0, 0.2, 4.36]").replace("yaw_deg = 90.0", "yaw_deg = 180.0");
+        assert!(parse_track(&text, Path::new("s.toml")).is_ok());
+    }
+}
