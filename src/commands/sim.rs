@@ -40,7 +40,21 @@ pub enum SimCommand {
         /// Vectorised steps to time.
         #[arg(long, default_value_t = 3000)]
         steps: usize,
+        /// `random`: uniform random actions with training randomisation (many early crashes);
+        /// `hover`: the hover command without randomisation, so every step runs all substeps and
+        /// episodes end only by truncation (the worst case per step).
+        #[arg(long, value_enum, default_value = "random")]
+        actions: BenchActions,
     },
+}
+
+/// Action source of `sim bench`.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum BenchActions {
+    /// Uniform in [-1, 1]⁴.
+    Random,
+    /// The hover command.
+    Hover,
 }
 
 /// Runs a simulator subcommand.
@@ -58,7 +72,7 @@ pub fn run(command: SimCommand) -> anyhow::Result<()> {
             println!("wrote {} rows to {}{ended}", rows.len(), out.display());
             Ok(())
         }
-        SimCommand::Bench { envs, threads, steps } => bench(envs, threads, steps),
+        SimCommand::Bench { envs, threads, steps, actions } => bench(envs, threads, steps, actions),
     }
 }
 
@@ -108,18 +122,25 @@ fn read_actions(path: &Path) -> anyhow::Result<Vec<[f64; 4]>> {
     Ok(actions)
 }
 
-/// Steps `envs` environments (library tracks, round robin) with uniform random actions.
-fn bench(envs: usize, threads: Option<usize>, steps: usize) -> anyhow::Result<()> {
+/// Steps `envs` environments (library tracks, round robin) and reports the rate.
+fn bench(envs: usize, threads: Option<usize>, steps: usize, kind: BenchActions) -> anyhow::Result<()> {
     anyhow::ensure!(envs > 0 && steps > 0, "--envs and --steps must be at least 1");
     let threads = threads.unwrap_or_else(rayon::current_num_threads);
     let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
     let library = load_tracks(&[])?;
     let tracks = (0..envs).map(|i| library[i % library.len()].clone()).collect();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
-    let actions: Vec<Vec<f32>> =
-        (0..64).map(|_| (0..envs * 4).map(|_| rng.random_range(-1.0..1.0)).collect()).collect();
+    let hover = ::sim::quadrotor::Command::hover().to_action(&::sim::QuadrotorParams::default()).map(|a| a as f32);
+    let actions: Vec<Vec<f32>> = match kind {
+        BenchActions::Random => (0..64).map(|_| (0..envs * 4).map(|_| rng.random_range(-1.0..1.0)).collect()).collect(),
+        BenchActions::Hover => vec![hover.repeat(envs)],
+    };
     let (seconds, episodes) = pool.install(|| {
-        let mut env = VecEnv::new(tracks, EnvConfig::default(), 0);
+        let config = match kind {
+            BenchActions::Random => EnvConfig::default(),
+            BenchActions::Hover => EnvConfig { randomization: ::sim::RandomizationParams::none(), ..EnvConfig::default() },
+        };
+        let mut env = VecEnv::new(tracks, config, 0);
         let mut episodes = 0;
         let started = std::time::Instant::now();
         for k in 0..steps {
@@ -130,7 +151,7 @@ fn bench(envs: usize, threads: Option<usize>, steps: usize) -> anyhow::Result<()
     });
     let rate = (envs * steps) as f64 / seconds;
     println!(
-        "{envs} envs x {steps} steps on {threads} thread(s): {rate:.0} env-steps/s ({:.0} per thread), \
+        "{kind:?} actions, {envs} envs x {steps} steps on {threads} thread(s): {rate:.0} env-steps/s ({:.0} per thread), \
          {episodes} episodes ended, {seconds:.2} s",
         rate / threads as f64
     );

@@ -1,0 +1,120 @@
+//! The `dronerace` command end to end: drawings, evaluation outputs, exact replays, and clear
+//! errors for bad input files.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn dronerace(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_dronerace")).args(args).output().expect("run dronerace")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn library_file(name: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tracks").join(name).display().to_string()
+}
+
+/// Width and height from a PNG's IHDR chunk.
+fn png_size(path: &Path) -> (u32, u32) {
+    let bytes = std::fs::read(path).unwrap();
+    assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "not a PNG");
+    let be = |i: usize| u32::from_be_bytes(bytes[i..i + 4].try_into().unwrap());
+    (be(16), be(20))
+}
+
+#[test]
+fn tracks_show_draws_one_cell_per_track() {
+    let dir = tempfile::tempdir().unwrap();
+    let one = dir.path().join("one.png");
+    let o = dronerace(&["tracks", "show", &library_file("figure8.toml"), "--out", one.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (w1, h1) = png_size(&one);
+    let four = dir.path().join("sub/four.png");
+    let files = ["figure8.toml", "bigs.toml", "kidney.toml", "twist.toml"].map(library_file);
+    let mut args = vec!["tracks", "show"];
+    args.extend(files.iter().map(String::as_str));
+    args.extend(["--out", four.to_str().unwrap()]);
+    let o = dronerace(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(png_size(&four), (2 * w1, 2 * h1), "a 2 × 2 grid of cells");
+}
+
+#[test]
+fn eval_prints_and_writes_json_and_markdown() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("eval");
+    let o = dronerace(&[
+        "eval", "--controller", "pilot", "--tracks", &library_file("kidney.toml"), "--runs", "3", "--steps", "600",
+        "--out", out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let printed = String::from_utf8_lossy(&o.stdout);
+    assert!(printed.contains("| Kidney |"), "{printed}");
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("eval.json")).unwrap()).unwrap();
+    assert_eq!(report["tracks"][0]["deployments"].as_array().unwrap().len(), 3);
+    assert_eq!(report["config"]["steps"], 600);
+    assert!(report["s_pw"].as_f64().unwrap() > 0.0);
+    assert!(std::fs::read_to_string(out.join("eval.md")).unwrap().contains("S_pw"));
+}
+
+#[test]
+fn replay_writes_one_row_per_step_and_stops_at_a_crash() {
+    let dir = tempfile::tempdir().unwrap();
+    let actions = dir.path().join("actions.csv");
+    // Header, a comment, 30 hover-ish rows, then no thrust until the ground.
+    let mut text = String::from("thrust,roll,pitch,yaw\n# hover first\n");
+    let hover = 2.0 * 9.8066 / (4.0 * 8.5 / 0.752) - 1.0;
+    for _ in 0..30 {
+        text.push_str(&format!("{hover},0,0,0\n"));
+    }
+    for _ in 0..200 {
+        text.push_str("-1,0,0,0\n");
+    }
+    std::fs::write(&actions, text).unwrap();
+    let out = dir.path().join("replay.csv");
+    let o = dronerace(&[
+        "sim", "replay", "--track", &library_file("figure8.toml"), "--actions", actions.to_str().unwrap(), "--out",
+        out.to_str().unwrap(), "--start", "0,0,2,-90",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let csv = std::fs::read_to_string(&out).unwrap();
+    let rows: Vec<Vec<&str>> = csv.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    assert!(csv.starts_with("t,px,py,pz,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz,m1,m2,m3,m4,reward,terminated,target_gate,laps,event\n"));
+    assert!(rows.len() > 30 && rows.len() < 230, "stops at the crash: {} rows", rows.len());
+    let last = rows.last().unwrap();
+    assert_eq!((last[19], last[22]), ("1", "crash"));
+    // Starts at the given pose: after one hover step still at (0, 0, 2).
+    let first: Vec<f64> = rows[0][..4].iter().map(|x| x.parse().unwrap()).collect();
+    assert!((first[0] - 0.02).abs() < 1e-12 && first[1].abs() < 1e-6 && first[2].abs() < 1e-6 && (first[3] - 2.0).abs() < 1e-6);
+}
+
+#[test]
+fn bad_inputs_are_refused_naming_the_file_and_the_field_or_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let track = dir.path().join("broken.toml");
+    std::fs::write(&track, "name = \"b\"\n[[gate]]\nposition = [0.0, 0.0, 2.0]\nyaw_deg = 0.0\n[[gate]]\nposition = [30.0, 0.0, 2.0]\nyaw_deg = 0.0\n").unwrap();
+    let o = dronerace(&["tracks", "show", track.to_str().unwrap(), "--out", dir.path().join("x.png").to_str().unwrap()]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("broken.toml") && e.contains("gate[1].position") && e.contains("outside the arena"), "{e}");
+
+    let actions = dir.path().join("bad_actions.csv");
+    std::fs::write(&actions, "0,0,0,0\n0,0,0\n").unwrap();
+    let o = dronerace(&[
+        "sim", "replay", "--track", &library_file("figure8.toml"), "--actions", actions.to_str().unwrap(), "--out",
+        dir.path().join("r.csv").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("bad_actions.csv:2") && e.contains("expected 4"), "{e}");
+
+    std::fs::write(&actions, "0,0,0,0\n0,zero,0,0\n").unwrap();
+    let o = dronerace(&[
+        "sim", "replay", "--track", &library_file("figure8.toml"), "--actions", actions.to_str().unwrap(), "--out",
+        dir.path().join("r.csv").to_str().unwrap(), "--start", "1,2,3",
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--start"), "{}", stderr(&o));
+}
