@@ -1,6 +1,7 @@
 //! Racetracks: track files, the hand-designed library, generation and task switching.
 
 pub mod library;
+pub mod spline;
 pub mod track_file;
 
 pub use library::{library, library_track};
