@@ -1,5 +1,6 @@
 //! Racetracks: track files, the hand-designed library, generation and task switching.
 
+pub mod generator;
 pub mod library;
 pub mod spline;
 pub mod track_file;

@@ -46,3 +46,22 @@ fn knots_coefficients_and_points_match_scipy() {
         }
     }
 }
+
+#[test]
+fn arc_length_and_equal_arc_gates_match_the_reference() {
+    for (n, case) in cases().iter().enumerate() {
+        let fit = fit_closed_curve(&points(&case["control_points"]), case["s"].as_f64().unwrap()).unwrap();
+        let want_length = case["arc_length"].as_f64().unwrap();
+        let length = fit.curve.arc_length(fit.curve.start(), fit.curve.end());
+        // The reference integrated with a dense trapezoid rule; ours is piecewise Gauss–Legendre.
+        assert!((length - want_length).abs() < 1e-6, "case {n}: arc length {length} vs {want_length}");
+        let gates = taskctl::generator::place_gates(&fit.curve, 6, [1.0, 5.0]);
+        for (i, (gate, want)) in gates.iter().zip(case["gates"].as_array().unwrap()).enumerate() {
+            let position = Vector3::from_vec(floats(&want["position"]));
+            assert!((gate.position - position).norm() < 1e-3, "case {n} gate {i}: {:?} vs {position:?}", gate.position);
+            let yaw = want["yaw_rad"].as_f64().unwrap();
+            let dyaw = (gate.yaw - yaw + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
+            assert!(dyaw.abs() < 1e-3, "case {n} gate {i}: yaw {} vs {yaw}", gate.yaw);
+        }
+    }
+}

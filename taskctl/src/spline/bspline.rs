@@ -76,15 +76,64 @@ impl BSplineCurve {
         BSplineCurve { knots: t[1..t.len() - 1].to_vec(), coefficients, degree: k - 1 }
     }
 
-    /// Length of the curve between parameters `a` and `b`: 8-point Gauss–Legendre on every knot
-    /// interval inside, exact to rounding for the polynomial speed of short intervals.
+    /// Length of the curve between parameters `a` and `b`.
     pub fn arc_length(&self, a: f64, b: f64) -> f64 {
         let velocity = self.derivative();
-        let mut breaks: Vec<f64> = self.knots.iter().copied().filter(|&t| t > a && t < b).collect();
-        breaks.insert(0, a);
-        breaks.push(b);
-        breaks.windows(2).map(|w| gauss_legendre(w[0], w[1], |x| velocity.point(x).norm())).sum()
+        self.pieces(a, b).windows(2).map(|w| speed_integral(&velocity, w[0], w[1])).sum()
     }
+
+    /// Parameters splitting the closed curve into `count` pieces of equal arc length, from its
+    /// start.
+    pub fn equal_arc_parameters(&self, count: usize) -> Vec<f64> {
+        let velocity = self.derivative();
+        let breaks = self.pieces(self.start(), self.end());
+        let mut cumulative = vec![0.0];
+        for w in breaks.windows(2) {
+            cumulative.push(cumulative[cumulative.len() - 1] + speed_integral(&velocity, w[0], w[1]));
+        }
+        let total = cumulative[cumulative.len() - 1];
+        (0..count)
+            .map(|i| {
+                let target = total * i as f64 / count as f64;
+                // The piece holding the target, then bisection inside it; 60 halvings reach rounding.
+                let piece = cumulative.partition_point(|&c| c <= target).clamp(1, breaks.len() - 1) - 1;
+                let (mut lo, mut hi) = (breaks[piece], breaks[piece + 1]);
+                let rest = target - cumulative[piece];
+                for _ in 0..60 {
+                    let mid = (lo + hi) / 2.0;
+                    if speed_integral(&velocity, breaks[piece], mid) < rest {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                (lo + hi) / 2.0
+            })
+            .collect()
+    }
+
+    /// Breakpoints for quadrature between `a` and `b`: the knots, each knot interval cut into
+    /// [`PIECES_PER_INTERVAL`] equal pieces, because the speed can dip steeply inside one.
+    fn pieces(&self, a: f64, b: f64) -> Vec<f64> {
+        let mut knots: Vec<f64> = self.knots.iter().copied().filter(|&t| t > a && t < b).collect();
+        knots.insert(0, a);
+        knots.push(b);
+        let mut breaks = vec![a];
+        for w in knots.windows(2) {
+            let step = (w[1] - w[0]) / PIECES_PER_INTERVAL as f64;
+            breaks.extend((1..PIECES_PER_INTERVAL).map(|i| w[0] + step * i as f64));
+            breaks.push(w[1]);
+        }
+        breaks
+    }
+}
+
+/// Quadrature pieces per knot interval.
+const PIECES_PER_INTERVAL: usize = 32;
+
+/// ∫ |velocity(x)| dx over [a, b] by 8-point Gauss–Legendre.
+fn speed_integral(velocity: &BSplineCurve, a: f64, b: f64) -> f64 {
+    gauss_legendre(a, b, |x| velocity.point(x).norm())
 }
 
 /// Nodes and weights of 8-point Gauss–Legendre quadrature on [-1, 1].

@@ -1,0 +1,226 @@
+//! Track generators (SPEC §7, thesis §2.2.3 and A.1): the informed spline generator and the
+//! uniform baseline of the ablation. Seeded and deterministic: one seed, one track.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use sim::nalgebra::Vector3;
+use sim::track::{GATE_HALF_OUTER, START_BEHIND_FIRST_GATE};
+use sim::{Arena, Gate, Pose, Track};
+
+use crate::spline::{BSplineCurve, fit_closed_curve};
+
+/// Parameters of both generators; `Default` is SPEC §7 (thesis Table A.3).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrackGenParams {
+    /// World bounds B; also the arena of every generated track.
+    pub bounds: Arena,
+    /// Control points N_c of the informed generator. Default 6.
+    pub control_points: usize,
+    /// Gates N_g per track. Default 6.
+    pub gates: usize,
+    /// Spline smoothing factor s. Default 4.0.
+    pub smoothing: f64,
+    /// Padding δ_b kept from the x and y bounds by control points and gates (m). Default 2.0.
+    pub boundary_padding: f64,
+    /// Smallest horizontal distance between control points d_min (m). Default 3.0.
+    pub min_control_spacing: f64,
+    /// Smallest distance between gate centres d_g^min (m). Default 2.0.
+    pub min_gate_spacing: f64,
+    /// Attempts M before giving up. Default 100.
+    pub max_attempts: usize,
+}
+
+impl Default for TrackGenParams {
+    fn default() -> Self {
+        Self {
+            bounds: Arena::default(),
+            control_points: 6,
+            gates: 6,
+            smoothing: 4.0,
+            boundary_padding: 2.0,
+            min_control_spacing: 3.0,
+            min_gate_spacing: 2.0,
+            max_attempts: 100,
+        }
+    }
+}
+
+/// Which generator.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum GeneratorKind {
+    /// Spline through sampled control points, gates at equal arc length (the thesis' method).
+    #[default]
+    Informed,
+    /// Gate positions and yaws drawn uniformly (the ablation baseline).
+    Uniform,
+}
+
+/// No valid track within the attempt budget.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("no valid {kind:?} track from seed {seed} after {attempts} attempts (last rejection: {last_reason})")]
+pub struct GenerateError {
+    /// Generator used.
+    pub kind: GeneratorKind,
+    /// Seed given.
+    pub seed: u64,
+    /// Attempts made.
+    pub attempts: usize,
+    /// Why the last candidate was rejected.
+    pub last_reason: String,
+}
+
+/// A generated track and how it came about.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Generated {
+    /// The accepted track.
+    pub track: Track,
+    /// Candidates drawn, the accepted one included.
+    pub attempts: usize,
+    /// The re-centred control points of the informed generator (empty for the uniform one).
+    pub control_points: Vec<Vector3<f64>>,
+}
+
+/// A seeded track generator.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrackGenerator {
+    /// Informed or uniform.
+    pub kind: GeneratorKind,
+    /// Shared parameters.
+    pub params: TrackGenParams,
+}
+
+impl TrackGenerator {
+    /// Generates the track of `seed`, named `name`.
+    pub fn generate(&self, seed: u64, name: &str) -> Result<Generated, GenerateError> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut last_reason = String::from("no attempt made");
+        for attempt in 1..=self.params.max_attempts {
+            let candidate = match self.kind {
+                GeneratorKind::Informed => self.informed_candidate(&mut rng),
+                GeneratorKind::Uniform => Ok((self.uniform_candidate(&mut rng), Vec::new())),
+            };
+            let accepted = candidate.and_then(|(gates, points)| Ok((self.accept(gates, name)?, points)));
+            match accepted {
+                Ok((track, control_points)) => return Ok(Generated { track, attempts: attempt, control_points }),
+                Err(reason) => last_reason = reason,
+            }
+        }
+        Err(GenerateError { kind: self.kind, seed, attempts: self.params.max_attempts, last_reason })
+    }
+
+    /// x, y range of the padded box.
+    fn padded_xy(&self) -> ([f64; 2], [f64; 2]) {
+        let (b, pad) = (&self.params.bounds, self.params.boundary_padding);
+        ([b.min.x + pad, b.max.x - pad], [b.min.y + pad, b.max.y - pad])
+    }
+
+    /// Allowed gate-centre heights: the whole frame inside the bounds.
+    fn gate_z_range(&self) -> [f64; 2] {
+        let b = &self.params.bounds;
+        [b.min.z + GATE_HALF_OUTER, b.max.z - GATE_HALF_OUTER]
+    }
+
+    /// Steps 1–3 of SPEC §7: control points, spline, gates (with the control points).
+    fn informed_candidate(&self, rng: &mut ChaCha8Rng) -> Result<(Vec<Gate>, Vec<Vector3<f64>>), String> {
+        let p = &self.params;
+        let ([x0, x1], [y0, y1]) = self.padded_xy();
+        let (z0, z1) = (p.bounds.min.z, p.bounds.max.z);
+        let mut points: Vec<Vector3<f64>> = Vec::with_capacity(p.control_points);
+        // Rejection sampling of each point; a crowded box ends the attempt rather than looping.
+        let mut draws = 0;
+        while points.len() < p.control_points {
+            draws += 1;
+            if draws > 1000 * p.control_points {
+                return Err(format!("could not place {} control points {} m apart", p.control_points, p.min_control_spacing));
+            }
+            let q = Vector3::new(rng.random_range(x0..=x1), rng.random_range(y0..=y1), rng.random_range(z0..=z1));
+            if points.iter().all(|o| (o.xy() - q.xy()).norm() >= p.min_control_spacing) {
+                points.push(q);
+            }
+        }
+        let mean = points.iter().sum::<Vector3<f64>>() / points.len() as f64;
+        let shift = p.bounds.centre() - mean;
+        points.iter_mut().for_each(|q| *q += shift);
+        let fit = fit_closed_curve(&points, p.smoothing).map_err(|e| format!("spline: {e}"))?;
+        Ok((place_gates(&fit.curve, p.gates, self.gate_z_range()), points))
+    }
+
+    /// The baseline: N_g positions uniform in the padded box (heights as gates allow), yaws uniform.
+    fn uniform_candidate(&self, rng: &mut ChaCha8Rng) -> Vec<Gate> {
+        let ([x0, x1], [y0, y1]) = self.padded_xy();
+        let [z0, z1] = self.gate_z_range();
+        (0..self.params.gates)
+            .map(|_| {
+                let position =
+                    Vector3::new(rng.random_range(x0..=x1), rng.random_range(y0..=y1), rng.random_range(z0..=z1));
+                Gate::new(position, rng.random_range(-std::f64::consts::PI..std::f64::consts::PI))
+            })
+            .collect()
+    }
+
+    /// Steps 4–5: start pose and the constraints C, then the track-file rules (no overlapping
+    /// frames), so every generated track is also a valid track file.
+    fn accept(&self, gates: Vec<Gate>, name: &str) -> Result<Track, String> {
+        let p = &self.params;
+        for i in 0..gates.len() {
+            for j in i + 1..gates.len() {
+                let d = (gates[i].position - gates[j].position).norm();
+                if d < p.min_gate_spacing {
+                    return Err(format!("gates {i} and {j} are {d:.2} m apart"));
+                }
+            }
+        }
+        let ([x0, x1], [y0, y1]) = self.padded_xy();
+        if let Some(i) = gates.iter().position(|g| !(x0..=x1).contains(&g.position.x) || !(y0..=y1).contains(&g.position.y)) {
+            return Err(format!("gate {i} is outside the padded box"));
+        }
+        let g0 = &gates[0];
+        let start = Pose { position: g0.position - g0.normal() * START_BEHIND_FIRST_GATE, yaw: g0.yaw };
+        if !p.bounds.contains(&start.position) {
+            return Err("the start is outside the bounds".into());
+        }
+        Track::new(name, gates, Some(start), p.bounds).map_err(|e| format!("{}: {}", e.field, e.message))
+    }
+}
+
+/// `count` gates at equal arc length along a closed curve starting at its first parameter,
+/// facing along the tangent (yaw only), heights clamped into `z_range`.
+pub fn place_gates(curve: &BSplineCurve, count: usize, z_range: [f64; 2]) -> Vec<Gate> {
+    let velocity = curve.derivative();
+    curve
+        .equal_arc_parameters(count)
+        .into_iter()
+        .map(|u| {
+            let mut position = curve.point(u);
+            position.z = position.z.clamp(z_range[0], z_range[1]);
+            let tangent = velocity.point(u);
+            Gate::new(position, tangent.y.atan2(tangent.x))
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn same_seed_same_track_and_different_seeds_differ() {
+        let g = TrackGenerator::default();
+        let a = g.generate(7, "a").unwrap().track;
+        assert_eq!(a, g.generate(7, "a").unwrap().track);
+        assert_ne!(a.gates, g.generate(8, "a").unwrap().track.gates);
+    }
+
+    #[test]
+    fn an_impossible_budget_fails_with_a_clear_error() {
+        let params = TrackGenParams { min_gate_spacing: 50.0, max_attempts: 5, ..TrackGenParams::default() };
+        let err = TrackGenerator { kind: GeneratorKind::Informed, params }.generate(3, "x").unwrap_err();
+        assert_eq!(err.attempts, 5);
+        let text = err.to_string();
+        assert!(text.contains("seed 3") && text.contains("5 attempts") && text.contains("apart"), "{text}");
+    }
+}
