@@ -1,9 +1,15 @@
-//! Racetracks: track files, the hand-designed library, generation and task switching.
+//! Racetracks and the curriculum: track files, the hand-designed library, the closed smoothing
+//! spline, track generators, and task switching with the task controller.
 
+pub mod controller;
 pub mod generator;
 pub mod library;
 pub mod spline;
+pub mod switching;
 pub mod track_file;
 
+pub use controller::{EnvSlot, SnapshotError, SwitchEvent, TaskController, TaskError};
+pub use generator::{GenerateError, GeneratorKind, TrackGenParams, TrackGenerator};
 pub use library::{library, library_track};
+pub use switching::{SwitchParams, SwitchPolicy};
 pub use track_file::{TrackFileError, parse_track, read_track, read_track_dir, track_to_toml, write_track};

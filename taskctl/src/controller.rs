@@ -1,0 +1,449 @@
+//! The task controller: one slot per environment (its track and reward window), switching
+//! decisions, switch history, and snapshots that survive a restart.
+//!
+//! Decisions and new-track seeds are drawn from `(seed, environment, iteration)` alone, so the
+//! same seed and the same reports give the same decisions whatever order actors report in.
+
+use std::collections::VecDeque;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use serde::{Deserialize, Serialize};
+use sim::Track;
+
+use crate::generator::{GenerateError, TrackGenerator};
+use crate::switching::{SwitchParams, SwitchPolicy, flatness_score, mix, spearman_over_time, uniform};
+
+/// Seeds tried for a new track before a switch gives up.
+const SEED_TRIES: u64 = 10;
+
+/// What the controller knows about one environment.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EnvSlot {
+    /// Current track.
+    pub track: Arc<Track>,
+    /// Generator seed of the current track (`None` for a track given at start).
+    pub track_seed: Option<u64>,
+    /// Cumulative rollout rewards on the current track, oldest first, at most l.
+    pub window: VecDeque<f64>,
+    /// Last iteration reported.
+    pub last_iteration: Option<u64>,
+    /// ρ of the window after the last report.
+    pub rho: Option<f64>,
+    /// q of the window after the last report.
+    pub q: Option<f64>,
+    /// Switches so far.
+    pub switches: u32,
+}
+
+/// One switch, for the history.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SwitchEvent {
+    /// Iteration of the report that caused it.
+    pub iteration: u64,
+    /// Environment.
+    pub env: usize,
+    /// Name of the track replaced.
+    pub old_track: String,
+    /// Name of the new track.
+    pub new_track: String,
+    /// Seed of the new track.
+    pub new_seed: u64,
+    /// ρ at the switch.
+    pub rho: f64,
+    /// q at the switch (the random policy's probability for it).
+    pub q: f64,
+}
+
+/// A report the controller refuses.
+#[derive(Debug, thiserror::Error)]
+pub enum TaskError {
+    /// The environment index is out of range.
+    #[error("unknown environment {env} (the controller has {envs})")]
+    UnknownEnv {
+        /// Index given.
+        env: usize,
+        /// Environments held.
+        envs: usize,
+    },
+    /// The reward is NaN or infinite.
+    #[error("environment {env}: reward {reward} is not a finite number")]
+    NotFinite {
+        /// Environment.
+        env: usize,
+        /// Reward given.
+        reward: f64,
+    },
+    /// The iteration is not after the last one reported for this environment.
+    #[error("environment {env}: iteration {iteration} is not after the last reported iteration {last}")]
+    StaleIteration {
+        /// Environment.
+        env: usize,
+        /// Iteration given.
+        iteration: u64,
+        /// Last iteration accepted.
+        last: u64,
+    },
+    /// No new track could be generated.
+    #[error(transparent)]
+    Generate(#[from] GenerateError),
+    /// A controller needs at least one environment.
+    #[error("a task controller needs at least one environment")]
+    NoEnvironments,
+}
+
+/// A snapshot that could not be written or read.
+#[derive(Debug, thiserror::Error)]
+pub enum SnapshotError {
+    /// Reading or writing failed.
+    #[error("{file}: {source}")]
+    Io {
+        /// The file.
+        file: PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+    /// The file is not an intact snapshot; it is refused rather than half-used.
+    #[error("{file}: refusing a corrupt snapshot: {reason}")]
+    Corrupt {
+        /// The file.
+        file: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+/// Everything a controller holds; what a snapshot stores.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+struct State {
+    seed: u64,
+    generator: TrackGenerator,
+    switching: SwitchParams,
+    slots: Vec<EnvSlot>,
+    history: Vec<SwitchEvent>,
+}
+
+/// Owns track generation and switching for every environment.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TaskController {
+    state: State,
+}
+
+const SNAPSHOT_MAGIC: &str = "dronerace-taskctl-snapshot";
+const SNAPSHOT_VERSION: u32 = 1;
+
+impl TaskController {
+    /// `envs` environments, each with a freshly generated track.
+    pub fn new(envs: usize, generator: TrackGenerator, switching: SwitchParams, seed: u64) -> Result<Self, TaskError> {
+        if envs == 0 {
+            return Err(TaskError::NoEnvironments);
+        }
+        let mut state = State { seed, generator, switching, slots: Vec::with_capacity(envs), history: Vec::new() };
+        for env in 0..envs {
+            let (track, track_seed) = state.new_track(env, 0)?;
+            state.slots.push(EnvSlot::new(track, Some(track_seed)));
+        }
+        Ok(Self { state })
+    }
+
+    /// Environments start on the given tracks (e.g. one library track for single-track PPO).
+    pub fn with_tracks(
+        tracks: Vec<Arc<Track>>,
+        generator: TrackGenerator,
+        switching: SwitchParams,
+        seed: u64,
+    ) -> Result<Self, TaskError> {
+        if tracks.is_empty() {
+            return Err(TaskError::NoEnvironments);
+        }
+        let slots = tracks.into_iter().map(|t| EnvSlot::new(t, None)).collect();
+        Ok(Self { state: State { seed, generator, switching, slots, history: Vec::new() } })
+    }
+
+    /// Takes environment `env`'s cumulative reward of the rollout of `iteration`; returns its
+    /// new track when it switches.
+    pub fn report(&mut self, env: usize, iteration: u64, reward: f64) -> Result<Option<Arc<Track>>, TaskError> {
+        let envs = self.state.slots.len();
+        let params = self.state.switching;
+        let slot = self.state.slots.get_mut(env).ok_or(TaskError::UnknownEnv { env, envs })?;
+        if !reward.is_finite() {
+            return Err(TaskError::NotFinite { env, reward });
+        }
+        if let Some(last) = slot.last_iteration.filter(|&last| iteration <= last) {
+            return Err(TaskError::StaleIteration { env, iteration, last });
+        }
+        slot.last_iteration = Some(iteration);
+        slot.window.push_back(reward);
+        while slot.window.len() > params.window {
+            slot.window.pop_front();
+        }
+        let rho = spearman_over_time(slot.window.make_contiguous());
+        let q = flatness_score(rho, params.alpha);
+        (slot.rho, slot.q) = (Some(rho), Some(q));
+        let probability = match params.policy {
+            SwitchPolicy::Adaptive if slot.window.len() >= params.window => q,
+            SwitchPolicy::Random => params.random_probability,
+            _ => return Ok(None),
+        };
+        if uniform(self.state.seed, env as u64, iteration) >= probability {
+            return Ok(None);
+        }
+        let generation = u64::from(slot.switches) + 1;
+        let (track, new_seed) = self.state.new_track(env, generation)?;
+        let slot = &mut self.state.slots[env];
+        self.state.history.push(SwitchEvent {
+            iteration,
+            env,
+            old_track: slot.track.name.clone(),
+            new_track: track.name.clone(),
+            new_seed,
+            rho,
+            q: probability,
+        });
+        slot.track = track.clone();
+        slot.track_seed = Some(new_seed);
+        slot.window.clear();
+        slot.switches += 1;
+        Ok(Some(track))
+    }
+
+    /// Number of environments.
+    pub fn len(&self) -> usize {
+        self.state.slots.len()
+    }
+
+    /// True when there are no environments (never, for a constructed controller).
+    pub fn is_empty(&self) -> bool {
+        self.state.slots.is_empty()
+    }
+
+    /// Every environment's slot.
+    pub fn slots(&self) -> &[EnvSlot] {
+        &self.state.slots
+    }
+
+    /// Current track of every environment.
+    pub fn tracks(&self) -> Vec<Arc<Track>> {
+        self.state.slots.iter().map(|s| s.track.clone()).collect()
+    }
+
+    /// Every switch so far, oldest first.
+    pub fn history(&self) -> &[SwitchEvent] {
+        &self.state.history
+    }
+
+    /// Switching parameters.
+    pub fn switching(&self) -> &SwitchParams {
+        &self.state.switching
+    }
+
+    /// Writes the whole state atomically: a temporary file, fsync, rename.
+    pub fn snapshot(&self, path: &Path) -> Result<(), SnapshotError> {
+        let io = |source| SnapshotError::Io { file: path.to_path_buf(), source };
+        let body = serde_json::to_vec(&self.state).expect("controller state always serialises");
+        let header = format!("{SNAPSHOT_MAGIC} {SNAPSHOT_VERSION} {} {:016x}\n", body.len(), fnv1a(&body));
+        let tmp = path.with_extension("tmp");
+        {
+            use std::io::Write;
+            let mut file = std::fs::File::create(&tmp).map_err(io)?;
+            file.write_all(header.as_bytes()).map_err(io)?;
+            file.write_all(&body).map_err(io)?;
+            file.sync_all().map_err(io)?;
+        }
+        std::fs::rename(&tmp, path).map_err(io)
+    }
+
+    /// Reads a snapshot, refusing anything truncated, altered or of another format.
+    pub fn restore(path: &Path) -> Result<Self, SnapshotError> {
+        let bytes = std::fs::read(path).map_err(|source| SnapshotError::Io { file: path.to_path_buf(), source })?;
+        let corrupt = |reason: String| SnapshotError::Corrupt { file: path.to_path_buf(), reason };
+        let newline = bytes.iter().position(|&b| b == b'\n').ok_or_else(|| corrupt("no header line".into()))?;
+        let header = std::str::from_utf8(&bytes[..newline]).map_err(|_| corrupt("header is not text".into()))?;
+        let fields: Vec<&str> = header.split(' ').collect();
+        let [magic, version, length, checksum] = fields[..] else {
+            return Err(corrupt(format!("malformed header {header:?}")));
+        };
+        if magic != SNAPSHOT_MAGIC {
+            return Err(corrupt("not a dronerace task-controller snapshot".into()));
+        }
+        if version != SNAPSHOT_VERSION.to_string() {
+            return Err(corrupt(format!("format version {version}, this build reads {SNAPSHOT_VERSION}")));
+        }
+        let body = &bytes[newline + 1..];
+        let length: usize = length.parse().map_err(|_| corrupt(format!("bad length {length:?}")))?;
+        if body.len() != length {
+            return Err(corrupt(format!("truncated or padded: header says {length} bytes, found {}", body.len())));
+        }
+        if format!("{:016x}", fnv1a(body)) != checksum {
+            return Err(corrupt("checksum mismatch: the contents were altered".into()));
+        }
+        let state: State = serde_json::from_slice(body).map_err(|e| corrupt(format!("contents: {e}")))?;
+        Ok(Self { state })
+    }
+}
+
+impl EnvSlot {
+    fn new(track: Arc<Track>, track_seed: Option<u64>) -> Self {
+        Self { track, track_seed, window: VecDeque::new(), last_iteration: None, rho: None, q: None, switches: 0 }
+    }
+}
+
+impl State {
+    /// Track number `generation` of environment `env`, from a seed that depends only on them.
+    fn new_track(&self, env: usize, generation: u64) -> Result<(Arc<Track>, u64), GenerateError> {
+        let mut last_error = None;
+        for attempt in 0..SEED_TRIES {
+            let track_seed = mix(mix(mix(self.seed ^ 0x7472_6163_6b73) ^ env as u64) ^ (generation << 8 | attempt));
+            let name = format!("{:?}-{track_seed:016x}", self.generator.kind).to_lowercase();
+            match self.generator.generate(track_seed, &name) {
+                Ok(g) => return Ok((Arc::new(g.track), track_seed)),
+                Err(e) => last_error = Some(e),
+            }
+        }
+        Err(last_error.expect("at least one seed tried"))
+    }
+}
+
+/// 64-bit FNV-1a: detects accidental corruption of a snapshot body.
+fn fnv1a(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, &b| (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn controller(policy: SwitchPolicy, window: usize, envs: usize) -> TaskController {
+        let switching = SwitchParams { policy, window, ..SwitchParams::default() };
+        TaskController::new(envs, TrackGenerator::default(), switching, 11).unwrap()
+    }
+
+    #[test]
+    fn adaptive_never_switches_before_the_window_is_full() {
+        let mut c = controller(SwitchPolicy::Adaptive, 10, 1);
+        // Constant rewards: ρ = 0, q = 1, so it switches exactly when the window fills.
+        for iteration in 0..9 {
+            assert!(c.report(0, iteration, 5.0).unwrap().is_none(), "iteration {iteration}");
+            assert_eq!(c.slots()[0].q, Some(1.0));
+        }
+        let new = c.report(0, 9, 5.0).unwrap().expect("switches when the window holds l values");
+        assert_eq!(c.slots()[0].track, new);
+        assert!(c.slots()[0].window.is_empty());
+        assert_eq!(c.history().len(), 1);
+        assert_eq!((c.history()[0].iteration, c.history()[0].env), (9, 0));
+    }
+
+    #[test]
+    fn a_steady_trend_scores_as_not_flat() {
+        let mut c = controller(SwitchPolicy::Adaptive, 20, 1);
+        for iteration in 0..19 {
+            c.report(0, iteration, iteration as f64).unwrap();
+        }
+        // Rising rewards: ρ = 1, q = 1 / (1 + 1000).
+        c.report(0, 19, 19.0).unwrap();
+        assert_eq!(c.slots()[0].rho, Some(1.0));
+        assert!((c.slots()[0].q.unwrap() - 1.0 / 1001.0).abs() < 1e-15);
+    }
+
+    #[test]
+    fn the_random_policy_switches_at_its_rate() {
+        let switching = SwitchParams { policy: SwitchPolicy::Random, random_probability: 0.05, ..SwitchParams::default() };
+        let mut c = TaskController::new(10, TrackGenerator::default(), switching, 3).unwrap();
+        let reports = 10 * 2000;
+        for iteration in 0..2000 {
+            for env in 0..10 {
+                c.report(env, iteration, 1.0).unwrap();
+            }
+        }
+        let switches = c.history().len() as f64;
+        let (mean, sd) = (reports as f64 * 0.05, (reports as f64 * 0.05 * 0.95).sqrt());
+        assert!((switches - mean).abs() < 5.0 * sd, "{switches} switches, expected {mean} ± {sd}");
+    }
+
+    #[test]
+    fn none_never_switches() {
+        let mut c = controller(SwitchPolicy::None, 5, 2);
+        for iteration in 0..100 {
+            assert!(c.report(iteration as usize % 2, iteration, 1.0).unwrap().is_none());
+        }
+    }
+
+    #[test]
+    fn same_seed_and_reports_give_the_same_decisions_in_any_report_order() {
+        let mut a = controller(SwitchPolicy::Adaptive, 8, 4);
+        let mut b = controller(SwitchPolicy::Adaptive, 8, 4);
+        for iteration in 0..200u64 {
+            let reward = |env: usize| ((iteration * 7 + env as u64 * 13) % 5) as f64;
+            for env in 0..4 {
+                a.report(env, iteration, reward(env)).unwrap();
+            }
+            for env in (0..4).rev() {
+                b.report(env, iteration, reward(env)).unwrap();
+            }
+        }
+        assert!(!a.history().is_empty());
+        let key = |c: &TaskController| {
+            let mut h: Vec<_> = c.history().iter().map(|e| (e.iteration, e.env, e.new_seed)).collect();
+            h.sort();
+            h
+        };
+        assert_eq!(key(&a), key(&b));
+        assert_eq!(a.tracks(), b.tracks());
+    }
+
+    #[test]
+    fn bad_reports_are_refused() {
+        let mut c = controller(SwitchPolicy::Adaptive, 5, 2);
+        assert!(matches!(c.report(2, 0, 1.0), Err(TaskError::UnknownEnv { env: 2, envs: 2 })));
+        assert!(matches!(c.report(0, 0, f64::NAN), Err(TaskError::NotFinite { .. })));
+        c.report(0, 3, 1.0).unwrap();
+        let e = c.report(0, 3, 1.0).unwrap_err();
+        assert!(e.to_string().contains("iteration 3 is not after"), "{e}");
+        assert_eq!(c.slots()[0].window.len(), 1, "a refused report changes nothing");
+    }
+
+    #[test]
+    fn snapshot_round_trip_continues_identically() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("taskctl.snapshot");
+        let mut c = controller(SwitchPolicy::Adaptive, 6, 3);
+        for iteration in 0..50 {
+            for env in 0..3 {
+                c.report(env, iteration, (iteration % 3) as f64).unwrap();
+            }
+        }
+        c.snapshot(&path).unwrap();
+        let mut restored = TaskController::restore(&path).unwrap();
+        assert_eq!(restored, c);
+        for iteration in 50..120 {
+            for env in 0..3 {
+                let a = c.report(env, iteration, (iteration % 4) as f64).unwrap();
+                let b = restored.report(env, iteration, (iteration % 4) as f64).unwrap();
+                assert_eq!(a, b);
+            }
+        }
+        assert_eq!(restored, c);
+    }
+
+    #[test]
+    fn corrupt_or_truncated_snapshots_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.snapshot");
+        controller(SwitchPolicy::Adaptive, 6, 2).snapshot(&path).unwrap();
+        let good = std::fs::read(&path).unwrap();
+        let refuse = |bytes: &[u8], expect: &str| {
+            std::fs::write(&path, bytes).unwrap();
+            let e = TaskController::restore(&path).unwrap_err().to_string();
+            assert!(e.contains("s.snapshot") && e.contains(expect), "{e}");
+        };
+        refuse(&good[..good.len() - 10], "truncated");
+        let mut flipped = good.clone();
+        let last = flipped.len() - 20;
+        flipped[last] ^= 0x01;
+        refuse(&flipped, "checksum");
+        refuse(b"{\"hello\": 1}\n", "malformed header");
+        refuse(b"", "no header");
+        let other = String::from_utf8(good.clone()).unwrap().replacen(" 1 ", " 9 ", 1);
+        refuse(other.as_bytes(), "version 9");
+    }
+}
