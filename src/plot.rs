@@ -10,8 +10,31 @@ use plotters::prelude::*;
 use sim::nalgebra::Vector3;
 use sim::{ReferencePilot, Track};
 
-/// Pixel width of one track's cell.
-const CELL_WIDTH: u32 = 480;
+/// How tracks are laid out.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// Top view above side view, 480 px wide cells.
+    TopAndSide,
+    /// Top view only, 320 px wide cells: a gallery of many tracks.
+    Gallery,
+}
+
+impl Layout {
+    fn cell_width(self) -> u32 {
+        match self {
+            Layout::TopAndSide => 480,
+            Layout::Gallery => 320,
+        }
+    }
+
+    fn cell_height(self) -> u32 {
+        let w = self.cell_width();
+        match self {
+            Layout::TopAndSide => w + (w as f64 * SIDE_VIEW_FRACTION) as u32 + 30,
+            Layout::Gallery => w + 30,
+        }
+    }
+}
 /// Height of the side view, as a fraction of the cell width.
 const SIDE_VIEW_FRACTION: f64 = 0.42;
 
@@ -21,19 +44,18 @@ const START: RGBColor = RGBColor(20, 140, 60);
 const ARENA: RGBColor = RGBColor(90, 90, 90);
 
 /// Draws every track into one PNG, in a grid of about square shape.
-pub fn draw_tracks(tracks: &[Arc<Track>], out: &Path) -> anyhow::Result<()> {
+pub fn draw_tracks(tracks: &[Arc<Track>], out: &Path, layout: Layout) -> anyhow::Result<()> {
     anyhow::ensure!(!tracks.is_empty(), "no tracks to draw");
     register_font();
     let cols = (tracks.len() as f64).sqrt().ceil() as u32;
     let rows = (tracks.len() as u32).div_ceil(cols);
-    let cell_height = CELL_WIDTH + (CELL_WIDTH as f64 * SIDE_VIEW_FRACTION) as u32 + 30;
     if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
     }
-    let root = BitMapBackend::new(out, (cols * CELL_WIDTH, rows * cell_height)).into_drawing_area();
+    let root = BitMapBackend::new(out, (cols * layout.cell_width(), rows * layout.cell_height())).into_drawing_area();
     root.fill(&WHITE)?;
     for (area, track) in root.split_evenly((rows as usize, cols as usize)).iter().zip(tracks) {
-        draw_track(area, track).with_context(|| format!("drawing {}", track.name))?;
+        draw_track(area, track, layout).with_context(|| format!("drawing {}", track.name))?;
     }
     root.present().with_context(|| format!("writing {}", out.display()))?;
     Ok(())
@@ -64,14 +86,19 @@ impl View {
     }
 }
 
-fn draw_track(area: &DrawingArea<BitMapBackend<'_>, Shift>, track: &Track) -> anyhow::Result<()> {
+fn draw_track(area: &DrawingArea<BitMapBackend<'_>, Shift>, track: &Track, layout: Layout) -> anyhow::Result<()> {
     let title = format!("{} ({} gates)", track.name, track.gates.len());
-    let area = area.margin(8, 0, 0, 0).titled(&title, ("sans-serif", 20))?;
-    let side_height = (CELL_WIDTH as f64 * SIDE_VIEW_FRACTION) as u32;
-    let (top, side) = area.split_vertically(area.dim_in_pixel().1 - side_height);
+    let area = area.margin(8, 0, 0, 0).titled(&title, ("sans-serif", 18))?;
     let line = ReferencePilot::default().racing_line(track);
-    draw_view(&top, track, &line, View::Top)?;
-    draw_view(&side, track, &line, View::Side)?;
+    match layout {
+        Layout::TopAndSide => {
+            let side_height = (layout.cell_width() as f64 * SIDE_VIEW_FRACTION) as u32;
+            let (top, side) = area.split_vertically(area.dim_in_pixel().1 - side_height);
+            draw_view(&top, track, &line, View::Top)?;
+            draw_view(&side, track, &line, View::Side)?;
+        }
+        Layout::Gallery => draw_view(&area, track, &line, View::Top)?,
+    }
     Ok(())
 }
 

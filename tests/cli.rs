@@ -118,3 +118,76 @@ fn bad_inputs_are_refused_naming_the_file_and_the_field_or_line() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("--start"), "{}", stderr(&o));
 }
+
+#[test]
+fn tracks_fit_prints_scipys_layout_and_values() {
+    let reference: serde_json::Value =
+        serde_json::from_str(include_str!("../taskctl/tests/data/splprep_periodic.json")).unwrap();
+    let case = &reference["cases"][2];
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("points.csv");
+    let rows: Vec<String> = case["control_points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p.as_array().unwrap().iter().map(|x| format!("{}", x.as_f64().unwrap())).collect::<Vec<_>>().join(","))
+        .collect();
+    std::fs::write(&csv, rows.join("\n") + "\n").unwrap();
+    let s = case["s"].as_f64().unwrap().to_string();
+    let o = dronerace(&["tracks", "fit", "--points", csv.to_str().unwrap(), "--smoothing", &s]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let got: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let keys: Vec<&String> = got.as_object().unwrap().keys().collect();
+    assert_eq!(keys, ["coefficients", "knots", "u"]);
+    let close = |a: &serde_json::Value, b: &serde_json::Value| {
+        let (a, b) = (a.as_array().unwrap(), b.as_array().unwrap());
+        a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x.as_f64().unwrap() - y.as_f64().unwrap()).abs() < 1e-6)
+    };
+    assert!(close(&got["u"], &case["u"]));
+    assert!(close(&got["knots"], &case["knots"]));
+    for d in 0..3 {
+        assert!(close(&got["coefficients"][d], &case["coefficients"][d]));
+    }
+    std::fs::write(&csv, "1,2,3\n4,5\n").unwrap();
+    let o = dronerace(&["tracks", "fit", "--points", csv.to_str().unwrap()]);
+    assert!(!o.status.success() && stderr(&o).contains("points.csv:2"), "{}", stderr(&o));
+}
+
+#[test]
+fn generate_is_reproducible_and_testset_has_forty_valid_tracks() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+    for out in [&a, &b] {
+        let o = dronerace(&["tracks", "generate", "--seed", "77", "--count", "5", "--out", out.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let names = |d: &Path| {
+        let mut v: Vec<_> = std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name()).collect();
+        v.sort();
+        v
+    };
+    assert_eq!(names(&a).len(), 5);
+    for name in names(&a) {
+        assert_eq!(std::fs::read(a.join(&name)).unwrap(), std::fs::read(b.join(&name)).unwrap());
+        taskctl::read_track(&a.join(&name)).unwrap();
+    }
+    let o = dronerace(&["tracks", "generate", "--seed", "77", "--count", "3", "--generator", "uniform", "--out", dir.path().join("u").to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(names(&dir.path().join("u")).len(), 3);
+
+    let set = dir.path().join("testset");
+    let o = dronerace(&["tracks", "testset", "--seed", "5", "--out", set.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let tracks = taskctl::read_track_dir(&set).unwrap();
+    assert_eq!(tracks.len(), 40);
+    let library = taskctl::library().unwrap();
+    for (t, l) in tracks.iter().zip(&library) {
+        assert_eq!(t.name, l.name, "the library comes first, in library order");
+    }
+
+    let png = dir.path().join("gallery.png");
+    let o = dronerace(&["tracks", "show", a.to_str().unwrap(), "--gallery", "--out", png.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (w, h) = png_size(&png);
+    assert!(w > h, "5 tracks: a 3 × 2 grid of gallery cells ({w} × {h})");
+}

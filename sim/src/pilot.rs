@@ -52,13 +52,14 @@ impl Default for PilotParams {
     fn default() -> Self {
         Self {
             max_speed: 9.0,
-            max_lateral_accel: 12.0,
+            max_lateral_accel: 10.0,
             max_longitudinal_accel: 7.0,
             min_tangent: 5.0,
             look_ahead: 0.08,
-            position_gain: 5.0,
-            velocity_gain: 4.0,
-            attitude_gain: 9.0,
+            position_gain: 8.0,
+            velocity_gain: 5.5,
+            // 16 makes the attitude loop oscillate against the 20 ms step and the rate loop.
+            attitude_gain: 12.0,
             yaw_gain: 3.0,
             max_tilt: 65f64.to_radians(),
         }

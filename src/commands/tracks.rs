@@ -1,32 +1,234 @@
-//! `dronerace tracks …`: draw and validate track files.
+//! `dronerace tracks …`: draw, fit, generate and benchmark tracks.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
 
-use clap::Subcommand;
+use anyhow::{Context, bail};
+use clap::{Subcommand, ValueEnum};
+use ::sim::nalgebra::Vector3;
+use taskctl::{GeneratorKind, SwitchParams, TaskController, TrackGenParams, TrackGenerator};
 
 use super::load_tracks;
+use crate::plot::Layout;
+
+/// Number of tracks in the evaluation test set (SPEC §9).
+pub const TEST_SET_SIZE: usize = 40;
 
 /// Track subcommands.
 #[derive(Subcommand)]
 pub enum TracksCommand {
-    /// Draw top and side views of tracks into one PNG.
+    /// Draw tracks into one PNG: top and side views, or a compact gallery of top views.
     Show {
         /// Track files or directories; the built-in library when omitted.
         files: Vec<PathBuf>,
         /// PNG to write.
         #[arg(long)]
         out: PathBuf,
+        /// Only the top view, in smaller cells: for many tracks at once.
+        #[arg(long)]
+        gallery: bool,
     },
+    /// Fit a closed smoothing spline (scipy splprep per=1, k=3) and print it as JSON.
+    Fit {
+        /// CSV with one control point `x,y,z` per row, no header; the closing point is added.
+        #[arg(long)]
+        points: PathBuf,
+        /// Smoothing factor s.
+        #[arg(long, default_value_t = 4.0)]
+        smoothing: f64,
+    },
+    /// Generate track files from consecutive seeds.
+    Generate {
+        /// Seed of the first track; track i uses seed + i.
+        #[arg(long)]
+        seed: u64,
+        /// Number of tracks.
+        #[arg(long, default_value_t = 16)]
+        count: usize,
+        /// Directory to write into.
+        #[arg(long)]
+        out: PathBuf,
+        /// Generator.
+        #[arg(long, value_enum, default_value = "informed")]
+        generator: Generator,
+    },
+    /// Write the evaluation test set: the library topped up with generated tracks to 40.
+    Testset {
+        /// Seed of the generated part; keep it out of training.
+        #[arg(long, default_value_t = DEFAULT_TEST_SEED)]
+        seed: u64,
+        /// Directory to write into.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Measure generation speed and acceptance, and the cost of one task-controller update.
+    Bench {
+        /// Tracks to generate.
+        #[arg(long, default_value_t = 1000)]
+        count: usize,
+        /// Environments reporting per iteration.
+        #[arg(long, default_value_t = 96)]
+        envs: usize,
+        /// Switching window l.
+        #[arg(long, default_value_t = 600)]
+        window: usize,
+    },
+}
+
+/// Seed of the default evaluation test set; training seeds are hashed and never equal it.
+pub const DEFAULT_TEST_SEED: u64 = 9_000_000;
+
+/// Generator choice on the command line.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum Generator {
+    /// Informed spline generator.
+    Informed,
+    /// Uniform baseline.
+    Uniform,
+}
+
+impl From<Generator> for GeneratorKind {
+    fn from(g: Generator) -> Self {
+        match g {
+            Generator::Informed => GeneratorKind::Informed,
+            Generator::Uniform => GeneratorKind::Uniform,
+        }
+    }
 }
 
 /// Runs a track subcommand.
 pub fn run(command: TracksCommand) -> anyhow::Result<()> {
     match command {
-        TracksCommand::Show { files, out } => {
+        TracksCommand::Show { files, out, gallery } => {
             let tracks = load_tracks(&files)?;
-            crate::plot::draw_tracks(&tracks, &out)?;
+            let layout = if gallery { Layout::Gallery } else { Layout::TopAndSide };
+            crate::plot::draw_tracks(&tracks, &out, layout)?;
             println!("wrote {} ({} tracks)", out.display(), tracks.len());
             Ok(())
         }
+        TracksCommand::Fit { points, smoothing } => fit(&points, smoothing),
+        TracksCommand::Generate { seed, count, out, generator } => {
+            let generator = TrackGenerator { kind: generator.into(), params: TrackGenParams::default() };
+            let started = Instant::now();
+            let attempts = generate_into(&generator, seed, count, &out, |i| {
+                let name = format!("{:?}-{}", generator.kind, seed + i as u64).to_lowercase();
+                (name.clone(), format!("{name}.toml"))
+            })?;
+            println!(
+                "wrote {count} tracks to {} in {:.2} s; acceptance {:.1} % ({count} of {attempts} candidates)",
+                out.display(),
+                started.elapsed().as_secs_f64(),
+                100.0 * count as f64 / attempts as f64
+            );
+            Ok(())
+        }
+        TracksCommand::Testset { seed, out } => {
+            let library = taskctl::library()?;
+            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+            for (i, track) in library.iter().enumerate() {
+                taskctl::write_track(track, &out.join(format!("{i:02}-{}.toml", track.name.to_lowercase())))?;
+            }
+            let generated = TEST_SET_SIZE.saturating_sub(library.len());
+            // Numbered after the library so the directory lists in test-set order.
+            generate_into(&TrackGenerator::default(), seed, generated, &out, |i| {
+                let name = format!("test-{}", seed + i as u64);
+                (name.clone(), format!("{:02}-{name}.toml", library.len() + i))
+            })?;
+            println!("wrote {} library + {generated} generated tracks (seed {seed}) to {}", library.len(), out.display());
+            Ok(())
+        }
+        TracksCommand::Bench { count, envs, window } => bench(count, envs, window),
     }
+}
+
+/// Generates `count` tracks from seeds `seed..seed+count` into `out`, named by `names(i)` =
+/// (track name, file name); returns the number of candidates drawn.
+fn generate_into(
+    generator: &TrackGenerator,
+    seed: u64,
+    count: usize,
+    out: &Path,
+    names: impl Fn(usize) -> (String, String),
+) -> anyhow::Result<usize> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let mut attempts = 0;
+    for i in 0..count {
+        let (name, file) = names(i);
+        let g = generator.generate(seed + i as u64, &name)?;
+        attempts += g.attempts;
+        taskctl::write_track(&g.track, &out.join(file))?;
+    }
+    Ok(attempts)
+}
+
+/// `tracks fit`: reads `x,y,z` rows and prints scipy's tck layout as JSON.
+fn fit(points: &Path, smoothing: f64) -> anyhow::Result<()> {
+    let text = std::fs::read_to_string(points).with_context(|| format!("reading {}", points.display()))?;
+    let mut control = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let values: Vec<f64> = line
+            .split(',')
+            .map(|f| f.trim().parse::<f64>().ok().filter(|x| x.is_finite()))
+            .collect::<Option<_>>()
+            .with_context(|| format!("{}:{}: {line:?} is not three finite numbers", points.display(), i + 1))?;
+        let [x, y, z] = values[..] else {
+            bail!("{}:{}: expected x,y,z (3 numbers), found {}", points.display(), i + 1, values.len());
+        };
+        control.push(Vector3::new(x, y, z));
+    }
+    let fit = taskctl::spline::fit_closed_curve(&control, smoothing).with_context(|| points.display().to_string())?;
+    let json = serde_json::json!({
+        "u": fit.u,
+        "knots": fit.curve.knots,
+        "coefficients": fit.curve.coefficients,
+    });
+    println!("{}", serde_json::to_string_pretty(&json)?);
+    Ok(())
+}
+
+/// Generation rate and acceptance for both generators; task-controller update cost.
+fn bench(count: usize, envs: usize, window: usize) -> anyhow::Result<()> {
+    anyhow::ensure!(count > 0 && envs > 0 && window > 1, "--count, --envs must be ≥ 1 and --window ≥ 2");
+    for kind in [GeneratorKind::Informed, GeneratorKind::Uniform] {
+        let generator = TrackGenerator { kind, params: TrackGenParams::default() };
+        let started = Instant::now();
+        let mut attempts = 0;
+        for seed in 0..count as u64 {
+            attempts += generator.generate(seed, "bench")?.attempts;
+        }
+        let seconds = started.elapsed().as_secs_f64();
+        println!(
+            "{kind:?} generator: {:.0} tracks/s on one thread ({count} tracks in {seconds:.2} s), acceptance {:.1} % ({count} of {attempts} candidates)",
+            count as f64 / seconds,
+            100.0 * count as f64 / attempts as f64
+        );
+    }
+    // Rewards of a flat curve with noise keep every window full and score it every time.
+    let switching = SwitchParams { window, ..SwitchParams::default() };
+    let tracks = vec![Arc::new(taskctl::library()?[0].clone()); envs];
+    let mut controller = TaskController::with_tracks(tracks, TrackGenerator::default(), switching, 0)?;
+    let iterations = window as u64 + 200;
+    let mut timed = std::time::Duration::ZERO;
+    for iteration in 0..iterations {
+        let started = Instant::now();
+        for env in 0..envs {
+            let noise = taskctl::switching::uniform(1, env as u64, iteration);
+            controller.report(env, iteration, 100.0 + noise)?;
+        }
+        if iteration >= window as u64 {
+            timed += started.elapsed();
+        }
+    }
+    let per_update = timed.as_secs_f64() / 200.0;
+    println!(
+        "task controller: {:.3} ms per update of {envs} environments with full windows of {window} \
+         ({} switches in {iterations} iterations, new tracks generated included)",
+        per_update * 1e3,
+        controller.history().len()
+    );
+    Ok(())
 }
