@@ -241,7 +241,7 @@ impl TaskController {
     pub fn snapshot(&self, path: &Path) -> Result<(), SnapshotError> {
         let io = |source| SnapshotError::Io { file: path.to_path_buf(), source };
         let body = serde_json::to_vec(&self.state).expect("controller state always serialises");
-        let header = format!("{SNAPSHOT_MAGIC} {SNAPSHOT_VERSION} {} {:016x}\n", body.len(), fnv1a(&body));
+        let header = format!("{SNAPSHOT_MAGIC} {SNAPSHOT_VERSION} {} {:08x}\n", body.len(), crc32fast::hash(&body));
         let tmp = path.with_extension("tmp");
         {
             use std::io::Write;
@@ -274,7 +274,7 @@ impl TaskController {
         if body.len() != length {
             return Err(corrupt(format!("truncated or padded: header says {length} bytes, found {}", body.len())));
         }
-        if format!("{:016x}", fnv1a(body)) != checksum {
+        if format!("{:08x}", crc32fast::hash(body)) != checksum {
             return Err(corrupt("checksum mismatch: the contents were altered".into()));
         }
         let state: State = serde_json::from_slice(body).map_err(|e| corrupt(format!("contents: {e}")))?;
@@ -302,11 +302,6 @@ impl State {
         }
         Err(last_error.expect("at least one seed tried"))
     }
-}
-
-/// 64-bit FNV-1a: detects accidental corruption of a snapshot body.
-fn fnv1a(bytes: &[u8]) -> u64 {
-    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, &b| (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3))
 }
 
 #[cfg(test)]

@@ -1,0 +1,122 @@
+//! PPO hyperparameters (SPEC §10, Stable-Baselines3 names) and the named profiles.
+
+use policy::Architecture;
+use serde::{Deserialize, Serialize};
+
+/// PPO hyperparameters; `Default` is the state-based column of SPEC §10.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PpoConfig {
+    /// Steps per environment per iteration (SB3 `n_steps`). 250.
+    pub n_steps: usize,
+    /// Minibatch size (SB3 `batch_size`); larger than the rollout means the whole rollout. 28000.
+    pub batch_size: usize,
+    /// Passes over the rollout per iteration. 10.
+    pub n_epochs: usize,
+    /// Discount γ. 0.995.
+    pub gamma: f64,
+    /// GAE λ. 0.95.
+    pub gae_lambda: f64,
+    /// Clip range ε of the surrogate. 0.2.
+    pub clip_range: f64,
+    /// Value-loss coefficient. 0.5.
+    pub vf_coef: f64,
+    /// Entropy coefficient. 0.
+    pub ent_coef: f64,
+    /// Global gradient-norm limit. 0.5.
+    pub max_grad_norm: f64,
+    /// Learning rate at the start of the run. 3e-4.
+    pub learning_rate_start: f64,
+    /// Learning rate at the end of the run (linear in between). 1e-5.
+    pub learning_rate_end: f64,
+    /// L2 weight decay added to the gradient (torch Adam style). 1e-5.
+    pub weight_decay: f64,
+    /// Adam ε. 1e-5.
+    pub adam_epsilon: f64,
+    /// Initial log standard deviation of the policy. -0.5.
+    pub initial_log_std: f64,
+}
+
+impl Default for PpoConfig {
+    fn default() -> Self {
+        Self {
+            n_steps: 250,
+            batch_size: 28_000,
+            n_epochs: 10,
+            gamma: 0.995,
+            gae_lambda: 0.95,
+            clip_range: 0.2,
+            vf_coef: 0.5,
+            ent_coef: 0.0,
+            max_grad_norm: 0.5,
+            learning_rate_start: 3e-4,
+            learning_rate_end: 1e-5,
+            weight_decay: 1e-5,
+            adam_epsilon: 1e-5,
+            initial_log_std: -0.5,
+        }
+    }
+}
+
+impl PpoConfig {
+    /// Learning rate once `progress` ∈ [0, 1] of the run's environment steps are done.
+    pub fn learning_rate(&self, progress: f64) -> f64 {
+        let p = progress.clamp(0.0, 1.0);
+        self.learning_rate_start + (self.learning_rate_end - self.learning_rate_start) * p
+    }
+}
+
+/// A named combination of network, PPO settings and environment count.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Profile {
+    /// Name.
+    pub name: String,
+    /// Network shape.
+    pub architecture: Architecture,
+    /// PPO settings.
+    pub ppo: PpoConfig,
+    /// Parallel environments.
+    pub envs: usize,
+}
+
+impl Profile {
+    /// The thesis' configuration: 512×512 networks, 96 environments, SPEC §10 as is.
+    pub fn paper() -> Self {
+        Self { name: "paper".into(), architecture: Architecture::paper(), ppo: PpoConfig::default(), envs: 96 }
+    }
+
+    /// For a 2-core CPU: 128×128 networks and 4000-sample minibatches over 5 epochs (more,
+    /// cheaper gradient steps per collected sample); the rest as the paper.
+    pub fn cpu() -> Self {
+        Self {
+            name: "cpu".into(),
+            architecture: Architecture::cpu(),
+            ppo: PpoConfig { batch_size: 4000, n_epochs: 5, ..PpoConfig::default() },
+            envs: 96,
+        }
+    }
+
+    /// A profile by name.
+    pub fn named(name: &str) -> Option<Self> {
+        match name {
+            "paper" => Some(Self::paper()),
+            "cpu" => Some(Self::cpu()),
+            _ => None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn learning_rate_falls_linearly_from_start_to_end() {
+        let c = PpoConfig::default();
+        assert_eq!(c.learning_rate(0.0), 3e-4);
+        assert!((c.learning_rate(0.5) - (3e-4 + 1e-5) / 2.0).abs() < 1e-15);
+        assert!((c.learning_rate(1.0) - 1e-5).abs() < 1e-18);
+        assert!((c.learning_rate(7.0) - 1e-5).abs() < 1e-18, "clamped after the end");
+    }
+}

@@ -1,0 +1,53 @@
+//! Network shapes and named profiles (SPEC §10).
+
+use serde::{Deserialize, Serialize};
+
+/// Shape of the actor-critic: what a weights blob must match to be loaded.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Architecture {
+    /// Observation length.
+    pub observation_dim: usize,
+    /// Action length.
+    pub action_dim: usize,
+    /// Hidden layer widths, shared by actor and critic (separate networks).
+    pub hidden: Vec<usize>,
+    /// Negative slope of the LeakyReLU activations.
+    pub negative_slope: f64,
+}
+
+impl Architecture {
+    /// The thesis' network: two hidden layers of 512 (the `paper` profile).
+    pub fn paper() -> Self {
+        Self { observation_dim: sim::STATE_OBS_DIM, action_dim: sim::ACTION_DIM, hidden: vec![512, 512], negative_slope: 0.01 }
+    }
+
+    /// Two hidden layers of 128: the `cpu` profile, about 14× fewer multiply-adds.
+    pub fn cpu() -> Self {
+        Self { hidden: vec![128, 128], ..Self::paper() }
+    }
+
+    /// Number of trainable scalars (actor, critic and the log std).
+    pub fn parameter_count(&self) -> usize {
+        let mlp = |out: usize| {
+            let mut dims = vec![self.observation_dim];
+            dims.extend(&self.hidden);
+            dims.push(out);
+            dims.windows(2).map(|w| w[0] * w[1] + w[1]).sum::<usize>()
+        };
+        mlp(self.action_dim) + mlp(1) + self.action_dim
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parameter_count_of_the_paper_network() {
+        // Actor 40·512+512 + 512·512+512 + 512·4+4, critic the same with one output, log std 4.
+        let actor = 40 * 512 + 512 + 512 * 512 + 512 + 512 * 4 + 4;
+        let critic = 40 * 512 + 512 + 512 * 512 + 512 + 512 + 1;
+        assert_eq!(Architecture::paper().parameter_count(), actor + critic + 4);
+    }
+}

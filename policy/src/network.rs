@@ -1,0 +1,134 @@
+//! The actor-critic (SPEC §10): separate actor and critic MLPs with LeakyReLU, a
+//! state-independent log standard deviation, orthogonal initialisation.
+
+use burn::module::{Module, Param, ParamId};
+use burn::nn::{Initializer, Linear};
+use burn::tensor::activation::leaky_relu;
+use burn::tensor::{Device, Tensor, TensorData};
+
+use crate::architecture::Architecture;
+
+/// A multilayer perceptron: LeakyReLU between layers, none after the last.
+#[derive(Module, Debug)]
+pub struct Mlp {
+    layers: Vec<Linear>,
+    negative_slope: f64,
+}
+
+impl Mlp {
+    /// Orthogonal weights (gain √2 for hidden layers, `head_gain` for the last), zero biases.
+    fn new(dims: &[usize], head_gain: f64, negative_slope: f64, device: &Device) -> Self {
+        let count = dims.len() - 1;
+        let layers = dims
+            .windows(2)
+            .enumerate()
+            .map(|(i, w)| {
+                let gain = if i + 1 == count { head_gain } else { std::f64::consts::SQRT_2 };
+                Linear {
+                    weight: Initializer::Orthogonal { gain }.init([w[0], w[1]], device),
+                    bias: Some(Initializer::Zeros.init([w[1]], device)),
+                }
+            })
+            .collect();
+        Self { layers, negative_slope }
+    }
+
+    /// `[batch, in] → [batch, out]`.
+    pub fn forward(&self, mut x: Tensor<2>) -> Tensor<2> {
+        let last = self.layers.len() - 1;
+        for (i, layer) in self.layers.iter().enumerate() {
+            x = layer.forward(x);
+            if i != last {
+                x = leaky_relu(x, self.negative_slope);
+            }
+        }
+        x
+    }
+}
+
+/// Actor and critic networks plus the log standard deviation of the Gaussian policy.
+#[derive(Module, Debug)]
+pub struct ActorCritic {
+    /// Observation → action mean.
+    pub actor: Mlp,
+    /// Observation → state value.
+    pub critic: Mlp,
+    /// Log standard deviation per action dimension (state-independent).
+    pub log_std: Param<Tensor<1>>,
+}
+
+/// One exported parameter: its id (so optimiser state can follow it), shape and values.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExportedParam {
+    /// burn's parameter id.
+    pub id: u64,
+    /// Shape.
+    pub shape: Vec<usize>,
+    /// Row-major values.
+    pub values: Vec<f32>,
+}
+
+impl ActorCritic {
+    /// A freshly initialised network (gains: √2 hidden, 0.01 policy head, 1 value head).
+    pub fn new(arch: &Architecture, initial_log_std: f64, device: &Device) -> Self {
+        let dims = |out: usize| {
+            let mut d = vec![arch.observation_dim];
+            d.extend(&arch.hidden);
+            d.push(out);
+            d
+        };
+        Self {
+            actor: Mlp::new(&dims(arch.action_dim), 0.01, arch.negative_slope, device),
+            critic: Mlp::new(&dims(1), 1.0, arch.negative_slope, device),
+            log_std: Initializer::Constant { value: initial_log_std }.init([arch.action_dim], device),
+        }
+    }
+
+    /// Action means `[batch, action_dim]` and values `[batch]` of normalised observations.
+    pub fn forward(&self, observations: Tensor<2>) -> (Tensor<2>, Tensor<1>) {
+        let mean = self.actor.forward(observations.clone());
+        let value = self.critic.forward(observations).squeeze_dim(1);
+        (mean, value)
+    }
+
+    /// Every parameter in a fixed order: actor layers (weight, bias), critic layers, log std.
+    pub fn export(&self) -> Vec<ExportedParam> {
+        let mut out = Vec::new();
+        let mut push = |id: ParamId, data: TensorData| {
+            let shape = data.shape().to_vec();
+            out.push(ExportedParam { id: id.val(), shape, values: data.try_into_vec::<f32>().expect("float parameters") });
+        };
+        for layer in self.actor.layers.iter().chain(&self.critic.layers) {
+            push(layer.weight.id, layer.weight.val().into_data());
+            let bias = layer.bias.as_ref().expect("layers have biases");
+            push(bias.id, bias.val().into_data());
+        }
+        push(self.log_std.id, self.log_std.val().into_data());
+        out
+    }
+
+    /// Rebuilds a network of `arch` from [`ActorCritic::export`]'s output, keeping parameter ids.
+    pub fn import(arch: &Architecture, params: &[ExportedParam], device: &Device) -> Result<Self, String> {
+        let mut model = Self::new(arch, 0.0, device);
+        let expected: Vec<Vec<usize>> = model.export().into_iter().map(|p| p.shape).collect();
+        let got: Vec<Vec<usize>> = params.iter().map(|p| p.shape.clone()).collect();
+        if expected != got {
+            return Err(format!("parameter shapes {got:?} do not fit the architecture's {expected:?}"));
+        }
+        let mut it = params.iter();
+        let param2 = |p: &ExportedParam| -> Param<Tensor<2>> {
+            let t = Tensor::from_data(TensorData::new(p.values.clone(), [p.shape[0], p.shape[1]]), device);
+            Param::initialized(ParamId::from(p.id), t).set_require_grad(true)
+        };
+        let param1 = |p: &ExportedParam| -> Param<Tensor<1>> {
+            let t = Tensor::from_data(TensorData::new(p.values.clone(), [p.shape[0]]), device);
+            Param::initialized(ParamId::from(p.id), t).set_require_grad(true)
+        };
+        for layer in model.actor.layers.iter_mut().chain(model.critic.layers.iter_mut()) {
+            layer.weight = param2(it.next().expect("shape-checked"));
+            layer.bias = Some(param1(it.next().expect("shape-checked")));
+        }
+        model.log_std = param1(it.next().expect("shape-checked"));
+        Ok(model)
+    }
+}
