@@ -23,6 +23,8 @@ enum Command {
     /// Simulator tools: replay action files, measure stepping speed.
     #[command(subcommand)]
     Sim(commands::sim::SimCommand),
+    /// Train a policy with PPO (in this process).
+    Train(commands::train::TrainArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -36,6 +38,7 @@ fn main() -> std::process::ExitCode {
         Command::Tracks(c) => commands::tracks::run(c),
         Command::Eval(a) => commands::eval::run(a),
         Command::Sim(c) => commands::sim::run(c),
+        Command::Train(a) => commands::train::run(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

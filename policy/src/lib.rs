@@ -1,14 +1,17 @@
 //! Policies: the actor-critic network (burn), the observation normaliser, the versioned
-//! weights blob that carries both to actors, and inference for acting and evaluating.
+//! weights blob that carries both to actors, inference for acting and evaluating, and the
+//! rollout chunk actors send back.
 
 pub mod architecture;
 pub mod blob;
 pub mod inference;
 pub mod network;
 pub mod normalizer;
+pub mod rollout;
 
 pub use architecture::Architecture;
 pub use blob::{BlobError, WeightsBlob};
 pub use inference::{Acting, Policy, PolicyController, gaussian_log_prob};
 pub use network::ActorCritic;
 pub use normalizer::ObsNormalizer;
+pub use rollout::{EpisodeRecord, RolloutChunk};

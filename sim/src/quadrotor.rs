@@ -6,11 +6,12 @@
 //! drone whose flight controller was tuned for the nominal airframe.
 
 use nalgebra::{Matrix3, Matrix4, Quaternion, UnitQuaternion, Vector3, Vector4};
+use serde::{Deserialize, Serialize};
 
 use crate::params::{GRAVITY, QuadrotorParams};
 
 /// Rigid-body part of the state: the quantities RK4 integrates.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct BodyState {
     /// Position of the centre of mass in the world (m).
     pub position: Vector3<f64>,
@@ -76,7 +77,7 @@ impl BodyDerivative {
 }
 
 /// Command of the low-level controller: mass-normalised collective thrust and body rates.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Command {
     /// Collective thrust divided by mass (m/s²).
     pub collective_thrust: f64,
@@ -115,7 +116,7 @@ impl Command {
 }
 
 /// One simulated quadrotor: state, controller model and plant.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Quadrotor {
     /// Rigid-body state.
     pub body: BodyState,

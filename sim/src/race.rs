@@ -108,8 +108,9 @@ impl StepOutcome {
     }
 }
 
-/// A single racing environment with its own random stream.
-#[derive(Clone, Debug)]
+/// A single racing environment with its own random stream; serialisable mid-episode, so a
+/// checkpoint can resume exactly.
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct RaceEnv {
     config: EnvConfig,
     track: Arc<Track>,

@@ -90,7 +90,7 @@ impl RewardParams {
 }
 
 /// First-order low-pass of the action, ã (SPEC §12.5); starts at 0.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct ActionFilter {
     filtered: [f64; 4],
 }

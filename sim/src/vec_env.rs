@@ -46,18 +46,7 @@ impl VecEnv {
     pub fn new(tracks: Vec<Arc<Track>>, config: EnvConfig, seed: u64) -> Self {
         let envs: Vec<RaceEnv> =
             tracks.into_iter().enumerate().map(|(i, t)| RaceEnv::new(t, config, seed, i as u64)).collect();
-        let n = envs.len();
-        let mut v = Self {
-            envs,
-            observations: vec![0.0; n * STATE_OBS_DIM],
-            rewards: vec![0.0; n],
-            terminated: vec![false; n],
-            truncated: vec![false; n],
-            final_observations: vec![0.0; n * STATE_OBS_DIM],
-            finished: Vec::new(),
-        };
-        v.write_all_observations();
-        v
+        Self::from_envs(envs)
     }
 
     /// Number of environments.
@@ -118,6 +107,22 @@ impl VecEnv {
     /// The environments, for inspection.
     pub fn envs(&self) -> &[RaceEnv] {
         &self.envs
+    }
+
+    /// Rebuilds a vectorised environment from saved environments (see [`VecEnv::envs`]).
+    pub fn from_envs(envs: Vec<RaceEnv>) -> Self {
+        let n = envs.len();
+        let mut v = Self {
+            envs,
+            observations: vec![0.0; n * STATE_OBS_DIM],
+            rewards: vec![0.0; n],
+            terminated: vec![false; n],
+            truncated: vec![false; n],
+            final_observations: vec![0.0; n * STATE_OBS_DIM],
+            finished: Vec::new(),
+        };
+        v.write_all_observations();
+        v
     }
 
     fn write_all_observations(&mut self) {

@@ -2,7 +2,11 @@
 
 use std::path::PathBuf;
 
+use std::sync::Arc;
+
+use anyhow::Context;
 use clap::{Args, ValueEnum};
+use policy::{Policy, PolicyController};
 use ::sim::eval::{EvalConfig, evaluate};
 use ::sim::{Controller, ReferencePilot};
 
@@ -13,6 +17,8 @@ use super::{load_tracks, write_atomic};
 pub enum ControllerKind {
     /// The non-learned reference pilot.
     Pilot,
+    /// A trained policy's mean action (needs --policy).
+    Policy,
 }
 
 /// Arguments of `dronerace eval`.
@@ -33,6 +39,9 @@ pub struct EvalArgs {
     /// Seed of the start perturbations.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Checkpoint or weights blob of the policy (with `--controller policy`).
+    #[arg(long)]
+    policy: Option<PathBuf>,
     /// Directory for `eval.json` and `eval.md`.
     #[arg(long, default_value = "runs/eval")]
     out: PathBuf,
@@ -44,11 +53,18 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.steps > 0, "--steps must be at least 1");
     let tracks = load_tracks(&args.tracks)?;
     let config = EvalConfig { runs: args.runs, steps: args.steps, seed: args.seed, ..EvalConfig::default() };
-    let (name, make): (&str, Box<dyn Fn() -> Box<dyn Controller> + Sync>) = match args.controller {
-        ControllerKind::Pilot => ("pilot", Box::new(|| Box::new(ReferencePilot::default()))),
+    let (name, make): (String, Box<dyn Fn() -> Box<dyn Controller> + Sync>) = match args.controller {
+        ControllerKind::Pilot => ("pilot".into(), Box::new(|| Box::new(ReferencePilot::default()))),
+        ControllerKind::Policy => {
+            let path = args.policy.as_ref().context("--controller policy needs --policy CHECKPOINT")?;
+            let blob = learner::checkpoint::read_policy(path)?;
+            let policy = Arc::new(Policy::from_blob(&blob)?);
+            let name = format!("policy v{} ({})", blob.version, path.display());
+            (name, Box::new(move || Box::new(PolicyController::new(policy.clone()))))
+        }
     };
     let started = std::time::Instant::now();
-    let report = evaluate(name, &tracks, make.as_ref(), &config);
+    let report = evaluate(&name, &tracks, make.as_ref(), &config);
     let markdown = report.to_markdown();
     println!("{markdown}");
     tracing::info!(

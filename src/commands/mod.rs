@@ -3,6 +3,7 @@
 pub mod eval;
 pub mod sim;
 pub mod tracks;
+pub mod train;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

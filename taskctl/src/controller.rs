@@ -237,26 +237,36 @@ impl TaskController {
         &self.state.switching
     }
 
-    /// Writes the whole state atomically: a temporary file, fsync, rename.
-    pub fn snapshot(&self, path: &Path) -> Result<(), SnapshotError> {
-        let io = |source| SnapshotError::Io { file: path.to_path_buf(), source };
+    /// The whole state as snapshot bytes: a header line (format, version, length, CRC-32)
+    /// followed by the JSON body.
+    pub fn to_snapshot_bytes(&self) -> Vec<u8> {
         let body = serde_json::to_vec(&self.state).expect("controller state always serialises");
         let header = format!("{SNAPSHOT_MAGIC} {SNAPSHOT_VERSION} {} {:08x}\n", body.len(), crc32fast::hash(&body));
+        [header.into_bytes(), body].concat()
+    }
+
+    /// Writes [`TaskController::to_snapshot_bytes`] atomically: a temporary file, fsync, rename.
+    pub fn snapshot(&self, path: &Path) -> Result<(), SnapshotError> {
+        let io = |source| SnapshotError::Io { file: path.to_path_buf(), source };
         let tmp = path.with_extension("tmp");
         {
             use std::io::Write;
             let mut file = std::fs::File::create(&tmp).map_err(io)?;
-            file.write_all(header.as_bytes()).map_err(io)?;
-            file.write_all(&body).map_err(io)?;
+            file.write_all(&self.to_snapshot_bytes()).map_err(io)?;
             file.sync_all().map_err(io)?;
         }
         std::fs::rename(&tmp, path).map_err(io)
     }
 
-    /// Reads a snapshot, refusing anything truncated, altered or of another format.
+    /// Reads a snapshot file, refusing anything truncated, altered or of another format.
     pub fn restore(path: &Path) -> Result<Self, SnapshotError> {
         let bytes = std::fs::read(path).map_err(|source| SnapshotError::Io { file: path.to_path_buf(), source })?;
-        let corrupt = |reason: String| SnapshotError::Corrupt { file: path.to_path_buf(), reason };
+        Self::from_snapshot_bytes(&bytes, path)
+    }
+
+    /// Decodes snapshot bytes; `origin` names their source in errors.
+    pub fn from_snapshot_bytes(bytes: &[u8], origin: &Path) -> Result<Self, SnapshotError> {
+        let corrupt = |reason: String| SnapshotError::Corrupt { file: origin.to_path_buf(), reason };
         let newline = bytes.iter().position(|&b| b == b'\n').ok_or_else(|| corrupt("no header line".into()))?;
         let header = std::str::from_utf8(&bytes[..newline]).map_err(|_| corrupt("header is not text".into()))?;
         let fields: Vec<&str> = header.split(' ').collect();

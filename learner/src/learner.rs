@@ -1,0 +1,212 @@
+//! The learner: turns rollout chunks of its current policy version into the next version.
+
+use burn::module::Module;
+use burn::optim::decay::WeightDecayConfig;
+use burn::optim::{AdamConfig, ModuleOptimizer};
+use burn::tensor::{Bytes, Device};
+use policy::{ActorCritic, ObsNormalizer, RolloutChunk, WeightsBlob};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::config::Profile;
+use crate::ppo::{GaeInput, TrainingBatch, UpdateStats, gae, update};
+
+/// A batch of chunks the learner refuses.
+#[derive(Debug, thiserror::Error)]
+pub enum LearnerError {
+    /// A chunk was produced by another policy version than the one being trained.
+    #[error("rollout chunk of policy version {got} while training version {expected}")]
+    WrongVersion {
+        /// Version in the chunk.
+        got: u64,
+        /// Current version.
+        expected: u64,
+    },
+    /// A chunk's arrays do not have the lengths its header promises.
+    #[error("malformed rollout chunk: {0}")]
+    Malformed(String),
+    /// No chunks.
+    #[error("no rollout chunks to learn from")]
+    Empty,
+    /// Saved learner state could not be restored.
+    #[error("learner state: {0}")]
+    State(String),
+}
+
+/// What one iteration did.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct IterationReport {
+    /// Policy version produced.
+    pub version: u64,
+    /// Environment steps learned from so far.
+    pub env_steps: u64,
+    /// Learning rate used.
+    pub learning_rate: f64,
+    /// Losses and diagnostics.
+    pub stats: UpdateStats,
+}
+
+/// Counters and random state saved with a checkpoint.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+struct Counters {
+    version: u64,
+    env_steps: u64,
+    total_env_steps: u64,
+    profile: Profile,
+    normalizer: ObsNormalizer,
+    rng: ChaCha8Rng,
+}
+
+/// PPO learner state: network, optimiser, normaliser, counters.
+pub struct Learner {
+    counters: Counters,
+    device: Device,
+    model: ActorCritic,
+    optimizer: ModuleOptimizer,
+}
+
+impl Learner {
+    /// A fresh learner for a run of `total_env_steps` (the learning-rate schedule's length).
+    pub fn new(profile: Profile, total_env_steps: u64, seed: u64) -> Self {
+        let device = Device::flex().autodiff();
+        device.seed(seed);
+        let model = ActorCritic::new(&profile.architecture, profile.ppo.initial_log_std, &device);
+        let counters = Counters {
+            version: 0,
+            env_steps: 0,
+            total_env_steps,
+            normalizer: ObsNormalizer::new(profile.architecture.observation_dim),
+            rng: ChaCha8Rng::seed_from_u64(seed ^ 0x5050_4f00),
+            profile,
+        };
+        let optimizer = adam(&counters.profile);
+        Self { counters, device, model, optimizer }
+    }
+
+    /// Current policy version (number of updates so far).
+    pub fn version(&self) -> u64 {
+        self.counters.version
+    }
+
+    /// Environment steps learned from.
+    pub fn env_steps(&self) -> u64 {
+        self.counters.env_steps
+    }
+
+    /// The profile being trained.
+    pub fn profile(&self) -> &Profile {
+        &self.counters.profile
+    }
+
+    /// Weights of the current version, for actors and checkpoints.
+    pub fn weights(&self) -> WeightsBlob {
+        let c = &self.counters;
+        WeightsBlob::from_model(c.version, &c.profile.architecture, &c.normalizer, &self.model)
+    }
+
+    /// One PPO iteration on chunks produced by the current version.
+    pub fn train(&mut self, chunks: &[RolloutChunk]) -> Result<IterationReport, LearnerError> {
+        if chunks.is_empty() {
+            return Err(LearnerError::Empty);
+        }
+        let ppo = self.counters.profile.ppo;
+        let mut batch = TrainingBatch::default();
+        let mut transitions = 0;
+        for chunk in chunks {
+            if chunk.policy_version != self.counters.version {
+                return Err(LearnerError::WrongVersion { got: chunk.policy_version, expected: self.counters.version });
+            }
+            self.check(chunk)?;
+            let advantages = gae(
+                &GaeInput {
+                    envs: chunk.envs,
+                    rewards: &chunk.rewards,
+                    values: &chunk.values,
+                    terminated: &chunk.terminated,
+                    truncated: &chunk.truncated,
+                    truncation_values: &chunk.truncation_values,
+                    last_values: &chunk.last_values,
+                },
+                ppo.gamma as f32,
+                ppo.gae_lambda as f32,
+            );
+            // Normalise with the statistics the actors acted with (this version's).
+            let mut normalized = vec![0.0; chunk.observations.len()];
+            self.counters.normalizer.normalize(&chunk.observations, &mut normalized);
+            batch.observations.extend(normalized);
+            batch.actions.extend_from_slice(&chunk.actions);
+            batch.old_log_probs.extend_from_slice(&chunk.log_probs);
+            batch.old_values.extend_from_slice(&chunk.values);
+            batch.advantages.extend(advantages.advantages);
+            batch.returns.extend(advantages.returns);
+            transitions += chunk.transitions();
+        }
+        let c = &mut self.counters;
+        let progress = (c.env_steps + transitions as u64) as f64 / c.total_env_steps.max(1) as f64;
+        let learning_rate = ppo.learning_rate(progress);
+        let model = std::mem::replace(&mut self.model, ActorCritic::new(&c.profile.architecture, 0.0, &self.device));
+        let (model, stats) = update(model, &mut self.optimizer, &batch, &ppo, learning_rate, &mut c.rng, &self.device);
+        self.model = model;
+        for chunk in chunks {
+            c.normalizer.update(&chunk.observations);
+        }
+        c.env_steps += transitions as u64;
+        c.version += 1;
+        Ok(IterationReport { version: c.version, env_steps: c.env_steps, learning_rate, stats })
+    }
+
+    fn check(&self, chunk: &RolloutChunk) -> Result<(), LearnerError> {
+        let arch = &self.counters.profile.architecture;
+        let t = chunk.transitions();
+        let expect = [
+            ("observations", chunk.observations.len(), t * arch.observation_dim),
+            ("actions", chunk.actions.len(), t * arch.action_dim),
+            ("log_probs", chunk.log_probs.len(), t),
+            ("values", chunk.values.len(), t),
+            ("rewards", chunk.rewards.len(), t),
+            ("terminated", chunk.terminated.len(), t),
+            ("truncated", chunk.truncated.len(), t),
+            ("truncation_values", chunk.truncation_values.len(), t),
+            ("last_values", chunk.last_values.len(), chunk.envs),
+        ];
+        for (name, got, want) in expect {
+            if got != want {
+                return Err(LearnerError::Malformed(format!("{name} has {got} values, expected {want}")));
+            }
+        }
+        let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
+        if !(finite(&chunk.observations) && finite(&chunk.actions) && finite(&chunk.rewards) && finite(&chunk.values)) {
+            return Err(LearnerError::Malformed("non-finite numbers".into()));
+        }
+        Ok(())
+    }
+
+    /// Everything needed to continue training exactly: weights, optimiser moments, counters.
+    pub fn save_state(&self) -> (Vec<u8>, Vec<u8>, Vec<u8>) {
+        let weights = self.weights().to_bytes();
+        let optimizer = self.optimizer.into_bytes().expect("optimiser state serialises").to_vec();
+        let counters = serde_json::to_vec(&self.counters).expect("counters serialise");
+        (weights, optimizer, counters)
+    }
+
+    /// Restores [`Learner::save_state`]'s output.
+    pub fn restore_state(weights: &[u8], optimizer: &[u8], counters: &[u8]) -> Result<Self, LearnerError> {
+        let counters: Counters = serde_json::from_slice(counters).map_err(|e| LearnerError::State(e.to_string()))?;
+        let blob = WeightsBlob::from_bytes(weights).map_err(|e| LearnerError::State(e.to_string()))?;
+        blob.check_architecture(&counters.profile.architecture).map_err(|e| LearnerError::State(e.to_string()))?;
+        let device = Device::flex().autodiff();
+        let model = blob.model(&device).map_err(|e| LearnerError::State(e.to_string()))?.train();
+        let optimizer = adam(&counters.profile)
+            .from_bytes(Bytes::from_bytes_vec(optimizer.to_vec()))
+            .map_err(|e| LearnerError::State(format!("optimiser: {e:?}")))?;
+        Ok(Self { counters, device, model, optimizer })
+    }
+}
+
+/// Adam with SPEC §10's ε and L2 weight decay added to the gradient (torch Adam semantics).
+fn adam(profile: &Profile) -> ModuleOptimizer {
+    let ppo = &profile.ppo;
+    let decay = (ppo.weight_decay > 0.0).then(|| WeightDecayConfig::new(ppo.weight_decay as f32));
+    AdamConfig::new().with_epsilon(ppo.adam_epsilon as f32).with_weight_decay(decay).init()
+}

@@ -1,0 +1,167 @@
+//! Training metrics: `metrics.csv` (one row per iteration) and a TensorBoard event file, with
+//! CleanRL's metric names.
+
+use std::fs::{File, OpenOptions};
+use std::io::Write;
+use std::path::Path;
+
+/// Metric names, in CSV column order.
+pub const METRICS: [&str; 17] = [
+    "charts/episodic_return",
+    "charts/episodic_length",
+    "charts/laps_per_episode",
+    "charts/crash_rate",
+    "charts/fastest_lap",
+    "charts/SPS",
+    "charts/learning_rate",
+    "losses/policy_loss",
+    "losses/value_loss",
+    "losses/approx_kl",
+    "losses/clipfrac",
+    "losses/explained_variance",
+    "losses/grad_norm",
+    "policy/version_lag",
+    "tasks/switches",
+    "tasks/mean_q",
+    "eval/S_pw",
+];
+
+/// Appends metric rows to the CSV and the TensorBoard file of a run directory.
+pub struct MetricsWriter {
+    csv: File,
+    events: File,
+}
+
+impl MetricsWriter {
+    /// Opens (or continues) `metrics.csv` and starts a new event file in `dir`.
+    pub fn open(dir: &Path) -> std::io::Result<Self> {
+        let csv_path = dir.join("metrics.csv");
+        let fresh = !csv_path.exists();
+        let mut csv = OpenOptions::new().create(true).append(true).open(&csv_path)?;
+        if fresh {
+            writeln!(csv, "iteration,env_steps,wall_seconds,{}", METRICS.join(","))?;
+        }
+        let stamp = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default().as_secs();
+        let mut events = File::create(dir.join(format!("events.out.tfevents.{stamp}.dronerace")))?;
+        write_record(&mut events, &event(stamp as f64, 0, EventBody::FileVersion("brain.Event:2")))?;
+        Ok(Self { csv, events })
+    }
+
+    /// One iteration's values, in [`METRICS`] order (NaN where not measured).
+    pub fn write(&mut self, iteration: u64, env_steps: u64, wall_seconds: f64, values: &[f64; METRICS.len()]) -> std::io::Result<()> {
+        let cells: Vec<String> = values.iter().map(|v| if v.is_nan() { String::new() } else { format!("{v}") }).collect();
+        writeln!(self.csv, "{iteration},{env_steps},{wall_seconds:.3},{}", cells.join(","))?;
+        self.csv.flush()?;
+        let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default().as_secs_f64();
+        let scalars: Vec<(&str, f32)> =
+            METRICS.iter().zip(values).filter(|(_, v)| v.is_finite()).map(|(n, v)| (*n, *v as f32)).collect();
+        write_record(&mut self.events, &event(now, env_steps as i64, EventBody::Scalars(&scalars)))?;
+        self.events.flush()
+    }
+}
+
+enum EventBody<'a> {
+    FileVersion(&'a str),
+    Scalars(&'a [(&'a str, f32)]),
+}
+
+/// A `tensorboard.Event` protobuf: wall_time (1, double), step (2, varint), then either
+/// file_version (3, string) or summary (5) holding values (1) of tag (1) and simple_value (2).
+fn event(wall_time: f64, step: i64, body: EventBody<'_>) -> Vec<u8> {
+    let mut out = vec![0x09];
+    out.extend_from_slice(&wall_time.to_le_bytes());
+    out.push(0x10);
+    varint(&mut out, step as u64);
+    match body {
+        EventBody::FileVersion(v) => length_delimited(&mut out, 0x1a, v.as_bytes()),
+        EventBody::Scalars(values) => {
+            let mut summary = Vec::new();
+            for (tag, value) in values {
+                let mut v = Vec::new();
+                length_delimited(&mut v, 0x0a, tag.as_bytes());
+                v.push(0x15);
+                v.extend_from_slice(&value.to_le_bytes());
+                length_delimited(&mut summary, 0x0a, &v);
+            }
+            length_delimited(&mut out, 0x2a, &summary);
+        }
+    }
+    out
+}
+
+fn varint(out: &mut Vec<u8>, mut x: u64) {
+    while x >= 0x80 {
+        out.push((x as u8) | 0x80);
+        x >>= 7;
+    }
+    out.push(x as u8);
+}
+
+fn length_delimited(out: &mut Vec<u8>, key: u8, bytes: &[u8]) {
+    out.push(key);
+    varint(out, bytes.len() as u64);
+    out.extend_from_slice(bytes);
+}
+
+/// TFRecord framing: length, masked CRC-32C of the length, data, masked CRC-32C of the data.
+fn write_record(file: &mut File, data: &[u8]) -> std::io::Result<()> {
+    let len = (data.len() as u64).to_le_bytes();
+    file.write_all(&len)?;
+    file.write_all(&masked_crc32c(&len).to_le_bytes())?;
+    file.write_all(data)?;
+    file.write_all(&masked_crc32c(data).to_le_bytes())
+}
+
+fn masked_crc32c(data: &[u8]) -> u32 {
+    let crc = crc32c(data);
+    crc.rotate_right(15).wrapping_add(0xa282_ead8)
+}
+
+/// CRC-32C (Castagnoli), bitwise: event records are small and few.
+fn crc32c(data: &[u8]) -> u32 {
+    let mut crc = !0u32;
+    for &b in data {
+        crc ^= u32::from(b);
+        for _ in 0..8 {
+            crc = if crc & 1 != 0 { (crc >> 1) ^ 0x82F6_3B78 } else { crc >> 1 };
+        }
+    }
+    !crc
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn crc32c_matches_the_standard_check_value() {
+        assert_eq!(crc32c(b"123456789"), 0xE306_9283);
+    }
+
+    #[test]
+    fn csv_rows_follow_the_header_and_events_are_framed() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut w = MetricsWriter::open(dir.path()).unwrap();
+        let mut values = [f64::NAN; METRICS.len()];
+        values[0] = 12.5;
+        w.write(3, 72_000, 9.5, &values).unwrap();
+        let csv = std::fs::read_to_string(dir.path().join("metrics.csv")).unwrap();
+        let lines: Vec<&str> = csv.lines().collect();
+        assert_eq!(lines[0].split(',').count(), lines[1].split(',').count());
+        assert!(lines[1].starts_with("3,72000,9.500,12.5,"));
+        let event_file = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().path()).find(|p| p.to_string_lossy().contains("tfevents")).unwrap();
+        let bytes = std::fs::read(event_file).unwrap();
+        // Walk the records: each length must be followed by its masked CRC and the data's.
+        let mut at = 0;
+        let mut records = 0;
+        while at < bytes.len() {
+            let len = u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap()) as usize;
+            assert_eq!(u32::from_le_bytes(bytes[at + 8..at + 12].try_into().unwrap()), masked_crc32c(&bytes[at..at + 8]));
+            let data = &bytes[at + 12..at + 12 + len];
+            assert_eq!(u32::from_le_bytes(bytes[at + 12 + len..at + 16 + len].try_into().unwrap()), masked_crc32c(data));
+            at += 16 + len;
+            records += 1;
+        }
+        assert_eq!(records, 2);
+    }
+}

@@ -1,0 +1,106 @@
+//! `dronerace train`: PPO training in this process (task controller, actor, learner).
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use anyhow::Context;
+use clap::Args;
+use learner::{TrackSource, TrainConfig, Trainer};
+
+/// Arguments of `dronerace train`.
+#[derive(Args)]
+pub struct TrainArgs {
+    /// TOML configuration (every field optional; see learner::TrainConfig).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Run directory (default `runs/<name>`).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Continue the run in this directory from its newest checkpoint.
+    #[arg(long, conflicts_with_all = ["config", "out", "profile", "track", "total_env_steps", "seed"])]
+    resume: Option<PathBuf>,
+    /// Profile: cpu or paper (overrides the config).
+    #[arg(long)]
+    profile: Option<String>,
+    /// Train on this one library track instead of generated tracks.
+    #[arg(long)]
+    track: Option<String>,
+    /// Environment steps of the run (overrides the config).
+    #[arg(long)]
+    total_env_steps: Option<u64>,
+    /// Seed (overrides the config).
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Stop after this many iterations (a checkpoint is written on the way out).
+    #[arg(long)]
+    iterations: Option<u64>,
+}
+
+/// Runs training until the budget is spent, `--iterations` are done, or Ctrl-C.
+pub fn run(args: TrainArgs) -> anyhow::Result<()> {
+    let mut trainer = match &args.resume {
+        Some(dir) => Trainer::resume(dir)?,
+        None => {
+            let mut config = match &args.config {
+                Some(path) => {
+                    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+                    toml::from_str::<TrainConfig>(&text).with_context(|| format!("{}", path.display()))?
+                }
+                None => TrainConfig::default(),
+            };
+            if let Some(p) = &args.profile {
+                config.profile = p.clone();
+            }
+            if let Some(t) = &args.track {
+                config.tracks = TrackSource::Library { names: vec![t.clone()] };
+                config.switching.policy = taskctl::SwitchPolicy::None;
+            }
+            if let Some(n) = args.total_env_steps {
+                config.total_env_steps = n;
+            }
+            if let Some(s) = args.seed {
+                config.seed = s;
+            }
+            let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("runs").join(&config.name));
+            std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+            Trainer::start(config, &dir)?
+        }
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst)).context("installing the Ctrl-C handler")?;
+    let log_path = trainer.dir().join("train.log");
+    let mut log = std::fs::OpenOptions::new().create(true).append(true).open(&log_path)
+        .with_context(|| format!("opening {}", log_path.display()))?;
+    let first = trainer.iteration();
+    eprintln!("training in {} (from iteration {first})", trainer.dir().display());
+    while !trainer.finished() && !stop.load(Ordering::SeqCst) && args.iterations.is_none_or(|n| trainer.iteration() - first < n) {
+        let s = trainer.iteration_step()?;
+        let line = format!(
+            "iter {:>5} | {:>11} steps | {:>6.0} SPS | return {:>8.2} | laps/ep {:>5.2} | switches {:>5} | kl {:.4} | ETA {}",
+            s.iteration,
+            s.report.env_steps,
+            s.sps,
+            s.mean_return,
+            s.laps_per_episode,
+            s.switches,
+            s.report.stats.approx_kl,
+            format_duration(trainer.eta_seconds(s.sps))
+        );
+        eprintln!("{line}");
+        use std::io::Write;
+        writeln!(log, "{line}").with_context(|| format!("writing {}", log_path.display()))?;
+    }
+    let path = trainer.checkpoint()?;
+    eprintln!("checkpoint written to {}", path.display());
+    Ok(())
+}
+
+fn format_duration(seconds: f64) -> String {
+    if !seconds.is_finite() {
+        return "–".into();
+    }
+    let s = seconds as u64;
+    format!("{}h{:02}m{:02}s", s / 3600, s % 3600 / 60, s % 60)
+}
