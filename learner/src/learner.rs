@@ -62,7 +62,8 @@ struct Counters {
 pub struct Learner {
     counters: Counters,
     device: Device,
-    model: ActorCritic,
+    /// Always `Some` between calls; taken while burn's optimiser consumes and returns it.
+    model: Option<ActorCritic>,
     optimizer: ModuleOptimizer,
 }
 
@@ -70,8 +71,7 @@ impl Learner {
     /// A fresh learner for a run of `total_env_steps` (the learning-rate schedule's length).
     pub fn new(profile: Profile, total_env_steps: u64, seed: u64) -> Self {
         let device = Device::flex().autodiff();
-        device.seed(seed);
-        let model = ActorCritic::new(&profile.architecture, profile.ppo.initial_log_std, &device);
+        let model = Some(ActorCritic::new(&profile.architecture, profile.ppo.initial_log_std, seed, &device));
         let counters = Counters {
             version: 0,
             env_steps: 0,
@@ -99,10 +99,14 @@ impl Learner {
         &self.counters.profile
     }
 
+    fn model(&self) -> &ActorCritic {
+        self.model.as_ref().expect("the model is present between calls")
+    }
+
     /// Weights of the current version, for actors and checkpoints.
     pub fn weights(&self) -> WeightsBlob {
         let c = &self.counters;
-        WeightsBlob::from_model(c.version, &c.profile.architecture, &c.normalizer, &self.model)
+        WeightsBlob::from_model(c.version, &c.profile.architecture, &c.normalizer, self.model())
     }
 
     /// One PPO iteration on chunks produced by the current version.
@@ -145,9 +149,9 @@ impl Learner {
         let c = &mut self.counters;
         let progress = (c.env_steps + transitions as u64) as f64 / c.total_env_steps.max(1) as f64;
         let learning_rate = ppo.learning_rate(progress);
-        let model = std::mem::replace(&mut self.model, ActorCritic::new(&c.profile.architecture, 0.0, &self.device));
+        let model = self.model.take().expect("the model is present between calls");
         let (model, stats) = update(model, &mut self.optimizer, &batch, &ppo, learning_rate, &mut c.rng, &self.device);
-        self.model = model;
+        self.model = Some(model);
         for chunk in chunks {
             c.normalizer.update(&chunk.observations);
         }
@@ -196,7 +200,7 @@ impl Learner {
         let blob = WeightsBlob::from_bytes(weights).map_err(|e| LearnerError::State(e.to_string()))?;
         blob.check_architecture(&counters.profile.architecture).map_err(|e| LearnerError::State(e.to_string()))?;
         let device = Device::flex().autodiff();
-        let model = blob.model(&device).map_err(|e| LearnerError::State(e.to_string()))?.train();
+        let model = Some(blob.model(&device).map_err(|e| LearnerError::State(e.to_string()))?.train());
         let optimizer = adam(&counters.profile)
             .from_bytes(Bytes::from_bytes_vec(optimizer.to_vec()))
             .map_err(|e| LearnerError::State(format!("optimiser: {e:?}")))?;

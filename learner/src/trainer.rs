@@ -155,7 +155,7 @@ pub struct IterationSummary {
 struct Progress {
     iteration: u64,
     wall_seconds: f64,
-    best_return: f64,
+    best_return: Option<f64>,
 }
 
 /// The in-process training loop and its run directory.
@@ -206,7 +206,7 @@ impl Trainer {
         std::fs::write(dir.join("config.toml"), toml::to_string(&config).map_err(|e| TrainError::Io(e.to_string()))?)
             .map_err(|e| TrainError::Io(format!("{}: {e}", dir.display())))?;
         let metrics = MetricsWriter::open(dir).map_err(|e| TrainError::Io(format!("{}: {e}", dir.display())))?;
-        let progress = Progress { iteration: 0, wall_seconds: 0.0, best_return: f64::NEG_INFINITY };
+        let progress = Progress { iteration: 0, wall_seconds: 0.0, best_return: None };
         Ok(Self { config, dir: dir.to_path_buf(), learner, actor, tasks, checkpoints, metrics, progress })
     }
 
@@ -307,8 +307,8 @@ impl Trainer {
             .write(self.progress.iteration, summary.report.env_steps, self.progress.wall_seconds, &values)
             .map_err(|e| TrainError::Io(format!("{}: metrics: {e}", self.dir.display())))?;
 
-        if summary.mean_return.is_finite() && summary.mean_return > self.progress.best_return {
-            self.progress.best_return = summary.mean_return;
+        if summary.mean_return.is_finite() && self.progress.best_return.is_none_or(|best| summary.mean_return > best) {
+            self.progress.best_return = Some(summary.mean_return);
             self.checkpoint_to(&self.checkpoints.best())?;
         }
         if self.progress.iteration % self.config.checkpoint_every.max(1) == 0 {

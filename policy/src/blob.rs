@@ -191,7 +191,7 @@ mod tests {
 
     fn blob() -> WeightsBlob {
         let arch = Architecture { hidden: vec![8, 8], ..Architecture::paper() };
-        let model = ActorCritic::new(&arch, -0.5, &Device::flex());
+        let model = ActorCritic::new(&arch, -0.5, 1, &Device::flex());
         let mut normalizer = ObsNormalizer::new(arch.observation_dim);
         normalizer.update(&(0..arch.observation_dim * 3).map(|i| i as f32 * 0.1).collect::<Vec<_>>());
         WeightsBlob::from_model(7, &arch, &normalizer, &model)

@@ -138,7 +138,7 @@ mod tests {
     #[test]
     fn acting_is_seeded_and_centred_on_the_mean() {
         let arch = Architecture { hidden: vec![16, 16], ..Architecture::paper() };
-        let blob = WeightsBlob::from_model(3, &arch, &ObsNormalizer::new(40), &ActorCritic::new(&arch, -0.5, &Device::flex()));
+        let blob = WeightsBlob::from_model(3, &arch, &ObsNormalizer::new(40), &ActorCritic::new(&arch, -0.5, 1, &Device::flex()));
         let policy = Policy::from_blob(&blob).unwrap();
         let obs = vec![0.2f32; 40 * 64];
         let a = policy.act(&obs, &mut rand_chacha::ChaCha8Rng::seed_from_u64(1));

@@ -2,9 +2,13 @@
 //! state-independent log standard deviation, orthogonal initialisation.
 
 use burn::module::{Module, Param, ParamId};
-use burn::nn::{Initializer, Linear};
+use burn::nn::Linear;
 use burn::tensor::activation::leaky_relu;
 use burn::tensor::{Device, Tensor, TensorData};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
+use sim::nalgebra::DMatrix;
 
 use crate::architecture::Architecture;
 
@@ -15,9 +19,31 @@ pub struct Mlp {
     negative_slope: f64,
 }
 
+/// A `rows × cols` matrix with orthonormal rows or columns times `gain` (as torch's
+/// `orthogonal_`): QR of a Gaussian matrix, signs fixed by R's diagonal. Drawn from our own
+/// seeded stream: burn's random tensors share one process-wide generator.
+fn orthogonal(rows: usize, cols: usize, gain: f64, rng: &mut ChaCha8Rng) -> Vec<f32> {
+    let (tall, short) = (rows.max(cols), rows.min(cols));
+    let gaussian = DMatrix::<f64>::from_fn(tall, short, |_, _| rng.sample(StandardNormal));
+    let qr = gaussian.qr();
+    let (mut q, r) = (qr.q(), qr.r());
+    for j in 0..short {
+        if r[(j, j)] < 0.0 {
+            q.column_mut(j).neg_mut();
+        }
+    }
+    let q = if rows >= cols { q } else { q.transpose() };
+    // Row-major rows × cols.
+    (0..rows).flat_map(|i| (0..cols).map(move |j| (i, j))).map(|(i, j)| (gain * q[(i, j)]) as f32).collect()
+}
+
+fn parameter<const D: usize>(values: Vec<f32>, shape: [usize; D], device: &Device) -> Param<Tensor<D>> {
+    Param::from_tensor(Tensor::from_data(TensorData::new(values, shape), device))
+}
+
 impl Mlp {
     /// Orthogonal weights (gain √2 for hidden layers, `head_gain` for the last), zero biases.
-    fn new(dims: &[usize], head_gain: f64, negative_slope: f64, device: &Device) -> Self {
+    fn new(dims: &[usize], head_gain: f64, negative_slope: f64, rng: &mut ChaCha8Rng, device: &Device) -> Self {
         let count = dims.len() - 1;
         let layers = dims
             .windows(2)
@@ -25,8 +51,8 @@ impl Mlp {
             .map(|(i, w)| {
                 let gain = if i + 1 == count { head_gain } else { std::f64::consts::SQRT_2 };
                 Linear {
-                    weight: Initializer::Orthogonal { gain }.init([w[0], w[1]], device),
-                    bias: Some(Initializer::Zeros.init([w[1]], device)),
+                    weight: parameter(orthogonal(w[0], w[1], gain, rng), [w[0], w[1]], device),
+                    bias: Some(parameter(vec![0.0; w[1]], [w[1]], device)),
                 }
             })
             .collect();
@@ -69,8 +95,10 @@ pub struct ExportedParam {
 }
 
 impl ActorCritic {
-    /// A freshly initialised network (gains: √2 hidden, 0.01 policy head, 1 value head).
-    pub fn new(arch: &Architecture, initial_log_std: f64, device: &Device) -> Self {
+    /// A freshly initialised network (gains: √2 hidden, 0.01 policy head, 1 value head); the
+    /// same seed gives the same weights.
+    pub fn new(arch: &Architecture, initial_log_std: f64, seed: u64, device: &Device) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let dims = |out: usize| {
             let mut d = vec![arch.observation_dim];
             d.extend(&arch.hidden);
@@ -78,9 +106,9 @@ impl ActorCritic {
             d
         };
         Self {
-            actor: Mlp::new(&dims(arch.action_dim), 0.01, arch.negative_slope, device),
-            critic: Mlp::new(&dims(1), 1.0, arch.negative_slope, device),
-            log_std: Initializer::Constant { value: initial_log_std }.init([arch.action_dim], device),
+            actor: Mlp::new(&dims(arch.action_dim), 0.01, arch.negative_slope, &mut rng, device),
+            critic: Mlp::new(&dims(1), 1.0, arch.negative_slope, &mut rng, device),
+            log_std: parameter(vec![initial_log_std as f32; arch.action_dim], [arch.action_dim], device),
         }
     }
 
@@ -109,7 +137,7 @@ impl ActorCritic {
 
     /// Rebuilds a network of `arch` from [`ActorCritic::export`]'s output, keeping parameter ids.
     pub fn import(arch: &Architecture, params: &[ExportedParam], device: &Device) -> Result<Self, String> {
-        let mut model = Self::new(arch, 0.0, device);
+        let mut model = Self::new(arch, 0.0, 0, device);
         let expected: Vec<Vec<usize>> = model.export().into_iter().map(|p| p.shape).collect();
         let got: Vec<Vec<usize>> = params.iter().map(|p| p.shape.clone()).collect();
         if expected != got {
@@ -130,5 +158,32 @@ impl ActorCritic {
         }
         model.log_std = param1(it.next().expect("shape-checked"));
         Ok(model)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn orthogonal_init_has_orthonormal_columns_scaled_by_the_gain() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let (rows, cols) = (40, 16);
+        let w = orthogonal(rows, cols, 2.0, &mut rng);
+        let m = DMatrix::from_row_slice(rows, cols, &w.iter().map(|&x| f64::from(x)).collect::<Vec<_>>());
+        let gram = m.transpose() * &m / 4.0;
+        assert!((gram - DMatrix::identity(cols, cols)).amax() < 1e-5);
+        // Wide matrices get orthonormal rows instead.
+        let w = orthogonal(4, 9, 1.0, &mut rng);
+        let m = DMatrix::from_row_slice(4, 9, &w.iter().map(|&x| f64::from(x)).collect::<Vec<_>>());
+        assert!((&m * m.transpose() - DMatrix::identity(4, 4)).amax() < 1e-5);
+    }
+
+    #[test]
+    fn same_seed_same_network() {
+        let arch = Architecture { hidden: vec![8], ..Architecture::paper() };
+        let a = ActorCritic::new(&arch, -0.5, 9, &Device::flex()).export();
+        assert_eq!(a, ActorCritic::new(&arch, -0.5, 9, &Device::flex()).export().into_iter().zip(&a).map(|(mut p, q)| { p.id = q.id; p }).collect::<Vec<_>>());
+        assert_ne!(a[0].values, ActorCritic::new(&arch, -0.5, 10, &Device::flex()).export()[0].values);
     }
 }

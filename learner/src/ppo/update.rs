@@ -191,7 +191,7 @@ mod tests {
     fn global_norm_clipping_scales_all_gradients_together() {
         let device = Device::flex().autodiff();
         let arch = policy::Architecture { hidden: vec![3], ..policy::Architecture::paper() };
-        let model = ActorCritic::new(&arch, -0.5, &device);
+        let model = ActorCritic::new(&arch, -0.5, 1, &device);
         let ids = parameter_ids(&model);
         // loss = 3 Σ log_std: its gradient is 3 per element, every other parameter has none.
         let loss = model.log_std.val().sum().mul_scalar(3.0);

@@ -1,0 +1,156 @@
+//! Training end to end in one process: resuming from a checkpoint continues exactly, and the
+//! train → resume → evaluate commands work together.
+
+use std::path::Path;
+use std::process::Command;
+
+use learner::{PpoConfig, TrainConfig, Trainer};
+
+/// A tiny but complete run: generated tracks with adaptive switching on a short window.
+fn tiny_config() -> TrainConfig {
+    let mut config = TrainConfig {
+        name: "tiny".into(),
+        profile: "cpu".into(),
+        total_env_steps: 10_000,
+        seed: 3,
+        envs: Some(4),
+        ppo: Some(PpoConfig { n_steps: 32, batch_size: 48, n_epochs: 2, ..PpoConfig::default() }),
+        checkpoint_every: 2,
+        ..TrainConfig::default()
+    };
+    config.switching.window = 2;
+    config
+}
+
+/// The policy's bytes with burn's process-unique parameter ids blanked: values, normaliser,
+/// version and architecture, bit for bit.
+fn weights(trainer: &Trainer) -> Vec<u8> {
+    let mut blob = trainer.learner().weights();
+    blob.params.iter_mut().for_each(|p| p.id = 0);
+    blob.to_bytes()
+}
+
+#[test]
+fn resuming_from_a_checkpoint_gives_the_same_next_iteration_weights() {
+    let dir = tempfile::tempdir().unwrap();
+    let straight = dir.path().join("straight");
+    let resumed = dir.path().join("resumed");
+    std::fs::create_dir_all(&straight).unwrap();
+    std::fs::create_dir_all(&resumed).unwrap();
+
+    let mut a = Trainer::start(tiny_config(), &straight).unwrap();
+    for _ in 0..3 {
+        a.iteration_step().unwrap();
+    }
+
+    let mut b = Trainer::start(tiny_config(), &resumed).unwrap();
+    for _ in 0..2 {
+        b.iteration_step().unwrap();
+    }
+    let before = weights(&b);
+    drop(b); // the process "dies" after the checkpoint of iteration 2
+    let mut b = Trainer::resume(&resumed).unwrap();
+    assert_eq!(b.iteration(), 2);
+    assert!(weights(&b) == before, "the checkpoint restores the weights bit for bit");
+    b.iteration_step().unwrap();
+
+    assert_eq!(b.learner().version(), a.learner().version());
+    assert_eq!(b.learner().env_steps(), a.learner().env_steps());
+    assert!(weights(&b) == weights(&a), "the next iteration's weights equal an uninterrupted run's");
+    assert_eq!(b.tasks().history(), a.tasks().history());
+    // metrics.csv continues where it stopped: a header and one row per iteration.
+    let rows = std::fs::read_to_string(resumed.join("metrics.csv")).unwrap().lines().count();
+    assert_eq!(rows, 1 + 2 + 1);
+}
+
+#[test]
+fn two_identical_runs_are_identical() {
+    let dir = tempfile::tempdir().unwrap();
+    let (p, q) = (dir.path().join("p"), dir.path().join("q"));
+    std::fs::create_dir_all(&p).unwrap();
+    std::fs::create_dir_all(&q).unwrap();
+    let mut a = Trainer::start(tiny_config(), &p).unwrap();
+    let mut b = Trainer::start(tiny_config(), &q).unwrap();
+    assert!(weights(&a) == weights(&b), "same initial weights");
+    for i in 0..3 {
+        a.iteration_step().unwrap();
+        b.iteration_step().unwrap();
+        assert!(weights(&a) == weights(&b), "iteration {i}");
+    }
+}
+
+#[test]
+fn a_run_directory_with_checkpoints_is_not_overwritten() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut t = Trainer::start(tiny_config(), dir.path()).unwrap();
+    t.iteration_step().unwrap();
+    t.checkpoint().unwrap();
+    let err = Trainer::start(tiny_config(), dir.path()).err().expect("refused");
+    assert!(err.to_string().contains("already holds checkpoints"), "{err}");
+}
+
+fn dronerace(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_dronerace")).args(args).output().expect("run dronerace")
+}
+
+#[test]
+fn train_resume_and_evaluate_from_the_command_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let config = dir.path().join("train.toml");
+    std::fs::write(
+        &config,
+        "name = \"cli\"\nprofile = \"cpu\"\nenvs = 4\ntotal_env_steps = 100000\n\n[ppo]\nn_steps = 16\nbatch_size = 32\nn_epochs = 1\n\n[tracks]\nkind = \"library\"\nnames = [\"Figure8\"]\n",
+    )
+    .unwrap();
+    let o = dronerace(&["train", "--config", config.to_str().unwrap(), "--out", run.to_str().unwrap(), "--iterations", "2"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = dronerace(&["train", "--resume", run.to_str().unwrap(), "--iterations", "1"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && err.contains("from iteration 2") && err.contains("iter     3"), "{err}");
+    for file in ["config.toml", "metrics.csv", "train.log", "checkpoints/ckpt-000000003.bin"] {
+        assert!(run.join(file).exists(), "{file}");
+    }
+    let out = dir.path().join("eval");
+    let o = dronerace(&[
+        "eval", "--controller", "policy", "--policy", run.join("checkpoints/ckpt-000000003.bin").to_str().unwrap(),
+        "--tracks", Path::new(env!("CARGO_MANIFEST_DIR")).join("tracks/figure8.toml").to_str().unwrap(),
+        "--runs", "2", "--steps", "100", "--out", out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("policy v3"));
+    // A bad config names the field.
+    std::fs::write(&config, "profile = \"huge\"\n").unwrap();
+    let o = dronerace(&["train", "--config", config.to_str().unwrap(), "--out", dir.path().join("x").to_str().unwrap()]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("profile"));
+    std::fs::write(&config, "profil = \"cpu\"\n").unwrap();
+    let o = dronerace(&["train", "--config", config.to_str().unwrap(), "--out", dir.path().join("y").to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("train.toml") && err.contains("profil"), "{err}");
+}
+
+#[test]
+fn a_few_seconds_of_training_measurably_improve_the_mean_return() {
+    // Easy task: 100-step episodes from 2 m behind Figure8's first gate. A random policy
+    // crashes (−4) early; staying up and flying at the gate pays up to a few points.
+    let mut config = TrainConfig {
+        name: "smoke".into(),
+        profile: "cpu".into(),
+        total_env_steps: 100_000_000,
+        seed: 1,
+        envs: Some(32),
+        ppo: Some(PpoConfig { n_steps: 64, batch_size: 512, n_epochs: 5, learning_rate_start: 1e-3, ..PpoConfig::default() }),
+        tracks: learner::TrackSource::Library { names: vec!["Figure8".into()] },
+        checkpoint_every: 1000,
+        ..TrainConfig::default()
+    };
+    config.switching.policy = taskctl::SwitchPolicy::None;
+    config.env.race.max_episode_steps = 100;
+    let dir = tempfile::tempdir().unwrap();
+    let mut trainer = Trainer::start(config, dir.path()).unwrap();
+    let returns: Vec<f64> = (0..25).map(|_| trainer.iteration_step().unwrap().mean_return).collect();
+    let first = returns[..4].iter().sum::<f64>() / 4.0;
+    let last = returns[returns.len() - 4..].iter().sum::<f64>() / 4.0;
+    eprintln!("mean returns per iteration: {returns:.2?}");
+    assert!(last > first + 1.0, "mean return {first:.2} → {last:.2}: {returns:.2?}");
+}
