@@ -25,6 +25,8 @@ enum Command {
     Sim(commands::sim::SimCommand),
     /// Train a policy with PPO (in this process).
     Train(commands::train::TrainArgs),
+    /// Time one PPO gradient step (forward, backward, optimiser) on this machine.
+    LearnerBench(commands::train::LearnerBenchArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -39,6 +41,7 @@ fn main() -> std::process::ExitCode {
         Command::Eval(a) => commands::eval::run(a),
         Command::Sim(c) => commands::sim::run(c),
         Command::Train(a) => commands::train::run(a),
+        Command::LearnerBench(a) => commands::train::bench(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

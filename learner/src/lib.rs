@@ -1,6 +1,7 @@
 //! The PPO learner: configuration, GAE, the clipped-surrogate update, checkpoints, metrics and
 //! the in-process training loop.
 
+pub mod bench;
 pub mod checkpoint;
 pub mod config;
 pub mod learner;

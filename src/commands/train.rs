@@ -104,3 +104,35 @@ fn format_duration(seconds: f64) -> String {
     let s = seconds as u64;
     format!("{}h{:02}m{:02}s", s / 3600, s % 3600 / 60, s % 60)
 }
+
+/// Arguments of `dronerace learner-bench`.
+#[derive(Args)]
+pub struct LearnerBenchArgs {
+    /// Profile: cpu or paper.
+    #[arg(long, default_value = "paper")]
+    profile: String,
+    /// Samples per gradient step.
+    #[arg(long, default_value_t = 4096)]
+    samples: usize,
+    /// Timed steps (after one warm-up).
+    #[arg(long, default_value_t = 5)]
+    repeats: usize,
+}
+
+/// Times forward, backward and the optimiser step of one PPO gradient step.
+pub fn bench(args: LearnerBenchArgs) -> anyhow::Result<()> {
+    let profile = learner::Profile::named(&args.profile).with_context(|| format!("--profile: unknown profile {:?}", args.profile))?;
+    anyhow::ensure!(args.samples > 0 && args.repeats > 0, "--samples and --repeats must be at least 1");
+    let t = learner::bench::time_gradient_step(&profile, args.samples, args.repeats);
+    println!(
+        "{} profile, {} samples, flex backend, {} threads: forward {:.1} ms, backward {:.1} ms, optimiser {:.1} ms, {:.1} GFLOP/s (forward+backward)",
+        profile.name,
+        args.samples,
+        rayon::current_num_threads(),
+        t.forward * 1e3,
+        t.backward * 1e3,
+        t.optimizer * 1e3,
+        t.gflops
+    );
+    Ok(())
+}

@@ -1,0 +1,70 @@
+//! Micro-benchmark of one PPO gradient step: forward, backward and the Adam step on a batch,
+//! for choosing a backend and a profile on this machine.
+
+use std::time::Instant;
+
+use burn::optim::GradientsParams;
+use burn::tensor::{Device, Tensor, TensorData};
+use policy::ActorCritic;
+
+use crate::config::Profile;
+use crate::ppo::loss::{clipped_surrogate, log_prob, value_loss};
+
+/// Median times of the three stages (seconds) and the implied rate.
+#[derive(Clone, Copy, Debug)]
+pub struct StepTiming {
+    /// Forward pass through actor and critic, and the loss.
+    pub forward: f64,
+    /// Backward pass.
+    pub backward: f64,
+    /// Gradient extraction and the Adam step.
+    pub optimizer: f64,
+    /// Multiply-adds ×2 ×3 (forward + backward) per second of forward + backward.
+    pub gflops: f64,
+}
+
+/// Times `repeats` gradient steps on `samples` random samples (after one warm-up step).
+pub fn time_gradient_step(profile: &Profile, samples: usize, repeats: usize) -> StepTiming {
+    let device = Device::flex().autodiff();
+    let arch = &profile.architecture;
+    let mut model = ActorCritic::new(arch, profile.ppo.initial_log_std, 0, &device);
+    let mut optimizer = burn::optim::AdamConfig::new().init();
+    let data = |n: usize, f: &dyn Fn(usize) -> f32| (0..n).map(f).collect::<Vec<f32>>();
+    let obs = data(samples * arch.observation_dim, &|i| ((i * 7919) % 1000) as f32 / 500.0 - 1.0);
+    let actions = data(samples * arch.action_dim, &|i| ((i * 104_729) % 1000) as f32 / 500.0 - 1.0);
+    let targets = data(samples, &|i| (i % 17) as f32 / 17.0);
+    let (mut f, mut b, mut o) = (Vec::new(), Vec::new(), Vec::new());
+    for round in 0..=repeats {
+        let t0 = Instant::now();
+        let x = Tensor::<2>::from_data(TensorData::new(obs.clone(), [samples, arch.observation_dim]), &device);
+        let a = Tensor::<2>::from_data(TensorData::new(actions.clone(), [samples, arch.action_dim]), &device);
+        let adv = Tensor::<1>::from_data(TensorData::new(targets.clone(), [samples]), &device);
+        let (mean, value) = model.forward(x);
+        let logp = log_prob(a, mean, model.log_std.val());
+        let loss = clipped_surrogate(logp.exp(), adv.clone(), 0.2) + value_loss(value, adv).mul_scalar(0.5);
+        let _ = loss.clone().into_data(); // force the forward pass
+        let t1 = Instant::now();
+        let grads = loss.backward();
+        let t2 = Instant::now();
+        let grads = GradientsParams::from_grads(grads, &model);
+        model = optimizer.step(1e-4, model, grads);
+        let _ = model.log_std.val().into_data(); // force the update
+        let t3 = Instant::now();
+        if round > 0 {
+            f.push((t1 - t0).as_secs_f64());
+            b.push((t2 - t1).as_secs_f64());
+            o.push((t3 - t2).as_secs_f64());
+        }
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let (forward, backward, optimizer) = (median(&mut f), median(&mut b), median(&mut o));
+    let mut dims = vec![arch.observation_dim];
+    dims.extend(&arch.hidden);
+    let macs_per_sample: usize = dims.windows(2).map(|w| w[0] * w[1]).sum::<usize>() * 2
+        + arch.hidden.last().copied().unwrap_or(arch.observation_dim) * (arch.action_dim + 1);
+    let flops = 2.0 * 3.0 * (macs_per_sample * samples) as f64;
+    StepTiming { forward, backward, optimizer, gflops: flops / (forward + backward) / 1e9 }
+}
