@@ -101,17 +101,10 @@ impl Checkpoint {
         Ok(Self { sections, origin: origin.to_path_buf() })
     }
 
-    /// Writes atomically: temporary file, fsync, rename.
+    /// Writes atomically (a crash leaves the previous file intact).
     pub fn write(&self, path: &Path) -> Result<(), CheckpointError> {
-        let io = |source| CheckpointError::Io { file: path.to_path_buf(), source };
-        let tmp = path.with_extension("tmp");
-        {
-            use std::io::Write;
-            let mut file = std::fs::File::create(&tmp).map_err(io)?;
-            file.write_all(&self.to_bytes()).map_err(io)?;
-            file.sync_all().map_err(io)?;
-        }
-        std::fs::rename(&tmp, path).map_err(io)
+        taskctl::files::write_atomic(path, &self.to_bytes())
+            .map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })
     }
 
     /// Reads and verifies a checkpoint file.

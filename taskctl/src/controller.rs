@@ -247,15 +247,8 @@ impl TaskController {
 
     /// Writes [`TaskController::to_snapshot_bytes`] atomically: a temporary file, fsync, rename.
     pub fn snapshot(&self, path: &Path) -> Result<(), SnapshotError> {
-        let io = |source| SnapshotError::Io { file: path.to_path_buf(), source };
-        let tmp = path.with_extension("tmp");
-        {
-            use std::io::Write;
-            let mut file = std::fs::File::create(&tmp).map_err(io)?;
-            file.write_all(&self.to_snapshot_bytes()).map_err(io)?;
-            file.sync_all().map_err(io)?;
-        }
-        std::fs::rename(&tmp, path).map_err(io)
+        crate::files::write_atomic(path, &self.to_snapshot_bytes())
+            .map_err(|source| SnapshotError::Io { file: path.to_path_buf(), source })
     }
 
     /// Reads a snapshot file, refusing anything truncated, altered or of another format.

@@ -2,6 +2,7 @@
 //! spline, track generators, and task switching with the task controller.
 
 pub mod controller;
+pub mod files;
 pub mod generator;
 pub mod library;
 pub mod spline;

@@ -123,12 +123,10 @@ pub fn track_to_toml(track: &Track) -> String {
     toml::to_string(&raw).expect("a track always serialises")
 }
 
-/// Writes a track file atomically (temporary file, then rename).
+/// Writes a track file atomically.
 pub fn write_track(track: &Track, path: &Path) -> Result<(), TrackFileError> {
-    let io = |source| TrackFileError::Io { file: path.to_path_buf(), source };
-    let tmp = path.with_extension("toml.tmp");
-    std::fs::write(&tmp, track_to_toml(track)).map_err(io)?;
-    std::fs::rename(&tmp, path).map_err(io)
+    crate::files::write_atomic(path, track_to_toml(track).as_bytes())
+        .map_err(|source| TrackFileError::Io { file: path.to_path_buf(), source })
 }
 
 #[cfg(test)]
