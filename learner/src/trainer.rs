@@ -142,6 +142,10 @@ pub struct IterationSummary {
     pub report: IterationReport,
     /// Environment steps per second of this iteration (collection and update).
     pub sps: f64,
+    /// Seconds spent collecting the rollout (simulation and inference).
+    pub collect_seconds: f64,
+    /// Seconds spent in the PPO update.
+    pub update_seconds: f64,
     /// Mean return of the episodes that ended.
     pub mean_return: f64,
     /// Mean laps per ended episode.
@@ -261,7 +265,9 @@ impl Trainer {
                 self.actor.set_track(env, track)?;
             }
         }
+        let collected = Instant::now();
         let report = self.learner.train(std::slice::from_ref(&chunk))?;
+        let update_seconds = collected.elapsed().as_secs_f64();
         self.progress.iteration += 1;
         let seconds = started.elapsed().as_secs_f64();
         self.progress.wall_seconds += seconds;
@@ -278,6 +284,8 @@ impl Trainer {
         let summary = IterationSummary {
             iteration: self.progress.iteration,
             sps: chunk.transitions() as f64 / seconds,
+            collect_seconds: seconds - update_seconds,
+            update_seconds,
             mean_return: mean(&|e| e.episode_return),
             laps_per_episode: mean(&|e| f64::from(e.laps)),
             switches: self.tasks.history().len(),

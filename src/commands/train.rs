@@ -78,10 +78,12 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     while !trainer.finished() && !stop.load(Ordering::SeqCst) && args.iterations.is_none_or(|n| trainer.iteration() - first < n) {
         let s = trainer.iteration_step()?;
         let line = format!(
-            "iter {:>5} | {:>11} steps | {:>6.0} SPS | return {:>8.2} | laps/ep {:>5.2} | switches {:>5} | kl {:.4} | ETA {}",
+            "iter {:>5} | {:>11} steps | {:>6.0} SPS (collect {:.1} s, update {:.1} s) | return {:>8.2} | laps/ep {:>5.2} | switches {:>5} | kl {:.4} | ETA {}",
             s.iteration,
             s.report.env_steps,
             s.sps,
+            s.collect_seconds,
+            s.update_seconds,
             s.mean_return,
             s.laps_per_episode,
             s.switches,
