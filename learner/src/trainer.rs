@@ -13,7 +13,7 @@ use std::time::Instant;
 use actor::{Actor, ActorState};
 use serde::{Deserialize, Serialize};
 use sim::EnvConfig;
-use taskctl::{SwitchParams, TaskController, TrackGenParams, TrackGenerator};
+use taskctl::{SwitchParams, TaskController, TrackGenerator};
 
 use crate::checkpoint::{Checkpoint, CheckpointDir, CheckpointError};
 use crate::config::{PpoConfig, Profile};
@@ -52,7 +52,7 @@ pub struct TrainConfig {
     /// Training tracks.
     pub tracks: TrackSource,
     /// Track generator.
-    pub generator: TrackGeneratorConfig,
+    pub generator: TrackGenerator,
     /// Task switching.
     pub switching: SwitchParams,
     /// Environment (dynamics, randomisation, reward).
@@ -61,16 +61,6 @@ pub struct TrainConfig {
     pub checkpoint_every: u64,
     /// Periodic checkpoints kept.
     pub keep_checkpoints: usize,
-}
-
-/// Generator part of the training configuration.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct TrackGeneratorConfig {
-    /// Informed or uniform.
-    pub kind: taskctl::GeneratorKind,
-    /// Generator parameters.
-    pub params: TrackGenParams,
 }
 
 impl Default for TrainConfig {
@@ -83,7 +73,7 @@ impl Default for TrainConfig {
             envs: None,
             ppo: None,
             tracks: TrackSource::Generated,
-            generator: TrackGeneratorConfig::default(),
+            generator: TrackGenerator::default(),
             switching: SwitchParams::default(),
             env: EnvConfig::default(),
             checkpoint_every: 10,
@@ -185,7 +175,7 @@ impl Trainer {
                 dir.display()
             )));
         }
-        let generator = TrackGenerator { kind: config.generator.kind, params: config.generator.params };
+        let generator = config.generator;
         let tasks = match &config.tracks {
             TrackSource::Generated => TaskController::new(profile.envs, generator, config.switching, config.seed)?,
             TrackSource::Library { names } => {
