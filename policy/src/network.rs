@@ -83,6 +83,28 @@ pub struct ActorCritic {
     pub log_std: Param<Tensor<1>>,
 }
 
+/// A parameter tensor of either rank this network uses.
+enum AnyTensor {
+    One(Tensor<1>),
+    Two(Tensor<2>),
+}
+
+impl AnyTensor {
+    fn rank(&self) -> usize {
+        match self {
+            AnyTensor::One(_) => 1,
+            AnyTensor::Two(_) => 2,
+        }
+    }
+
+    fn into_data(self) -> TensorData {
+        match self {
+            AnyTensor::One(t) => t.into_data(),
+            AnyTensor::Two(t) => t.into_data(),
+        }
+    }
+}
+
 /// One exported parameter: its id (so optimiser state can follow it), shape and values.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ExportedParam {
@@ -119,45 +141,76 @@ impl ActorCritic {
         (mean, value)
     }
 
-    /// Every parameter in a fixed order: actor layers (weight, bias), critic layers, log std.
-    pub fn export(&self) -> Vec<ExportedParam> {
+    /// Every parameter with its id, in the fixed order: actor layers (weight, bias), critic
+    /// layers, log std. Tensors are shared handles, not copies.
+    fn ordered(&self) -> Vec<(ParamId, AnyTensor)> {
         let mut out = Vec::new();
-        let mut push = |id: ParamId, data: TensorData| {
-            let shape = data.shape().to_vec();
-            out.push(ExportedParam { id: id.val(), shape, values: data.try_into_vec::<f32>().expect("float parameters") });
-        };
         for layer in self.actor.layers.iter().chain(&self.critic.layers) {
-            push(layer.weight.id, layer.weight.val().into_data());
+            out.push((layer.weight.id, AnyTensor::Two(layer.weight.val())));
             let bias = layer.bias.as_ref().expect("layers have biases");
-            push(bias.id, bias.val().into_data());
+            out.push((bias.id, AnyTensor::One(bias.val())));
         }
-        push(self.log_std.id, self.log_std.val().into_data());
+        out.push((self.log_std.id, AnyTensor::One(self.log_std.val())));
         out
+    }
+
+    /// Every parameter's id and rank, in [`ActorCritic::export`] order, without copying values.
+    pub fn param_ids(&self) -> Vec<(ParamId, usize)> {
+        self.ordered().into_iter().map(|(id, t)| (id, t.rank())).collect()
+    }
+
+    /// Every parameter's values, in a fixed order: actor layers (weight, bias), critic layers,
+    /// log std.
+    pub fn export(&self) -> Vec<ExportedParam> {
+        self.ordered()
+            .into_iter()
+            .map(|(id, t)| {
+                let data = t.into_data();
+                let shape = data.shape().to_vec();
+                ExportedParam { id: id.val(), shape, values: data.try_into_vec::<f32>().expect("float parameters") }
+            })
+            .collect()
+    }
+
+    /// Parameter shapes of `arch`, in [`ActorCritic::export`] order.
+    pub fn shapes(arch: &Architecture) -> Vec<Vec<usize>> {
+        let mut shapes = Vec::new();
+        for out in [arch.action_dim, 1] {
+            let mut dims = vec![arch.observation_dim];
+            dims.extend(&arch.hidden);
+            dims.push(out);
+            for w in dims.windows(2) {
+                shapes.push(vec![w[0], w[1]]);
+                shapes.push(vec![w[1]]);
+            }
+        }
+        shapes.push(vec![arch.action_dim]);
+        shapes
     }
 
     /// Rebuilds a network of `arch` from [`ActorCritic::export`]'s output, keeping parameter ids.
     pub fn import(arch: &Architecture, params: &[ExportedParam], device: &Device) -> Result<Self, String> {
-        let mut model = Self::new(arch, 0.0, 0, device);
-        let expected: Vec<Vec<usize>> = model.export().into_iter().map(|p| p.shape).collect();
+        let expected = Self::shapes(arch);
         let got: Vec<Vec<usize>> = params.iter().map(|p| p.shape.clone()).collect();
         if expected != got {
             return Err(format!("parameter shapes {got:?} do not fit the architecture's {expected:?}"));
         }
-        let mut it = params.iter();
-        let param2 = |p: &ExportedParam| -> Param<Tensor<2>> {
+        let load = |p: &ExportedParam| -> Param<Tensor<1>> {
+            let t = Tensor::from_data(TensorData::new(p.values.clone(), [p.values.len()]), device);
+            Param::initialized(ParamId::from(p.id), t).set_require_grad(true)
+        };
+        let load2 = |p: &ExportedParam| -> Param<Tensor<2>> {
             let t = Tensor::from_data(TensorData::new(p.values.clone(), [p.shape[0], p.shape[1]]), device);
             Param::initialized(ParamId::from(p.id), t).set_require_grad(true)
         };
-        let param1 = |p: &ExportedParam| -> Param<Tensor<1>> {
-            let t = Tensor::from_data(TensorData::new(p.values.clone(), [p.shape[0]]), device);
-            Param::initialized(ParamId::from(p.id), t).set_require_grad(true)
+        let layers_per_mlp = arch.hidden.len() + 1;
+        let mlp = |pairs: &[ExportedParam]| Mlp {
+            layers: pairs.chunks(2).map(|wb| Linear { weight: load2(&wb[0]), bias: Some(load(&wb[1])) }).collect(),
+            negative_slope: arch.negative_slope,
         };
-        for layer in model.actor.layers.iter_mut().chain(model.critic.layers.iter_mut()) {
-            layer.weight = param2(it.next().expect("shape-checked"));
-            layer.bias = Some(param1(it.next().expect("shape-checked")));
-        }
-        model.log_std = param1(it.next().expect("shape-checked"));
-        Ok(model)
+        let (actor, rest) = params.split_at(2 * layers_per_mlp);
+        let (critic, log_std) = rest.split_at(2 * layers_per_mlp);
+        Ok(Self { actor: mlp(actor), critic: mlp(critic), log_std: load(&log_std[0]) })
     }
 }
 
@@ -177,6 +230,13 @@ mod tests {
         let w = orthogonal(4, 9, 1.0, &mut rng);
         let m = DMatrix::from_row_slice(4, 9, &w.iter().map(|&x| f64::from(x)).collect::<Vec<_>>());
         assert!((&m * m.transpose() - DMatrix::identity(4, 4)).amax() < 1e-5);
+    }
+
+    #[test]
+    fn shapes_follow_the_export_order() {
+        let arch = Architecture { hidden: vec![8, 6], ..Architecture::paper() };
+        let exported: Vec<Vec<usize>> = ActorCritic::new(&arch, -0.5, 2, &Device::flex()).export().into_iter().map(|p| p.shape).collect();
+        assert_eq!(ActorCritic::shapes(&arch), exported);
     }
 
     #[test]

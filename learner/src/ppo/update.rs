@@ -76,7 +76,7 @@ pub fn update(
     let minibatch = config.batch_size.min(n);
     let mut stats = UpdateStats::default();
     let mut indices: Vec<usize> = (0..n).collect();
-    let ids = parameter_ids(&model);
+    let ids = model.param_ids();
     for _ in 0..config.n_epochs {
         indices.shuffle(rng);
         for chunk in indices.chunks(minibatch) {
@@ -123,11 +123,6 @@ pub fn update(
     }
     stats.explained_variance = explained_variance(&batch.old_values, &batch.returns);
     (model, stats)
-}
-
-/// Parameter ids with their ranks, in export order.
-fn parameter_ids(model: &ActorCritic) -> Vec<(ParamId, usize)> {
-    model.export().into_iter().map(|p| (ParamId::from(p.id), p.shape.len())).collect()
 }
 
 /// Scales every gradient by `max / (norm + 1e-6)` when the global norm exceeds `max`
@@ -192,7 +187,7 @@ mod tests {
         let device = Device::flex().autodiff();
         let arch = policy::Architecture { hidden: vec![3], ..policy::Architecture::paper() };
         let model = ActorCritic::new(&arch, -0.5, 1, &device);
-        let ids = parameter_ids(&model);
+        let ids = model.param_ids();
         // loss = 3 Σ log_std: its gradient is 3 per element, every other parameter has none.
         let loss = model.log_std.val().sum().mul_scalar(3.0);
         let mut grads = GradientsParams::from_grads(loss.backward(), &model);
