@@ -12,8 +12,8 @@ use crate::blob::{BlobError, WeightsBlob};
 use crate::network::ActorCritic;
 use crate::normalizer::ObsNormalizer;
 
-/// ln(2π) / 2.
-const HALF_LN_2PI: f32 = 0.918_938_5;
+/// ln(2π) / 2, the normalising constant of a Gaussian log-density per dimension.
+pub const HALF_LN_2PI: f64 = 0.918_938_533_204_672_8;
 
 /// Log-density of `action` under a diagonal Gaussian (summed over dimensions).
 pub fn gaussian_log_prob(action: &[f32], mean: &[f32], log_std: &[f32]) -> f32 {
@@ -23,7 +23,7 @@ pub fn gaussian_log_prob(action: &[f32], mean: &[f32], log_std: &[f32]) -> f32 {
         .zip(log_std)
         .map(|((a, m), s)| {
             let z = (a - m) / s.exp();
-            -0.5 * z * z - s - HALF_LN_2PI
+            -0.5 * z * z - s - HALF_LN_2PI as f32
         })
         .sum()
 }

@@ -11,7 +11,7 @@ pub mod rollout;
 
 pub use architecture::Architecture;
 pub use blob::{BlobError, WeightsBlob};
-pub use inference::{Acting, Policy, PolicyController, gaussian_log_prob};
+pub use inference::{Acting, HALF_LN_2PI, Policy, PolicyController, gaussian_log_prob};
 pub use network::ActorCritic;
 pub use normalizer::ObsNormalizer;
 pub use rollout::{EpisodeRecord, RolloutChunk};

@@ -1,9 +1,7 @@
 //! The PPO loss terms as tensor functions (SB3 semantics).
 
 use burn::tensor::Tensor;
-
-/// ln(2π) / 2.
-const HALF_LN_2PI: f64 = 0.918_938_533_204_672_8;
+use policy::HALF_LN_2PI;
 
 /// Log-density `[batch]` of `actions` `[batch, dim]` under N(mean, exp(log_std)²).
 pub fn log_prob(actions: Tensor<2>, mean: Tensor<2>, log_std: Tensor<1>) -> Tensor<1> {
