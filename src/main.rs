@@ -23,8 +23,14 @@ enum Command {
     /// Simulator tools: replay action files, measure stepping speed.
     #[command(subcommand)]
     Sim(commands::sim::SimCommand),
-    /// Train a policy with PPO (in this process).
+    /// Train a policy with PPO: task controller, learner and actors as processes on this machine.
     Train(commands::train::TrainArgs),
+    /// Serve the task controller (tracks and switching of every environment) over gRPC.
+    Taskctl(commands::services::TaskctlArgs),
+    /// Run the learner process (PPO; takes rollouts, publishes weights).
+    Learner(commands::services::LearnerArgs),
+    /// Run an actor process (environments, inference, rollouts).
+    Actor(commands::services::ActorArgs),
     /// Time one PPO gradient step (forward, backward, optimiser) on this machine.
     LearnerBench(commands::train::LearnerBenchArgs),
 }
@@ -41,6 +47,9 @@ fn main() -> std::process::ExitCode {
         Command::Eval(a) => commands::eval::run(a),
         Command::Sim(c) => commands::sim::run(c),
         Command::Train(a) => commands::train::run(a),
+        Command::Taskctl(a) => commands::services::taskctl(a),
+        Command::Learner(a) => commands::services::learner(a),
+        Command::Actor(a) => commands::services::actor(a),
         Command::LearnerBench(a) => commands::train::bench(a),
     };
     match result {

@@ -1,5 +1,8 @@
 //! The actor: runs many environments, acts with the newest policy it was given, and turns each
-//! rollout into a [`RolloutChunk`] tagged with that policy's version.
+//! rollout into a [`RolloutChunk`] tagged with that policy's version; [`process`] is the actor
+//! process's loop around it.
+
+pub mod process;
 
 use std::sync::Arc;
 
@@ -99,6 +102,15 @@ impl Actor {
         }
         self.env.set_track(env - self.first_env, track);
         Ok(())
+    }
+
+    /// Like [`Actor::set_track`], but leaves the environment alone when it flies `track` already.
+    pub fn set_track_if_changed(&mut self, env: usize, track: Arc<Track>) -> Result<(), ActorError> {
+        let index = env.checked_sub(self.first_env).filter(|&i| i < self.len());
+        if index.is_some_and(|i| **self.env.envs()[i].track() == *track) {
+            return Ok(());
+        }
+        self.set_track(env, track)
     }
 
     /// Runs `steps` policy steps in every environment and packs them into a chunk.

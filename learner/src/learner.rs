@@ -111,6 +111,12 @@ impl Learner {
 
     /// One PPO iteration on chunks produced by the current version.
     pub fn train(&mut self, chunks: &[RolloutChunk]) -> Result<IterationReport, LearnerError> {
+        self.train_with_lag(chunks, 0)
+    }
+
+    /// One PPO iteration on chunks produced at most `max_policy_lag` versions ago (asynchronous
+    /// running; the stored log-probabilities make the importance ratios right for older data).
+    pub fn train_with_lag(&mut self, chunks: &[RolloutChunk], max_policy_lag: u64) -> Result<IterationReport, LearnerError> {
         if chunks.is_empty() {
             return Err(LearnerError::Empty);
         }
@@ -118,7 +124,7 @@ impl Learner {
         let mut batch = TrainingBatch::default();
         let mut transitions = 0;
         for chunk in chunks {
-            if chunk.policy_version != self.counters.version {
+            if chunk.policy_version > self.counters.version || self.counters.version - chunk.policy_version > max_policy_lag {
                 return Err(LearnerError::WrongVersion { got: chunk.policy_version, expected: self.counters.version });
             }
             self.check(chunk)?;
@@ -162,28 +168,22 @@ impl Learner {
 
     fn check(&self, chunk: &RolloutChunk) -> Result<(), LearnerError> {
         let arch = &self.counters.profile.architecture;
-        let t = chunk.transitions();
-        let expect = [
-            ("observations", chunk.observations.len(), t * arch.observation_dim),
-            ("actions", chunk.actions.len(), t * arch.action_dim),
-            ("log_probs", chunk.log_probs.len(), t),
-            ("values", chunk.values.len(), t),
-            ("rewards", chunk.rewards.len(), t),
-            ("terminated", chunk.terminated.len(), t),
-            ("truncated", chunk.truncated.len(), t),
-            ("truncation_values", chunk.truncation_values.len(), t),
-            ("last_values", chunk.last_values.len(), chunk.envs),
-        ];
-        for (name, got, want) in expect {
-            if got != want {
-                return Err(LearnerError::Malformed(format!("{name} has {got} values, expected {want}")));
-            }
-        }
-        let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
-        if !(finite(&chunk.observations) && finite(&chunk.actions) && finite(&chunk.rewards) && finite(&chunk.values)) {
-            return Err(LearnerError::Malformed("non-finite numbers".into()));
-        }
-        Ok(())
+        chunk.check(arch.observation_dim, arch.action_dim).map_err(LearnerError::Malformed)
+    }
+
+    /// A checkpoint holding [`Learner::save_state`] (sections `weights`, `optimizer`, `learner`).
+    pub fn checkpoint(&self) -> crate::checkpoint::Checkpoint {
+        let (weights, optimizer, learner) = self.save_state();
+        let mut c = crate::checkpoint::Checkpoint::default();
+        c.put("weights", weights);
+        c.put("optimizer", optimizer);
+        c.put("learner", learner);
+        c
+    }
+
+    /// Restores a learner from a checkpoint written with [`Learner::checkpoint`].
+    pub fn from_checkpoint(c: &crate::checkpoint::Checkpoint) -> Result<Self, crate::run::TrainError> {
+        Ok(Self::restore_state(c.get("weights")?, c.get("optimizer")?, c.get("learner")?)?)
     }
 
     /// Everything needed to continue training exactly: weights, optimiser moments, counters.

@@ -1,5 +1,5 @@
 //! The PPO learner: configuration, GAE, the clipped-surrogate update, checkpoints, metrics and
-//! the in-process training loop.
+//! the training run, the in-process training loop and the learner process.
 
 pub mod bench;
 pub mod checkpoint;
@@ -7,8 +7,11 @@ pub mod config;
 pub mod learner;
 pub mod metrics;
 pub mod ppo;
+pub mod process;
+pub mod run;
 pub mod trainer;
 
 pub use config::{PpoConfig, Profile};
 pub use learner::{IterationReport, Learner, LearnerError};
-pub use trainer::{IterationSummary, TrackSource, TrainConfig, TrainError, Trainer};
+pub use run::{IterationSummary, Run, TrackSource, TrainConfig, TrainError};
+pub use trainer::Trainer;

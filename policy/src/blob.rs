@@ -8,6 +8,7 @@
 use burn::tensor::Device;
 
 use crate::architecture::Architecture;
+use crate::bytes::{Reader, Truncated, put_f32s};
 use crate::network::{ActorCritic, ExportedParam};
 use crate::normalizer::ObsNormalizer;
 
@@ -101,9 +102,7 @@ impl WeightsBlob {
             for d in &p.shape {
                 out.extend_from_slice(&(*d as u32).to_le_bytes());
             }
-            for v in &p.values {
-                out.extend_from_slice(&v.to_le_bytes());
-            }
+            put_f32s(&mut out, &p.values);
         }
         let crc = crc32fast::hash(&out);
         out.extend_from_slice(&crc.to_le_bytes());
@@ -119,7 +118,7 @@ impl WeightsBlob {
             return Err(BlobError::Truncated { needed: 16 - bytes.len(), at: bytes.len() });
         }
         let (body, crc) = bytes.split_at(bytes.len() - 4);
-        let mut r = Reader { bytes: body, at: MAGIC.len() };
+        let mut r = Reader::new(body, MAGIC.len());
         let format = r.u32()?;
         if format != FORMAT {
             return Err(BlobError::UnsupportedFormat(format));
@@ -140,48 +139,20 @@ impl WeightsBlob {
         let mut params = Vec::with_capacity(count);
         for _ in 0..count {
             let id = r.u64()?;
-            let rank = r.take(1)?[0] as usize;
+            let rank = r.u8()? as usize;
             let shape: Vec<usize> = (0..rank).map(|_| r.u32().map(|d| d as usize)).collect::<Result<_, _>>()?;
-            let numel = shape.iter().product::<usize>();
-            let raw = r.take(numel * 4)?;
-            let values = raw.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes"))).collect();
+            let numel = shape.iter().try_fold(1usize, |n, &d| n.checked_mul(d));
+            let numel = numel.ok_or_else(|| BlobError::Malformed(format!("parameter {id}: shape {shape:?} overflows")))?;
+            let values = r.f32s(numel)?;
             params.push(ExportedParam { id, shape, values });
         }
-        if r.at != body.len() {
-            return Err(BlobError::Malformed(format!("{} bytes after the parameters", body.len() - r.at)));
+        if r.remaining() != 0 {
+            return Err(BlobError::Malformed(format!("{} bytes after the parameters", r.remaining())));
         }
         if normalizer.dim() != architecture.observation_dim {
             return Err(BlobError::Malformed("normaliser length differs from the observation length".into()));
         }
         Ok(Self { version, architecture, normalizer, params })
-    }
-}
-
-/// Bounds-checked little-endian reader.
-struct Reader<'a> {
-    bytes: &'a [u8],
-    at: usize,
-}
-
-impl<'a> Reader<'a> {
-    fn take(&mut self, n: usize) -> Result<&'a [u8], BlobError> {
-        let end = self.at.checked_add(n).filter(|&e| e <= self.bytes.len());
-        let end = end.ok_or_else(|| BlobError::Truncated { needed: self.at + n - self.bytes.len(), at: self.at })?;
-        let slice = &self.bytes[self.at..end];
-        self.at = end;
-        Ok(slice)
-    }
-
-    fn u32(&mut self) -> Result<u32, BlobError> {
-        Ok(u32::from_le_bytes(self.take(4)?.try_into().expect("4 bytes")))
-    }
-
-    fn u64(&mut self) -> Result<u64, BlobError> {
-        Ok(u64::from_le_bytes(self.take(8)?.try_into().expect("8 bytes")))
-    }
-
-    fn f64(&mut self) -> Result<f64, BlobError> {
-        Ok(f64::from_le_bytes(self.take(8)?.try_into().expect("8 bytes")))
     }
 }
 
@@ -222,5 +193,11 @@ mod tests {
         assert!(matches!(WeightsBlob::from_bytes(&bytes[..12]), Err(BlobError::Truncated { .. })));
         let e = b.check_architecture(&Architecture::paper()).unwrap_err().to_string();
         assert!(e.contains("[8,8]") && e.contains("[512,512]"), "{e}");
+    }
+}
+
+impl From<Truncated> for BlobError {
+    fn from(t: Truncated) -> Self {
+        Self::Truncated { needed: t.needed, at: t.at }
     }
 }

@@ -4,6 +4,7 @@
 
 pub mod architecture;
 pub mod blob;
+mod bytes;
 pub mod inference;
 pub mod network;
 pub mod normalizer;
@@ -14,4 +15,4 @@ pub use blob::{BlobError, WeightsBlob};
 pub use inference::{Acting, HALF_LN_2PI, Policy, PolicyController, gaussian_log_prob};
 pub use network::ActorCritic;
 pub use normalizer::ObsNormalizer;
-pub use rollout::{EpisodeRecord, RolloutChunk};
+pub use rollout::{EpisodeRecord, RolloutChunk, RolloutWireError};

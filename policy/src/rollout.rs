@@ -1,7 +1,45 @@
 //! The rollout chunk: what an actor sends the learner after each rollout, tagged with the
-//! policy version that produced it.
+//! policy version that produced it, and its wire format.
+//!
+//! Wire layout (little-endian): `DRROLL01`, policy_version u64, first_env u64, envs u32,
+//! steps u32, observation_dim u32, action_dim u32; observations, actions, log_probs, values,
+//! rewards as f32; terminated, truncated as one byte each; truncation_values f32,
+//! last_values f32[envs]; episode count u32 and per episode env u64, return f64, length u32,
+//! laps u32, fastest lap f64 (NaN for none), crashed u8; CRC-32 of everything before it.
 
 use serde::{Deserialize, Serialize};
+
+use crate::bytes::{Reader, Truncated, put_f32s};
+
+const MAGIC: &[u8; 8] = b"DRROLL01";
+
+/// Encoded rollout bytes that cannot be used.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum RolloutWireError {
+    /// Not a rollout chunk (or another format version).
+    #[error("not a dronerace rollout chunk (bad magic)")]
+    BadMagic,
+    /// The bytes end before the layout does.
+    #[error("rollout chunk is truncated at offset {at} ({needed} more bytes needed)")]
+    Truncated {
+        /// Bytes missing.
+        needed: usize,
+        /// Where they were needed.
+        at: usize,
+    },
+    /// The checksum does not match the contents.
+    #[error("rollout chunk checksum mismatch: the contents were altered")]
+    Checksum,
+    /// Anything else malformed inside.
+    #[error("rollout chunk is malformed: {0}")]
+    Malformed(String),
+}
+
+impl From<Truncated> for RolloutWireError {
+    fn from(t: Truncated) -> Self {
+        Self::Truncated { needed: t.needed, at: t.at }
+    }
+}
 
 /// One finished episode, for metrics.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -67,5 +105,202 @@ impl RolloutChunk {
     /// Number of transitions.
     pub fn transitions(&self) -> usize {
         self.envs * self.steps
+    }
+
+    /// Checks every array's length against `envs × steps` and the given dimensions, and that
+    /// all numbers are finite; the message names the offending field.
+    pub fn check(&self, observation_dim: usize, action_dim: usize) -> Result<(), String> {
+        let t = self.transitions();
+        let expect = [
+            ("observations", self.observations.len(), t * observation_dim),
+            ("actions", self.actions.len(), t * action_dim),
+            ("log_probs", self.log_probs.len(), t),
+            ("values", self.values.len(), t),
+            ("rewards", self.rewards.len(), t),
+            ("terminated", self.terminated.len(), t),
+            ("truncated", self.truncated.len(), t),
+            ("truncation_values", self.truncation_values.len(), t),
+            ("last_values", self.last_values.len(), self.envs),
+        ];
+        for (name, got, want) in expect {
+            if got != want {
+                return Err(format!("{name} has {got} values, expected {want}"));
+            }
+        }
+        let arrays = [
+            ("observations", &self.observations),
+            ("actions", &self.actions),
+            ("log_probs", &self.log_probs),
+            ("values", &self.values),
+            ("rewards", &self.rewards),
+            ("truncation_values", &self.truncation_values),
+            ("last_values", &self.last_values),
+        ];
+        for (name, values) in arrays {
+            if let Some(i) = values.iter().position(|x| !x.is_finite()) {
+                return Err(format!("{name}[{i}] is {}, not a finite number", values[i]));
+            }
+        }
+        Ok(())
+    }
+}
+
+impl RolloutChunk {
+    /// Encodes the chunk in the wire layout.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let t = self.transitions().max(1);
+        let (obs_dim, act_dim) = (self.observations.len() / t, self.actions.len() / t);
+        let mut out = Vec::with_capacity(64 + 4 * (self.observations.len() + self.actions.len() + 6 * t));
+        out.extend_from_slice(MAGIC);
+        out.extend_from_slice(&self.policy_version.to_le_bytes());
+        out.extend_from_slice(&(self.first_env as u64).to_le_bytes());
+        for n in [self.envs, self.steps, obs_dim, act_dim] {
+            out.extend_from_slice(&(n as u32).to_le_bytes());
+        }
+        for values in [&self.observations, &self.actions, &self.log_probs, &self.values, &self.rewards] {
+            put_f32s(&mut out, values);
+        }
+        out.extend(self.terminated.iter().map(|&b| u8::from(b)));
+        out.extend(self.truncated.iter().map(|&b| u8::from(b)));
+        put_f32s(&mut out, &self.truncation_values);
+        put_f32s(&mut out, &self.last_values);
+        out.extend_from_slice(&(self.episodes.len() as u32).to_le_bytes());
+        for e in &self.episodes {
+            out.extend_from_slice(&(e.env as u64).to_le_bytes());
+            out.extend_from_slice(&e.episode_return.to_le_bytes());
+            out.extend_from_slice(&e.length.to_le_bytes());
+            out.extend_from_slice(&e.laps.to_le_bytes());
+            out.extend_from_slice(&e.fastest_lap.unwrap_or(f64::NAN).to_le_bytes());
+            out.push(u8::from(e.crashed));
+        }
+        let crc = crc32fast::hash(&out);
+        out.extend_from_slice(&crc.to_le_bytes());
+        out
+    }
+
+    /// Decodes and verifies a chunk: checksum, every array's length against the header, no
+    /// trailing bytes. Lengths are checked against the input before anything is allocated.
+    pub fn from_bytes(bytes: &[u8]) -> Result<Self, RolloutWireError> {
+        if bytes.len() < MAGIC.len() || &bytes[..MAGIC.len()] != MAGIC {
+            return Err(RolloutWireError::BadMagic);
+        }
+        if bytes.len() < MAGIC.len() + 4 {
+            return Err(RolloutWireError::Truncated { needed: MAGIC.len() + 4 - bytes.len(), at: bytes.len() });
+        }
+        let (body, crc) = bytes.split_at(bytes.len() - 4);
+        if crc32fast::hash(body).to_le_bytes() != crc {
+            return Err(RolloutWireError::Checksum);
+        }
+        let mut r = Reader::new(body, MAGIC.len());
+        let policy_version = r.u64()?;
+        let first_env = usize::try_from(r.u64()?).map_err(|_| RolloutWireError::Malformed("first_env overflows".into()))?;
+        let (envs, steps, obs_dim, act_dim) = (r.u32()? as usize, r.u32()? as usize, r.u32()? as usize, r.u32()? as usize);
+        if envs == 0 || steps == 0 {
+            return Err(RolloutWireError::Malformed(format!("{envs} environments × {steps} steps holds no transitions")));
+        }
+        // Per transition: obs + act + 5 more f32 and 2 flag bytes; refuse before allocating.
+        let t = envs * steps;
+        let per = obs_dim.checked_add(act_dim).and_then(|d| d.checked_add(4)).and_then(|d| d.checked_mul(4)).map(|b| b + 2);
+        if per.and_then(|p| p.checked_mul(t)).is_none_or(|need| need > r.remaining()) {
+            return Err(RolloutWireError::Malformed(format!(
+                "header announces {envs} × {steps} transitions of {obs_dim}+{act_dim} values, more than the {} bytes sent",
+                r.remaining()
+            )));
+        }
+        let observations = r.f32s(t * obs_dim)?;
+        let actions = r.f32s(t * act_dim)?;
+        let log_probs = r.f32s(t)?;
+        let values = r.f32s(t)?;
+        let rewards = r.f32s(t)?;
+        let flags = |v: Option<Vec<bool>>, name: &str| v.ok_or_else(|| RolloutWireError::Malformed(format!("{name}: a flag byte is neither 0 nor 1")));
+        let terminated = flags(r.bools(t)?, "terminated")?;
+        let truncated = flags(r.bools(t)?, "truncated")?;
+        let truncation_values = r.f32s(t)?;
+        let last_values = r.f32s(envs)?;
+        let count = r.u32()? as usize;
+        const EPISODE_BYTES: usize = 8 + 8 + 4 + 4 + 8 + 1;
+        if count.checked_mul(EPISODE_BYTES).is_none_or(|need| need > r.remaining()) {
+            return Err(RolloutWireError::Malformed(format!("{count} episodes announced, more than the bytes sent")));
+        }
+        let mut episodes = Vec::with_capacity(count);
+        for _ in 0..count {
+            let env = r.u64()? as usize;
+            let episode_return = r.f64()?;
+            let (length, laps) = (r.u32()?, r.u32()?);
+            let fastest = r.f64()?;
+            let crashed = flags(r.bools(1)?, "episode.crashed")?[0];
+            episodes.push(EpisodeRecord { env, episode_return, length, laps, fastest_lap: (!fastest.is_nan()).then_some(fastest), crashed });
+        }
+        if r.remaining() != 0 {
+            return Err(RolloutWireError::Malformed(format!("{} bytes after the episodes", r.remaining())));
+        }
+        Ok(Self {
+            policy_version,
+            first_env,
+            envs,
+            steps,
+            observations,
+            actions,
+            log_probs,
+            values,
+            rewards,
+            terminated,
+            truncated,
+            truncation_values,
+            last_values,
+            episodes,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn chunk() -> RolloutChunk {
+        let (envs, steps, obs, act) = (3, 4, 5, 2);
+        let t = envs * steps;
+        let f = |n: usize, k: f32| (0..n).map(|i| i as f32 * k - 1.5).collect::<Vec<_>>();
+        RolloutChunk {
+            policy_version: 42,
+            first_env: 9,
+            envs,
+            steps,
+            observations: f(t * obs, 0.25),
+            actions: f(t * act, -0.125),
+            log_probs: f(t, 0.5),
+            values: f(t, 0.75),
+            rewards: f(t, 0.0625),
+            terminated: (0..t).map(|i| i == 4).collect(),
+            truncated: (0..t).map(|i| i == 7).collect(),
+            truncation_values: f(t, 0.0),
+            last_values: f(envs, 2.0),
+            episodes: vec![
+                EpisodeRecord { env: 10, episode_return: 3.25, length: 17, laps: 1, fastest_lap: Some(4.5), crashed: true },
+                EpisodeRecord { env: 11, episode_return: -1.0, length: 1500, laps: 0, fastest_lap: None, crashed: false },
+            ],
+        }
+    }
+
+    #[test]
+    fn wire_format_round_trips_exactly() {
+        let c = chunk();
+        assert_eq!(RolloutChunk::from_bytes(&c.to_bytes()).unwrap(), c);
+    }
+
+    #[test]
+    fn truncated_altered_foreign_and_lying_chunks_are_refused() {
+        let bytes = chunk().to_bytes();
+        assert_eq!(RolloutChunk::from_bytes(&bytes[..bytes.len() - 10]), Err(RolloutWireError::Checksum));
+        let mut flipped = bytes.clone();
+        flipped[60] ^= 1;
+        assert_eq!(RolloutChunk::from_bytes(&flipped), Err(RolloutWireError::Checksum));
+        assert_eq!(RolloutChunk::from_bytes(b"DRPOLICY........"), Err(RolloutWireError::BadMagic));
+        // A header announcing a huge rollout (with a valid checksum) is refused, not allocated.
+        let mut lying = bytes[..bytes.len() - 4].to_vec();
+        lying[24..28].copy_from_slice(&u32::MAX.to_le_bytes());
+        let crc = crc32fast::hash(&lying);
+        lying.extend_from_slice(&crc.to_le_bytes());
+        assert!(matches!(RolloutChunk::from_bytes(&lying), Err(RolloutWireError::Malformed(m)) if m.contains("more than")));
     }
 }

@@ -1,6 +1,8 @@
 //! One module per subcommand: argument types and the glue that calls the crates.
 
+pub mod cluster;
 pub mod eval;
+pub mod services;
 pub mod sim;
 pub mod tracks;
 pub mod train;

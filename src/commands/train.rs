@@ -1,12 +1,16 @@
-//! `dronerace train`: PPO training in this process (task controller, actor, learner).
+//! `dronerace train`: the task controller, the learner and the actors as supervised processes
+//! on this machine (the default), or all in this process (`--in-process`, for debugging).
 
 use std::path::PathBuf;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::Ordering;
 
 use anyhow::Context;
 use clap::Args;
-use learner::{TrackSource, TrainConfig, Trainer};
+use learner::checkpoint::CheckpointDir;
+use learner::{IterationSummary, TrackSource, TrainConfig, Trainer};
+
+use super::cluster::{self, ClusterPlan};
+use super::services::{Transport, stop_flag};
 
 /// Arguments of `dronerace train`.
 #[derive(Args)]
@@ -35,61 +39,87 @@ pub struct TrainArgs {
     /// Stop after this many iterations (a checkpoint is written on the way out).
     #[arg(long)]
     iterations: Option<u64>,
+    /// Actor processes (default: one per core).
+    #[arg(long)]
+    actors: Option<usize>,
+    /// How rollouts travel between the actor processes and the learner.
+    #[arg(long, value_enum, default_value_t = Transport::Shm)]
+    transport: Transport,
+    /// Run everything in this one process (no services; for debugging and tests).
+    #[arg(long, conflicts_with_all = ["actors"])]
+    in_process: bool,
+}
+
+/// The run directory and its config: a new one (written to `<dir>/config.toml`), or the one
+/// being resumed.
+fn prepare(args: &TrainArgs) -> anyhow::Result<(PathBuf, TrainConfig, bool)> {
+    if let Some(dir) = &args.resume {
+        let config = TrainConfig::read(&dir.join("config.toml"))?;
+        return Ok((dir.clone(), config, true));
+    }
+    let mut config = match &args.config {
+        Some(path) => TrainConfig::read(path)?,
+        None => TrainConfig::default(),
+    };
+    if let Some(p) = &args.profile {
+        config.profile = p.clone();
+    }
+    if let Some(t) = &args.track {
+        config.tracks = TrackSource::Library { names: vec![t.clone()] };
+        config.switching.policy = taskctl::SwitchPolicy::None;
+    }
+    if let Some(n) = args.total_env_steps {
+        config.total_env_steps = n;
+    }
+    if let Some(s) = args.seed {
+        config.seed = s;
+    }
+    config.resolved_profile()?;
+    let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("runs").join(&config.name));
+    Ok((dir, config, false))
 }
 
 /// Runs training until the budget is spent, `--iterations` are done, or Ctrl-C.
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
-    let mut trainer = match &args.resume {
-        Some(dir) => Trainer::resume(dir)?,
-        None => {
-            let mut config = match &args.config {
-                Some(path) => {
-                    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-                    toml::from_str::<TrainConfig>(&text).with_context(|| format!("{}", path.display()))?
-                }
-                None => TrainConfig::default(),
-            };
-            if let Some(p) = &args.profile {
-                config.profile = p.clone();
-            }
-            if let Some(t) = &args.track {
-                config.tracks = TrackSource::Library { names: vec![t.clone()] };
-                config.switching.policy = taskctl::SwitchPolicy::None;
-            }
-            if let Some(n) = args.total_env_steps {
-                config.total_env_steps = n;
-            }
-            if let Some(s) = args.seed {
-                config.seed = s;
-            }
-            let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("runs").join(&config.name));
-            std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-            Trainer::start(config, &dir)?
-        }
+    let (dir, config, resume) = prepare(&args)?;
+    if args.in_process {
+        return run_in_process(&args, dir, config, resume);
+    }
+    if resume {
+        let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
+        anyhow::ensure!(checkpoints.latest().is_some(), "{} has no checkpoint to resume from", dir.display());
+    } else {
+        let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
+        anyhow::ensure!(
+            checkpoints.latest().is_none(),
+            "{} already holds checkpoints: resume it (--resume), or choose another run directory",
+            dir.display()
+        );
+        let _ = std::fs::remove_file(dir.join("taskctl.snapshot"));
+        let text = toml::to_string(&config).context("serialising the config")?;
+        super::write_atomic(&dir.join("config.toml"), text.as_bytes())?;
+    }
+    let envs = config.resolved_profile()?.envs;
+    let actors = args.actors.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    cluster::run(ClusterPlan { dir, actors, envs, transport: args.transport, iterations: args.iterations })
+}
+
+fn run_in_process(args: &TrainArgs, dir: PathBuf, config: TrainConfig, resume: bool) -> anyhow::Result<()> {
+    let mut trainer = if resume {
+        Trainer::resume(&dir)?
+    } else {
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        Trainer::start(config, &dir)?
     };
-    let stop = Arc::new(AtomicBool::new(false));
-    let flag = stop.clone();
-    ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst)).context("installing the Ctrl-C handler")?;
+    let stop = stop_flag()?;
     let log_path = trainer.dir().join("train.log");
     let mut log = std::fs::OpenOptions::new().create(true).append(true).open(&log_path)
         .with_context(|| format!("opening {}", log_path.display()))?;
     let first = trainer.iteration();
-    eprintln!("training in {} (from iteration {first})", trainer.dir().display());
+    eprintln!("training in {} (from iteration {first}, in one process)", trainer.dir().display());
     while !trainer.finished() && !stop.load(Ordering::SeqCst) && args.iterations.is_none_or(|n| trainer.iteration() - first < n) {
         let s = trainer.iteration_step()?;
-        let line = format!(
-            "iter {:>5} | {:>11} steps | {:>6.0} SPS (collect {:.1} s, update {:.1} s) | return {:>8.2} | laps/ep {:>5.2} | switches {:>5} | kl {:.4} | ETA {}",
-            s.iteration,
-            s.report.env_steps,
-            s.sps,
-            s.collect_seconds,
-            s.update_seconds,
-            s.mean_return,
-            s.laps_per_episode,
-            s.switches,
-            s.report.stats.approx_kl,
-            format_duration(trainer.eta_seconds(s.sps))
-        );
+        let line = progress_line(&s, trainer.eta_seconds(s.sps));
         eprintln!("{line}");
         use std::io::Write;
         writeln!(log, "{line}").with_context(|| format!("writing {}", log_path.display()))?;
@@ -97,6 +127,23 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let path = trainer.checkpoint()?;
     eprintln!("checkpoint written to {}", path.display());
     Ok(())
+}
+
+/// The live progress line of one iteration.
+pub fn progress_line(s: &IterationSummary, eta_seconds: f64) -> String {
+    format!(
+        "iter {:>5} | {:>11} steps | {:>6.0} SPS (collect {:.1} s, update {:.1} s) | return {:>8.2} | laps/ep {:>5.2} | switches {:>5} | kl {:.4} | ETA {}",
+        s.iteration,
+        s.report.env_steps,
+        s.sps,
+        s.collect_seconds,
+        s.update_seconds,
+        s.mean_return,
+        s.laps_per_episode,
+        s.switches,
+        s.report.stats.approx_kl,
+        format_duration(eta_seconds)
+    )
 }
 
 fn format_duration(seconds: f64) -> String {

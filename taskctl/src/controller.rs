@@ -55,6 +55,19 @@ pub struct SwitchEvent {
     pub q: f64,
 }
 
+/// The environments one actor process runs, and where its reports continue.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ActorRange {
+    /// Actor name.
+    pub actor: String,
+    /// Global index of its first environment.
+    pub first_env: usize,
+    /// Number of environments.
+    pub envs: usize,
+    /// Rollout index its next report must carry (at least).
+    pub next_rollout: u64,
+}
+
 /// A report the controller refuses.
 #[derive(Debug, thiserror::Error)]
 pub enum TaskError {
@@ -90,6 +103,51 @@ pub enum TaskError {
     /// A controller needs at least one environment.
     #[error("a task controller needs at least one environment")]
     NoEnvironments,
+    /// An actor asked for more environments than are left unassigned.
+    #[error("actor {actor:?} asks for {envs} environments but only {free} of {total} are unassigned")]
+    NoRoom {
+        /// Actor.
+        actor: String,
+        /// Environments asked for.
+        envs: usize,
+        /// Environments left.
+        free: usize,
+        /// Environments in all.
+        total: usize,
+    },
+    /// A known actor came back with another environment count.
+    #[error("actor {actor:?} registered {had} environments before, now asks for {asks}")]
+    RangeChanged {
+        /// Actor.
+        actor: String,
+        /// Earlier count.
+        had: usize,
+        /// Count asked for now.
+        asks: usize,
+    },
+    /// A report from an actor that never registered.
+    #[error("actor {0:?} is not registered")]
+    UnknownActor(String),
+    /// A report whose reward count differs from the actor's environment count.
+    #[error("actor {actor:?} runs {envs} environments but reported {got} rewards")]
+    RewardCount {
+        /// Actor.
+        actor: String,
+        /// Its environments.
+        envs: usize,
+        /// Rewards given.
+        got: usize,
+    },
+    /// A rollout index at or below one already reported.
+    #[error("actor {actor:?}: rollout {rollout} was reported already (next is {next})")]
+    StaleRollout {
+        /// Actor.
+        actor: String,
+        /// Index given.
+        rollout: u64,
+        /// Next index expected.
+        next: u64,
+    },
 }
 
 /// A snapshot that could not be written or read.
@@ -121,6 +179,9 @@ struct State {
     switching: SwitchParams,
     slots: Vec<EnvSlot>,
     history: Vec<SwitchEvent>,
+    /// Actor processes and their environment ranges (empty when training in one process).
+    #[serde(default)]
+    actors: Vec<ActorRange>,
 }
 
 /// Owns track generation and switching for every environment.
@@ -138,7 +199,7 @@ impl TaskController {
         if envs == 0 {
             return Err(TaskError::NoEnvironments);
         }
-        let mut state = State { seed, generator, switching, slots: Vec::with_capacity(envs), history: Vec::new() };
+        let mut state = State { seed, generator, switching, slots: Vec::with_capacity(envs), history: Vec::new(), actors: Vec::new() };
         for env in 0..envs {
             let (track, track_seed) = state.new_track(env, 0)?;
             state.slots.push(EnvSlot::new(track, Some(track_seed)));
@@ -157,7 +218,7 @@ impl TaskController {
             return Err(TaskError::NoEnvironments);
         }
         let slots = tracks.into_iter().map(|t| EnvSlot::new(t, None)).collect();
-        Ok(Self { state: State { seed, generator, switching, slots, history: Vec::new() } })
+        Ok(Self { state: State { seed, generator, switching, slots, history: Vec::new(), actors: Vec::new() } })
     }
 
     /// Takes environment `env`'s cumulative reward of the rollout of `iteration`; returns its
@@ -205,6 +266,62 @@ impl TaskController {
         slot.window.clear();
         slot.switches += 1;
         Ok(Some(track))
+    }
+
+    /// Gives actor `actor` a range of `envs` environments, or its earlier range when it comes
+    /// back (after a restart of either process).
+    pub fn register(&mut self, actor: &str, envs: usize) -> Result<ActorRange, TaskError> {
+        if let Some(known) = self.state.actors.iter().find(|a| a.actor == actor) {
+            if known.envs != envs {
+                return Err(TaskError::RangeChanged { actor: actor.into(), had: known.envs, asks: envs });
+            }
+            return Ok(known.clone());
+        }
+        let total = self.state.slots.len();
+        let first_env = self.state.actors.iter().map(|a| a.first_env + a.envs).max().unwrap_or(0);
+        let free = total - first_env;
+        if envs == 0 || envs > free {
+            return Err(TaskError::NoRoom { actor: actor.into(), envs, free, total });
+        }
+        // Environments keep their rollout history: an actor taking over a range continues after it.
+        let next_rollout = self.state.slots[first_env..first_env + envs]
+            .iter()
+            .filter_map(|s| s.last_iteration)
+            .max()
+            .map_or(0, |last| last + 1);
+        let range = ActorRange { actor: actor.into(), first_env, envs, next_rollout };
+        self.state.actors.push(range.clone());
+        Ok(range)
+    }
+
+    /// Takes one rollout's cumulative rewards of all of an actor's environments (refused
+    /// whole if anything is wrong); returns the environments that switched and their tracks.
+    pub fn report_rollout(&mut self, actor: &str, rollout: u64, rewards: &[f64]) -> Result<Vec<(usize, Arc<Track>)>, TaskError> {
+        let range = self.state.actors.iter().find(|a| a.actor == actor).ok_or_else(|| TaskError::UnknownActor(actor.into()))?;
+        if rewards.len() != range.envs {
+            return Err(TaskError::RewardCount { actor: actor.into(), envs: range.envs, got: rewards.len() });
+        }
+        if rollout < range.next_rollout {
+            return Err(TaskError::StaleRollout { actor: actor.into(), rollout, next: range.next_rollout });
+        }
+        if let Some((i, &reward)) = rewards.iter().enumerate().find(|(_, r)| !r.is_finite()) {
+            return Err(TaskError::NotFinite { env: range.first_env + i, reward });
+        }
+        let first_env = range.first_env;
+        let mut switches = Vec::new();
+        for (i, &reward) in rewards.iter().enumerate() {
+            if let Some(track) = self.report(first_env + i, rollout, reward)? {
+                switches.push((first_env + i, track));
+            }
+        }
+        let range = self.state.actors.iter_mut().find(|a| a.actor == actor).expect("found above");
+        range.next_rollout = rollout + 1;
+        Ok(switches)
+    }
+
+    /// Registered actors.
+    pub fn actors(&self) -> &[ActorRange] {
+        &self.state.actors
     }
 
     /// Number of environments.
@@ -398,6 +515,30 @@ mod tests {
         let e = c.report(0, 3, 1.0).unwrap_err();
         assert!(e.to_string().contains("iteration 3 is not after"), "{e}");
         assert_eq!(c.slots()[0].window.len(), 1, "a refused report changes nothing");
+    }
+
+    #[test]
+    fn actors_get_disjoint_ranges_that_survive_a_restart() {
+        let mut c = controller(SwitchPolicy::Random, 10, 6);
+        let a = c.register("a", 4).unwrap();
+        assert_eq!((a.first_env, a.envs, a.next_rollout), (0, 4, 0));
+        assert!(matches!(c.register("b", 3), Err(TaskError::NoRoom { free: 2, .. })));
+        let b = c.register("b", 2).unwrap();
+        assert_eq!(b.first_env, 4);
+        assert!(matches!(c.register("a", 3), Err(TaskError::RangeChanged { .. })));
+        c.report_rollout("a", 0, &[1.0; 4]).unwrap();
+        c.report_rollout("a", 1, &[1.0; 4]).unwrap();
+        assert!(matches!(c.report_rollout("a", 1, &[1.0; 4]), Err(TaskError::StaleRollout { next: 2, .. })));
+        assert!(matches!(c.report_rollout("a", 2, &[1.0; 3]), Err(TaskError::RewardCount { got: 3, .. })));
+        assert!(matches!(c.report_rollout("c", 0, &[1.0]), Err(TaskError::UnknownActor(_))));
+        // A non-finite reward refuses the whole report: nothing of it is applied.
+        let before = c.clone();
+        assert!(matches!(c.report_rollout("b", 0, &[1.0, f64::NAN]), Err(TaskError::NotFinite { env: 5, .. })));
+        assert_eq!(c, before);
+        // After a restart from a snapshot, "a" gets its range back and continues at rollout 2.
+        let restored = TaskController::from_snapshot_bytes(&c.to_snapshot_bytes(), Path::new("mem")).unwrap();
+        let mut restored = restored;
+        assert_eq!(restored.register("a", 4).unwrap().next_rollout, 2);
     }
 
     #[test]

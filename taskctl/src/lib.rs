@@ -1,15 +1,18 @@
 //! Racetracks and the curriculum: track files, the hand-designed library, the closed smoothing
-//! spline, track generators, and task switching with the task controller.
+//! spline, track generators, and task switching with the task controller, its gRPC service
+//! and a blocking client.
 
+pub mod client;
 pub mod controller;
 pub mod files;
 pub mod generator;
+pub mod grpc;
 pub mod library;
 pub mod spline;
 pub mod switching;
 pub mod track_file;
 
-pub use controller::{EnvSlot, SnapshotError, SwitchEvent, TaskController, TaskError};
+pub use controller::{ActorRange, EnvSlot, SnapshotError, SwitchEvent, TaskController, TaskError};
 pub use generator::{GenerateError, GeneratorKind, TrackGenParams, TrackGenerator};
 pub use library::{library, library_track};
 pub use switching::{SwitchParams, SwitchPolicy};

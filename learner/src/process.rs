@@ -1,0 +1,216 @@
+//! The learner process's loop: publish version k → gather rollouts from the actors over a
+//! [`LearnerLink`] → PPO update → version k + 1, with the run's metrics and checkpoints.
+//!
+//! Synchronous by default: the update for version k waits for a version-k rollout from every
+//! member actor (one that delivered since it was last dropped). A member that has not delivered
+//! `actor_timeout` after the iteration's first rollout is dropped and training goes on with the
+//! others; it rejoins with its next rollout. Rollouts arrive whole or not at all, so a killed
+//! actor's partial rollout never reaches the update. With
+//! `max_policy_lag > 0` rollouts up to that many versions old are also used.
+
+use std::collections::BTreeSet;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use proto::grpc_link::LearnerShared;
+use proto::v1;
+use proto::{Admission, Delivery, LearnerLink, WeightsUpdate};
+use serde::{Deserialize, Serialize};
+
+use crate::checkpoint::Checkpoint;
+use crate::learner::Learner;
+use crate::run::{IterationSummary, IterationTiming, Run, TrainError};
+
+/// How the learner process treats its actors (`[learner]` in the run config).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LearnerSettings {
+    /// Versions a rollout may lag behind the one being trained (0: synchronous).
+    pub max_policy_lag: u32,
+    /// Seconds an iteration waits, after its first rollout, for the other actors' rollouts;
+    /// an actor that misses it is dropped (and rejoins with its next rollout).
+    pub actor_timeout_seconds: f64,
+    /// Actors the first iteration of a learner waits for (up to the timeout), so it does not
+    /// train on whichever actor happened to be first.
+    pub expected_actors: usize,
+}
+
+impl Default for LearnerSettings {
+    fn default() -> Self {
+        Self { max_policy_lag: 0, actor_timeout_seconds: 30.0, expected_actors: 1 }
+    }
+}
+
+/// Curriculum figures the learner shows but does not own (read from the task controller).
+pub trait TaskView {
+    /// Task switches so far and the mean flatness score q; `None` when unreachable.
+    fn switches_and_mean_q(&mut self) -> Option<(usize, f64)>;
+}
+
+/// The learner process: run directory, PPO learner, transport and status.
+pub struct LearnerProcess<L: LearnerLink> {
+    run: Run,
+    learner: Learner,
+    link: L,
+    shared: Arc<LearnerShared>,
+    settings: LearnerSettings,
+    epoch: u64,
+    total_envs: usize,
+    members: BTreeSet<String>,
+    iterations_here: u64,
+}
+
+impl<L: LearnerLink> LearnerProcess<L> {
+    /// A learner for `run`, continuing from `checkpoint` when there is one, then publishing
+    /// its weights.
+    pub fn start(run: Run, checkpoint: Option<&Checkpoint>, link: L, shared: Arc<LearnerShared>, settings: LearnerSettings) -> Result<Self, TrainError> {
+        let profile = run.config().resolved_profile()?;
+        let learner = match checkpoint {
+            Some(c) => Learner::from_checkpoint(c)?,
+            None => Learner::new(profile.clone(), run.config().total_env_steps, run.config().seed),
+        };
+        // A fresh epoch per process lifetime: versions repeat after a restart, epochs do not.
+        let clock = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default().as_nanos() as u64;
+        let epoch = taskctl::switching::mix(clock ^ u64::from(std::process::id()));
+        let mut process = Self { run, learner, link, shared, settings, epoch, total_envs: profile.envs, members: BTreeSet::new(), iterations_here: 0 };
+        process.publish()?;
+        process.set_status(0.0, 0);
+        Ok(process)
+    }
+
+    fn set_status(&self, sps: f64, policy_lag: u64) {
+        self.shared.set_status(v1::StatusResponse {
+            learner_epoch: self.epoch,
+            iteration: self.learner.version(),
+            env_steps: self.learner.env_steps(),
+            sps,
+            connected_actors: self.members.iter().cloned().collect(),
+            policy_lag,
+            refused_chunks: 0,
+        });
+    }
+
+    fn admission(&self) -> Admission {
+        let arch = &self.learner.profile().architecture;
+        Admission {
+            learner_epoch: self.epoch,
+            version: self.learner.version(),
+            max_policy_lag: self.settings.max_policy_lag,
+            observation_dim: arch.observation_dim,
+            action_dim: arch.action_dim,
+            total_envs: self.total_envs,
+        }
+    }
+
+    fn publish(&mut self) -> Result<(), TrainError> {
+        let update = WeightsUpdate {
+            learner_epoch: self.epoch,
+            version: self.learner.version(),
+            max_policy_lag: self.settings.max_policy_lag,
+            blob: self.learner.weights().to_bytes(),
+        };
+        self.shared.set_admission(self.admission());
+        self.link.publish(&update).map_err(|e| TrainError::Io(e.to_string()))?;
+        proto::grpc_link::publish_weights(&self.shared, &update);
+        Ok(())
+    }
+
+    /// The run.
+    pub fn run(&self) -> &Run {
+        &self.run
+    }
+
+    /// The PPO learner.
+    pub fn learner(&self) -> &Learner {
+        &self.learner
+    }
+
+    /// True once the run's environment-step budget is spent.
+    pub fn finished(&self) -> bool {
+        self.learner.env_steps() >= self.run.config().total_env_steps
+    }
+
+    /// Rollouts of the current version from every live actor (see the module docs); `None`
+    /// when `stop` was raised while waiting.
+    fn gather(&mut self, stop: &AtomicBool) -> Result<Option<Vec<Delivery>>, TrainError> {
+        let timeout = Duration::from_secs_f64(self.settings.actor_timeout_seconds.max(0.1));
+        let admission = self.admission();
+        let mut batch: Vec<Delivery> = Vec::new();
+        let mut first_arrival: Option<Instant> = None;
+        let mut waiting_logged = Instant::now();
+        loop {
+            if stop.load(Ordering::SeqCst) {
+                return Ok(None);
+            }
+            if let Some(d) = self.link.receive(Duration::from_millis(50)).map_err(|e| TrainError::Io(e.to_string()))? {
+                match admission.check(&d.actor, d.learner_epoch, &d.chunk) {
+                    Ok(()) => {
+                        first_arrival.get_or_insert_with(Instant::now);
+                        self.members.insert(d.actor.clone());
+                        batch.push(d);
+                    }
+                    Err(refusal) => {
+                        self.shared.count_refused();
+                        tracing::info!(actor = %d.actor, "rollout not used: {refusal}");
+                    }
+                }
+            }
+            let delivered: BTreeSet<&String> = batch.iter().map(|d| &d.actor).collect();
+            let missing: Vec<String> = self.members.iter().filter(|a| !delivered.contains(a)).cloned().collect();
+            let enough = self.iterations_here > 0 || delivered.len() >= self.settings.expected_actors;
+            if !batch.is_empty() && missing.is_empty() && enough {
+                return Ok(Some(batch));
+            }
+            if first_arrival.is_some_and(|t| t.elapsed() >= timeout) {
+                for actor in &missing {
+                    tracing::warn!(%actor, "dropping an actor: no rollout of version {} within {timeout:?}", admission.version);
+                    eprintln!("learner: dropping actor {actor}: no rollout of version {} within {timeout:?}", admission.version);
+                    self.members.remove(actor);
+                }
+                return Ok(Some(batch));
+            }
+            if batch.is_empty() && waiting_logged.elapsed() > Duration::from_secs(30) {
+                eprintln!("learner: waiting for rollouts of version {}", admission.version);
+                waiting_logged = Instant::now();
+            }
+        }
+    }
+
+    /// One iteration; `None` when stopped while waiting for rollouts.
+    pub fn iteration_step(&mut self, stop: &AtomicBool, tasks: &mut dyn TaskView) -> Result<Option<IterationSummary>, TrainError> {
+        let started = Instant::now();
+        let Some(batch) = self.gather(stop)? else { return Ok(None) };
+        let version = self.learner.version();
+        let version_lag = batch.iter().map(|d| version - d.chunk.policy_version).max().unwrap_or(0);
+        let chunks: Vec<policy::RolloutChunk> = batch.into_iter().map(|d| d.chunk).collect();
+        let updating = Instant::now();
+        let report = self.learner.train_with_lag(&chunks, u64::from(self.settings.max_policy_lag))?;
+        let update_seconds = updating.elapsed().as_secs_f64();
+        self.publish()?;
+        let (switches, mean_q) = tasks.switches_and_mean_q().unwrap_or((0, f64::NAN));
+        let timing = IterationTiming { seconds: started.elapsed().as_secs_f64(), update_seconds, switches, mean_q, version_lag };
+        let (summary, best) = self.run.record(&chunks, report, timing)?;
+        if best {
+            self.run.save_best(self.learner.checkpoint())?;
+        }
+        if self.run.checkpoint_due() {
+            self.checkpoint()?;
+        }
+        self.iterations_here += 1;
+        self.set_status(summary.sps, version_lag);
+        tracing::debug!(iteration = summary.iteration, chunks = chunks.len(), "update done");
+        Ok(Some(summary))
+    }
+
+    /// Writes a periodic checkpoint (learner state and run bookkeeping).
+    pub fn checkpoint(&self) -> Result<PathBuf, TrainError> {
+        self.run.save(self.learner.checkpoint())
+    }
+
+    /// Estimated seconds to the end of the run at the given rate.
+    pub fn eta_seconds(&self, sps: f64) -> f64 {
+        self.run.eta_seconds(self.learner.env_steps(), sps)
+    }
+}

@@ -1,0 +1,342 @@
+//! A training run: its configuration, its directory (resolved config, checkpoints,
+//! `metrics.csv`, TensorBoard events) and the bookkeeping every iteration adds to it, shared
+//! by the in-process trainer and the learner process.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use policy::RolloutChunk;
+use serde::{Deserialize, Serialize};
+use sim::EnvConfig;
+use taskctl::{SwitchParams, TaskController, TrackGenerator};
+
+use crate::checkpoint::{Checkpoint, CheckpointDir, CheckpointError};
+use crate::config::{PpoConfig, Profile};
+use crate::learner::{IterationReport, LearnerError};
+use crate::metrics::{METRICS, MetricsWriter};
+
+/// Where the training tracks come from.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum TrackSource {
+    /// Every environment gets a generated track; switching replaces them.
+    Generated,
+    /// Environments share these library tracks round robin (e.g. `["Figure8"]`).
+    Library {
+        /// Library track names.
+        names: Vec<String>,
+    },
+}
+
+/// A training run's configuration (`dronerace train --config FILE`); every field optional.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrainConfig {
+    /// Run name (the default run directory is `runs/<name>`).
+    pub name: String,
+    /// Profile: `cpu` or `paper`.
+    pub profile: String,
+    /// Environment steps of the whole run (the learning-rate schedule's length).
+    pub total_env_steps: u64,
+    /// Seed of everything.
+    pub seed: u64,
+    /// Parallel environments (default: the profile's).
+    pub envs: Option<usize>,
+    /// PPO settings replacing the profile's (missing fields take SPEC §10's values).
+    pub ppo: Option<PpoConfig>,
+    /// Training tracks.
+    pub tracks: TrackSource,
+    /// Track generator.
+    pub generator: TrackGenerator,
+    /// Task switching.
+    pub switching: SwitchParams,
+    /// Environment (dynamics, randomisation, reward).
+    pub env: EnvConfig,
+    /// Iterations between checkpoints.
+    pub checkpoint_every: u64,
+    /// Periodic checkpoints kept.
+    pub keep_checkpoints: usize,
+    /// How the learner process treats its actors.
+    pub learner: crate::process::LearnerSettings,
+    /// TLS and bearer-token settings of every server and client of the run.
+    pub network: proto::NetworkConfig,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            name: "generalist".into(),
+            profile: "cpu".into(),
+            total_env_steps: 50_000_000,
+            seed: 0,
+            envs: None,
+            ppo: None,
+            tracks: TrackSource::Generated,
+            generator: TrackGenerator::default(),
+            switching: SwitchParams::default(),
+            env: EnvConfig::default(),
+            checkpoint_every: 10,
+            keep_checkpoints: 3,
+            learner: Default::default(),
+            network: Default::default(),
+        }
+    }
+}
+
+impl TrainConfig {
+    /// Reads a config file; errors name the file and the field.
+    pub fn read(path: &Path) -> Result<Self, TrainError> {
+        let text = std::fs::read_to_string(path).map_err(|e| TrainError::Io(format!("{}: {e}", path.display())))?;
+        toml::from_str(&text).map_err(|e| TrainError::Config(format!("{}: {e}", path.display())))
+    }
+
+    /// The task controller for `envs` environments this config describes.
+    pub fn task_controller(&self, envs: usize) -> Result<TaskController, TrainError> {
+        Ok(match &self.tracks {
+            TrackSource::Generated => TaskController::new(envs, self.generator, self.switching, self.seed)?,
+            TrackSource::Library { names } => {
+                let library = taskctl::library().map_err(|e| TrainError::Config(e.to_string()))?;
+                let mut chosen = Vec::new();
+                for name in names {
+                    let track = library
+                        .iter()
+                        .find(|t| t.name.eq_ignore_ascii_case(name))
+                        .ok_or_else(|| TrainError::Config(format!("tracks.names: no library track {name:?}")))?;
+                    chosen.push(Arc::new(track.clone()));
+                }
+                if chosen.is_empty() {
+                    return Err(TrainError::Config("tracks.names: name at least one library track".into()));
+                }
+                let tracks = (0..envs).map(|i| chosen[i % chosen.len()].clone()).collect();
+                TaskController::with_tracks(tracks, self.generator, self.switching, self.seed)?
+            }
+        })
+    }
+
+    /// The profile with this configuration's overrides applied.
+    pub fn resolved_profile(&self) -> Result<Profile, TrainError> {
+        let mut profile = Profile::named(&self.profile)
+            .ok_or_else(|| TrainError::Config(format!("profile: unknown profile {:?} (cpu, paper)", self.profile)))?;
+        if let Some(envs) = self.envs {
+            profile.envs = envs;
+        }
+        if let Some(ppo) = self.ppo {
+            profile.ppo = ppo;
+        }
+        if profile.envs == 0 || profile.ppo.n_steps == 0 || profile.ppo.batch_size == 0 || profile.ppo.n_epochs == 0 {
+            return Err(TrainError::Config("envs, ppo.n_steps, ppo.batch_size and ppo.n_epochs must be ≥ 1".into()));
+        }
+        Ok(profile)
+    }
+}
+
+/// Why training cannot go on.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    /// Bad configuration.
+    #[error("config: {0}")]
+    Config(String),
+    /// Learner refused a rollout or a state.
+    #[error(transparent)]
+    Learner(#[from] LearnerError),
+    /// Checkpoint I/O.
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    /// Task controller error.
+    #[error(transparent)]
+    Task(#[from] taskctl::TaskError),
+    /// Actor error.
+    #[error(transparent)]
+    Actor(#[from] actor::ActorError),
+    /// Other I/O.
+    #[error("{0}")]
+    Io(String),
+}
+
+/// What one iteration produced, for the progress line.
+#[derive(Clone, Debug)]
+pub struct IterationSummary {
+    /// Iteration number (1-based, equals the new policy version).
+    pub iteration: u64,
+    /// Learner report.
+    pub report: IterationReport,
+    /// Environment steps per second of this iteration (collection and update).
+    pub sps: f64,
+    /// Seconds spent collecting the rollout (simulation and inference).
+    pub collect_seconds: f64,
+    /// Seconds spent in the PPO update.
+    pub update_seconds: f64,
+    /// Mean return of the episodes that ended.
+    pub mean_return: f64,
+    /// Mean laps per ended episode.
+    pub laps_per_episode: f64,
+    /// Task switches so far.
+    pub switches: usize,
+}
+
+/// Run bookkeeping saved with checkpoints.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct Progress {
+    iteration: u64,
+    wall_seconds: f64,
+    best_return: Option<f64>,
+}
+
+/// Timing and curriculum figures of one iteration, measured by the loop that ran it.
+#[derive(Clone, Copy, Debug)]
+pub struct IterationTiming {
+    /// Wall seconds of the whole iteration.
+    pub seconds: f64,
+    /// Seconds of the PPO update.
+    pub update_seconds: f64,
+    /// Task switches so far.
+    pub switches: usize,
+    /// Mean flatness score q over environments (NaN when unknown).
+    pub mean_q: f64,
+    /// Largest policy-version lag among the chunks used.
+    pub version_lag: u64,
+}
+
+/// A run directory and its bookkeeping.
+pub struct Run {
+    config: TrainConfig,
+    dir: PathBuf,
+    checkpoints: CheckpointDir,
+    metrics: MetricsWriter,
+    progress: Progress,
+}
+
+impl Run {
+    /// Starts a new run in `dir` (which must not hold checkpoints already) and writes the
+    /// resolved config into it.
+    pub fn create(config: TrainConfig, dir: &Path) -> Result<Self, TrainError> {
+        config.resolved_profile()?;
+        std::fs::create_dir_all(dir).map_err(|e| TrainError::Io(format!("{}: {e}", dir.display())))?;
+        let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
+        if checkpoints.latest().is_some() {
+            return Err(TrainError::Config(format!(
+                "{} already holds checkpoints: resume it, or choose another run directory",
+                dir.display()
+            )));
+        }
+        let text = toml::to_string(&config).map_err(|e| TrainError::Io(e.to_string()))?;
+        taskctl::files::write_atomic(&dir.join("config.toml"), text.as_bytes())
+            .map_err(|e| TrainError::Io(format!("{}: {e}", dir.join("config.toml").display())))?;
+        let metrics = MetricsWriter::open(dir).map_err(|e| TrainError::Io(format!("{}: {e}", dir.display())))?;
+        let progress = Progress { iteration: 0, wall_seconds: 0.0, best_return: None };
+        Ok(Self { config, dir: dir.to_path_buf(), checkpoints, metrics, progress })
+    }
+
+    /// Opens the run in `dir` with its newest checkpoint.
+    pub fn open(dir: &Path) -> Result<(Self, Checkpoint), TrainError> {
+        let config = TrainConfig::read(&dir.join("config.toml"))?;
+        let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
+        let path = checkpoints
+            .latest()
+            .ok_or_else(|| TrainError::Config(format!("{} has no checkpoint to resume from", dir.display())))?;
+        let ckpt = Checkpoint::read(&path)?;
+        let progress: Progress = serde_json::from_slice(ckpt.get("progress")?)
+            .map_err(|e| TrainError::Io(format!("{}: progress: {e}", path.display())))?;
+        let metrics = MetricsWriter::open(dir).map_err(|e| TrainError::Io(format!("{}: {e}", dir.display())))?;
+        Ok((Self { config, dir: dir.to_path_buf(), checkpoints, metrics, progress }, ckpt))
+    }
+
+    /// Opens the run in `dir` if it has a checkpoint, else starts it with `config`.
+    pub fn open_or_create(config: TrainConfig, dir: &Path) -> Result<(Self, Option<Checkpoint>), TrainError> {
+        let has_checkpoint = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?.latest().is_some();
+        if has_checkpoint {
+            let (run, ckpt) = Self::open(dir)?;
+            Ok((run, Some(ckpt)))
+        } else {
+            Ok((Self::create(config, dir)?, None))
+        }
+    }
+
+    /// The run's configuration.
+    pub fn config(&self) -> &TrainConfig {
+        &self.config
+    }
+
+    /// The run directory.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Iterations done.
+    pub fn iteration(&self) -> u64 {
+        self.progress.iteration
+    }
+
+    /// Counts one iteration, writes its metrics row and says whether its mean return is the
+    /// best so far (the caller then saves the best checkpoint).
+    pub fn record(&mut self, chunks: &[RolloutChunk], report: IterationReport, timing: IterationTiming) -> Result<(IterationSummary, bool), TrainError> {
+        self.progress.iteration += 1;
+        self.progress.wall_seconds += timing.seconds;
+        let episodes: Vec<&policy::EpisodeRecord> = chunks.iter().flat_map(|c| &c.episodes).collect();
+        let mean = |f: &dyn Fn(&policy::EpisodeRecord) -> f64| {
+            if episodes.is_empty() { f64::NAN } else { episodes.iter().map(|e| f(e)).sum::<f64>() / episodes.len() as f64 }
+        };
+        let fastest = episodes.iter().filter_map(|e| e.fastest_lap).fold(f64::NAN, f64::min);
+        let transitions: usize = chunks.iter().map(RolloutChunk::transitions).sum();
+        let summary = IterationSummary {
+            iteration: self.progress.iteration,
+            sps: transitions as f64 / timing.seconds,
+            collect_seconds: timing.seconds - timing.update_seconds,
+            update_seconds: timing.update_seconds,
+            mean_return: mean(&|e| e.episode_return),
+            laps_per_episode: mean(&|e| f64::from(e.laps)),
+            switches: timing.switches,
+            report,
+        };
+        let s = &summary.report.stats;
+        let values: [f64; METRICS.len()] = [
+            summary.mean_return,
+            mean(&|e| f64::from(e.length)),
+            summary.laps_per_episode,
+            mean(&|e| if e.crashed { 1.0 } else { 0.0 }),
+            fastest,
+            summary.sps,
+            summary.report.learning_rate,
+            s.policy_loss,
+            s.value_loss,
+            s.approx_kl,
+            s.clip_fraction,
+            s.explained_variance,
+            s.grad_norm,
+            timing.version_lag as f64,
+            summary.switches as f64,
+            timing.mean_q,
+            f64::NAN,
+        ];
+        self.metrics
+            .write(self.progress.iteration, summary.report.env_steps, self.progress.wall_seconds, &values)
+            .map_err(|e| TrainError::Io(format!("{}: metrics: {e}", self.dir.display())))?;
+        let best = summary.mean_return.is_finite() && self.progress.best_return.is_none_or(|b| summary.mean_return > b);
+        if best {
+            self.progress.best_return = Some(summary.mean_return);
+        }
+        Ok((summary, best))
+    }
+
+    /// True when a periodic checkpoint is due after the iteration just recorded.
+    pub fn checkpoint_due(&self) -> bool {
+        self.progress.iteration % self.config.checkpoint_every.max(1) == 0
+    }
+
+    /// Adds the run's bookkeeping to `ckpt` and writes it as the periodic checkpoint.
+    pub fn save(&self, mut ckpt: Checkpoint) -> Result<PathBuf, TrainError> {
+        ckpt.put("progress", serde_json::to_vec(&self.progress).expect("progress serialises"));
+        Ok(self.checkpoints.save(&ckpt, self.progress.iteration)?)
+    }
+
+    /// Adds the run's bookkeeping to `ckpt` and writes it as `best.bin`.
+    pub fn save_best(&self, mut ckpt: Checkpoint) -> Result<(), TrainError> {
+        ckpt.put("progress", serde_json::to_vec(&self.progress).expect("progress serialises"));
+        Ok(ckpt.write(&self.checkpoints.best())?)
+    }
+
+    /// Estimated seconds to the end of the run at the given rate.
+    pub fn eta_seconds(&self, env_steps: u64, sps: f64) -> f64 {
+        self.config.total_env_steps.saturating_sub(env_steps) as f64 / sps.max(1e-9)
+    }
+}

@@ -1,0 +1,80 @@
+//! Payloads larger than a gRPC message travel as numbered parts and are reassembled whole or
+//! not at all: a stream that breaks mid-payload leaves nothing behind.
+
+use prost::bytes::Bytes;
+
+use crate::security::{MAX_PAYLOAD_BYTES, PART_BYTES};
+
+/// Splits `payload` into `(part, parts, data)` pieces of at most [`PART_BYTES`].
+pub fn split(payload: Bytes) -> Vec<(u32, u32, Bytes)> {
+    let parts = payload.len().div_ceil(PART_BYTES).max(1) as u32;
+    (0..parts)
+        .map(|i| {
+            let start = i as usize * PART_BYTES;
+            let end = (start + PART_BYTES).min(payload.len());
+            (i, parts, payload.slice(start..end))
+        })
+        .collect()
+}
+
+/// Collects the parts of one payload after another, in order.
+#[derive(Default)]
+pub struct Reassembler {
+    buffer: Vec<u8>,
+    expected: Option<(u32, u32)>,
+}
+
+impl Reassembler {
+    /// Adds part `part` of `parts`; returns the whole payload with its last part. Parts out of
+    /// order, a changing part count or more than [`MAX_PAYLOAD_BYTES`] are refused.
+    pub fn push(&mut self, part: u32, parts: u32, data: &[u8]) -> Result<Option<Vec<u8>>, String> {
+        let next = match self.expected {
+            Some((_, total)) if total != parts => {
+                return Err(format!("part count changed from {total} to {parts} within one payload"));
+            }
+            Some((next, _)) => next,
+            None => 0,
+        };
+        if parts == 0 || part != next {
+            return Err(format!("part {part} of {parts} where part {next} was expected"));
+        }
+        if self.buffer.len() + data.len() > MAX_PAYLOAD_BYTES {
+            return Err(format!("payload exceeds {MAX_PAYLOAD_BYTES} bytes"));
+        }
+        self.buffer.extend_from_slice(data);
+        if part + 1 == parts {
+            self.expected = None;
+            return Ok(Some(std::mem::take(&mut self.buffer)));
+        }
+        self.expected = Some((part + 1, parts));
+        Ok(None)
+    }
+
+    /// True when a payload has begun but not ended.
+    pub fn is_partial(&self) -> bool {
+        self.expected.is_some()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn split_then_reassemble_is_the_identity_and_disorder_is_refused() {
+        let payload: Vec<u8> = (0..(2 * PART_BYTES + 17)).map(|i| (i % 251) as u8).collect();
+        let pieces = split(Bytes::from(payload.clone()));
+        assert_eq!(pieces.len(), 3);
+        let mut r = Reassembler::default();
+        assert_eq!(r.push(0, 3, &pieces[0].2).unwrap(), None);
+        assert!(r.is_partial());
+        assert!(r.push(2, 3, &pieces[2].2).unwrap_err().contains("part 1 was expected"));
+        let mut r = Reassembler::default();
+        let mut out = None;
+        for (i, n, d) in &pieces {
+            out = r.push(*i, *n, d).unwrap();
+        }
+        assert_eq!(out.unwrap(), payload);
+        assert_eq!(split(Bytes::new()).len(), 1, "an empty payload is one empty part");
+    }
+}

@@ -1,0 +1,307 @@
+//! The gRPC transport: actors stream rollouts to the learner's `PushRollouts` and watch its
+//! `WatchWeights`; the learner's service adapter checks every rollout before it reaches the
+//! training loop and answers `Status`.
+
+use std::pin::Pin;
+use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use policy::RolloutChunk;
+use prost::bytes::Bytes;
+use tokio::runtime::Handle;
+use tokio::sync::{mpsc, watch};
+use tokio_stream::Stream;
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::codegen::InterceptedService;
+use tonic::transport::Channel;
+use tonic::{Request, Response, Status, Streaming};
+
+use crate::chunking::{Reassembler, split};
+use crate::security::{AddToken, MAX_MESSAGE_BYTES, Security, SecurityError};
+use crate::transport::{ActorLink, Admission, Delivery, LearnerLink, LinkError, Refusal, WeightsUpdate};
+use crate::v1;
+use crate::v1::learner_client::LearnerClient;
+use crate::v1::learner_server::{Learner, LearnerServer};
+
+/// A learner client carrying the bearer token.
+pub type AuthedLearnerClient = LearnerClient<InterceptedService<Channel, AddToken>>;
+
+/// A learner client for `url` with message limits and the token.
+pub fn learner_client(url: &str, security: &Security) -> Result<AuthedLearnerClient, SecurityError> {
+    Ok(LearnerClient::with_interceptor(security.channel(url)?, security.token_header())
+        .max_decoding_message_size(MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(MAX_MESSAGE_BYTES))
+}
+
+/// The actor's end over gRPC (calls run on the given tokio runtime; methods block).
+pub struct GrpcActorLink {
+    runtime: Handle,
+    client: AuthedLearnerClient,
+    newest: Arc<Mutex<Option<WeightsUpdate>>>,
+    watcher: tokio::task::JoinHandle<()>,
+}
+
+impl GrpcActorLink {
+    /// Connects lazily to the learner at `url` and starts watching its weights (reconnecting
+    /// by itself whenever the learner goes away).
+    pub fn connect(runtime: Handle, url: &str, security: &Security) -> Result<Self, SecurityError> {
+        let client = {
+            let _guard = runtime.enter();
+            learner_client(url, security)?
+        };
+        let newest = Arc::new(Mutex::new(None));
+        let watcher = runtime.spawn(watch_weights(client.clone(), newest.clone()));
+        Ok(Self { runtime, client, newest, watcher })
+    }
+}
+
+impl Drop for GrpcActorLink {
+    fn drop(&mut self) {
+        self.watcher.abort();
+    }
+}
+
+async fn watch_weights(mut client: AuthedLearnerClient, newest: Arc<Mutex<Option<WeightsUpdate>>>) {
+    loop {
+        match client.watch_weights(v1::WatchWeightsRequest {}).await {
+            Ok(response) => {
+                let mut stream = response.into_inner();
+                let mut parts = Reassembler::default();
+                loop {
+                    match stream.message().await {
+                        Ok(Some(p)) => match parts.push(p.part, p.parts, &p.data) {
+                            Ok(Some(blob)) => {
+                                let update = WeightsUpdate {
+                                    learner_epoch: p.learner_epoch,
+                                    version: p.version,
+                                    max_policy_lag: p.max_policy_lag,
+                                    blob,
+                                };
+                                *newest.lock().expect("weights slot") = Some(update);
+                            }
+                            Ok(None) => {}
+                            Err(e) => {
+                                tracing::warn!("weights stream: {e}");
+                                break;
+                            }
+                        },
+                        Ok(None) => break,
+                        Err(status) => {
+                            tracing::debug!("weights stream ended: {status}");
+                            break;
+                        }
+                    }
+                }
+            }
+            Err(status) => tracing::debug!("learner not reachable for weights: {status}"),
+        }
+        tokio::time::sleep(Duration::from_millis(500)).await;
+    }
+}
+
+impl ActorLink for GrpcActorLink {
+    fn send_rollout(&mut self, actor: &str, learner_epoch: u64, chunk: &RolloutChunk) -> Result<(), LinkError> {
+        let messages: Vec<v1::RolloutPart> = split(Bytes::from(chunk.to_bytes()))
+            .into_iter()
+            .map(|(part, parts, data)| v1::RolloutPart {
+                actor: actor.to_string(),
+                learner_epoch,
+                policy_version: chunk.policy_version,
+                part,
+                parts,
+                data,
+            })
+            .collect();
+        let mut client = self.client.clone();
+        self.runtime
+            .block_on(client.push_rollouts(tokio_stream::iter(messages)))
+            .map_err(|s| LinkError(format!("push rollout: {}: {}", s.code(), s.message())))?;
+        Ok(())
+    }
+
+    fn newest_weights(&mut self) -> Result<Option<WeightsUpdate>, LinkError> {
+        Ok(self.newest.lock().expect("weights slot").take())
+    }
+}
+
+/// What the learner's gRPC service shares with the training loop.
+pub struct LearnerShared {
+    admission: Mutex<Option<Admission>>,
+    status: Mutex<v1::StatusResponse>,
+    weights: watch::Sender<Option<Arc<WeightsUpdate>>>,
+    refused: std::sync::atomic::AtomicU64,
+}
+
+impl LearnerShared {
+    /// Rollouts the service lets through from now on.
+    pub fn set_admission(&self, admission: Admission) {
+        *self.admission.lock().expect("admission") = Some(admission);
+    }
+
+    /// Replaces the status `Status` answers with (the refused-chunk count is added on answering).
+    pub fn set_status(&self, status: v1::StatusResponse) {
+        *self.status.lock().expect("status") = status;
+    }
+
+    /// Counts a rollout the training loop refused.
+    pub fn count_refused(&self) {
+        self.refused.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    fn check(&self, actor: &str, epoch: u64, chunk: &RolloutChunk) -> Result<(), Status> {
+        let admission = *self.admission.lock().expect("admission");
+        let Some(admission) = admission else { return Err(Status::unavailable("the learner is starting")) };
+        admission.check(actor, epoch, chunk).map_err(|r| {
+            self.count_refused();
+            match r {
+                Refusal::Malformed(m) => Status::invalid_argument(m),
+                wrong @ Refusal::WrongVersion { .. } => Status::failed_precondition(wrong.to_string()),
+            }
+        })
+    }
+}
+
+/// The `Learner` service adapter.
+pub struct LearnerService {
+    shared: Arc<LearnerShared>,
+    deliveries: Option<SyncSender<Delivery>>,
+}
+
+impl LearnerService {
+    /// A service taking rollouts over gRPC, and the link the training loop reads them from.
+    pub fn with_rollouts() -> (Self, GrpcLearnerLink) {
+        let shared = Self::shared();
+        let (tx, rx) = std::sync::mpsc::sync_channel(256);
+        (Self { shared: shared.clone(), deliveries: Some(tx) }, GrpcLearnerLink { shared, deliveries: rx })
+    }
+
+    /// A service answering `Status` (and `WatchWeights`) only: rollouts go over iceoryx2.
+    pub fn status_only() -> (Self, Arc<LearnerShared>) {
+        let shared = Self::shared();
+        (Self { shared: shared.clone(), deliveries: None }, shared)
+    }
+
+    fn shared() -> Arc<LearnerShared> {
+        Arc::new(LearnerShared {
+            admission: Mutex::new(None),
+            status: Mutex::new(v1::StatusResponse::default()),
+            weights: watch::channel(None).0,
+            refused: Default::default(),
+        })
+    }
+
+    /// The tonic server with message limits.
+    pub fn into_server(self) -> LearnerServer<Self> {
+        LearnerServer::new(self).max_decoding_message_size(MAX_MESSAGE_BYTES).max_encoding_message_size(MAX_MESSAGE_BYTES)
+    }
+}
+
+/// The learner's end over gRPC.
+pub struct GrpcLearnerLink {
+    shared: Arc<LearnerShared>,
+    deliveries: Receiver<Delivery>,
+}
+
+impl GrpcLearnerLink {
+    /// State shared with the service (admission, status).
+    pub fn shared(&self) -> &Arc<LearnerShared> {
+        &self.shared
+    }
+}
+
+impl LearnerLink for GrpcLearnerLink {
+    fn receive(&mut self, timeout: Duration) -> Result<Option<Delivery>, LinkError> {
+        match self.deliveries.recv_timeout(timeout) {
+            Ok(d) => Ok(Some(d)),
+            Err(RecvTimeoutError::Timeout) => Ok(None),
+            Err(RecvTimeoutError::Disconnected) => Err(LinkError("the gRPC server stopped".into())),
+        }
+    }
+
+    fn publish(&mut self, weights: &WeightsUpdate) -> Result<(), LinkError> {
+        self.shared.weights.send_replace(Some(Arc::new(weights.clone())));
+        Ok(())
+    }
+}
+
+/// Publishes weights to gRPC watchers when the rollouts travel another way.
+pub fn publish_weights(shared: &LearnerShared, weights: &WeightsUpdate) {
+    shared.weights.send_replace(Some(Arc::new(weights.clone())));
+}
+
+type PartStream = Pin<Box<dyn Stream<Item = Result<v1::WeightsPart, Status>> + Send>>;
+
+#[tonic::async_trait]
+impl Learner for LearnerService {
+    async fn push_rollouts(&self, request: Request<Streaming<v1::RolloutPart>>) -> Result<Response<v1::PushSummary>, Status> {
+        let Some(deliveries) = &self.deliveries else {
+            return Err(Status::failed_precondition("this learner takes rollouts over iceoryx2 (transport = \"shm\")"));
+        };
+        let mut stream = request.into_inner();
+        let mut parts = Reassembler::default();
+        let mut accepted = 0;
+        while let Some(part) = stream.message().await? {
+            let Some(bytes) = parts.push(part.part, part.parts, &part.data).map_err(Status::invalid_argument)? else {
+                continue;
+            };
+            let chunk = RolloutChunk::from_bytes(&bytes).map_err(|e| {
+                self.shared.count_refused();
+                Status::invalid_argument(e.to_string())
+            })?;
+            if chunk.policy_version != part.policy_version {
+                self.shared.count_refused();
+                return Err(Status::invalid_argument("policy_version differs from the chunk's own"));
+            }
+            self.shared.check(&part.actor, part.learner_epoch, &chunk)?;
+            let delivery = Delivery { actor: part.actor, learner_epoch: part.learner_epoch, chunk };
+            match deliveries.try_send(delivery) {
+                Ok(()) => accepted += 1,
+                Err(TrySendError::Full(_)) => return Err(Status::resource_exhausted("the learner's rollout queue is full")),
+                Err(TrySendError::Disconnected(_)) => return Err(Status::unavailable("the learner is stopping")),
+            }
+        }
+        // A stream that ends mid-payload delivered nothing of it.
+        if parts.is_partial() {
+            return Err(Status::invalid_argument("the stream ended inside a rollout; its parts were discarded"));
+        }
+        Ok(Response::new(v1::PushSummary { accepted }))
+    }
+
+    type WatchWeightsStream = PartStream;
+
+    async fn watch_weights(&self, _: Request<v1::WatchWeightsRequest>) -> Result<Response<PartStream>, Status> {
+        let mut updates = self.shared.weights.subscribe();
+        let (tx, rx) = mpsc::channel(8);
+        tokio::spawn(async move {
+            loop {
+                let current = updates.borrow_and_update().clone();
+                if let Some(w) = current {
+                    for (part, parts, data) in split(Bytes::from(w.blob.clone())) {
+                        let message = v1::WeightsPart {
+                            learner_epoch: w.learner_epoch,
+                            version: w.version,
+                            max_policy_lag: w.max_policy_lag,
+                            part,
+                            parts,
+                            data,
+                        };
+                        if tx.send(Ok(message)).await.is_err() {
+                            return;
+                        }
+                    }
+                }
+                if updates.changed().await.is_err() {
+                    return;
+                }
+            }
+        });
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+
+    async fn status(&self, _: Request<v1::StatusRequest>) -> Result<Response<v1::StatusResponse>, Status> {
+        let mut status = self.shared.status.lock().expect("status").clone();
+        status.refused_chunks += self.shared.refused.load(std::sync::atomic::Ordering::Relaxed);
+        Ok(Response::new(status))
+    }
+}

@@ -1,0 +1,218 @@
+//! Who may talk to a server and how much: loopback by default, TLS (rustls) and a bearer token
+//! across machines, and message-size limits on every server and client.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+use tonic::metadata::MetadataValue;
+use tonic::service::Interceptor;
+use tonic::transport::{Certificate, Channel, ClientTlsConfig, Endpoint, Identity, Server, ServerTlsConfig};
+use tonic::{Request, Status};
+
+/// Largest gRPC message accepted or sent (rollouts travel in parts of [`PART_BYTES`]).
+pub const MAX_MESSAGE_BYTES: usize = 4 * PART_BYTES;
+/// Size of the parts a rollout or weights blob is split into.
+pub const PART_BYTES: usize = 1 << 20;
+/// Largest reassembled rollout chunk or weights blob (a 96-env × 1024-step paper rollout is ~20 MiB).
+pub const MAX_PAYLOAD_BYTES: usize = 256 << 20;
+/// HTTP/2 flow-control windows: several MiB, so streaming 1 MiB parts does not stall.
+const WINDOW_BYTES: u32 = 8 << 20;
+
+/// Network security settings of a process (`[network]` in the run config).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct NetworkConfig {
+    /// File holding the bearer token every request must carry (none: no token required).
+    pub token_file: Option<PathBuf>,
+    /// PEM certificate chain of this server (enables TLS on servers).
+    pub tls_cert: Option<PathBuf>,
+    /// PEM private key of `tls_cert`.
+    pub tls_key: Option<PathBuf>,
+    /// PEM CA certificate clients trust (enables TLS on clients).
+    pub tls_ca: Option<PathBuf>,
+    /// Server name clients expect in the certificate (default: the host of the address).
+    pub tls_domain: Option<String>,
+}
+
+/// A security setting that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum SecurityError {
+    /// A file could not be read.
+    #[error("{field} = {path}: {source}")]
+    Read {
+        /// Config field naming the file.
+        field: &'static str,
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// An inconsistent or invalid setting.
+    #[error("network: {0}")]
+    Invalid(String),
+    /// TLS or transport set-up failed.
+    #[error("network: {0}")]
+    Transport(#[from] tonic::transport::Error),
+}
+
+/// Loaded security material.
+#[derive(Clone, Debug, Default)]
+pub struct Security {
+    token: Option<Arc<str>>,
+    server_identity: Option<(Vec<u8>, Vec<u8>)>,
+    client_ca: Option<Vec<u8>>,
+    domain: Option<String>,
+}
+
+fn read(field: &'static str, path: &Path) -> Result<Vec<u8>, SecurityError> {
+    std::fs::read(path).map_err(|source| SecurityError::Read { field, path: path.to_path_buf(), source })
+}
+
+impl Security {
+    /// Reads the files a config names.
+    pub fn load(config: &NetworkConfig) -> Result<Self, SecurityError> {
+        let token = match &config.token_file {
+            Some(path) => {
+                let text = String::from_utf8(read("network.token_file", path)?)
+                    .map_err(|_| SecurityError::Invalid(format!("network.token_file = {}: not UTF-8 text", path.display())))?;
+                let token = text.trim();
+                if token.is_empty() || !token.chars().all(|c| c.is_ascii_graphic()) {
+                    return Err(SecurityError::Invalid(format!(
+                        "network.token_file = {}: the token must be one line of printable ASCII",
+                        path.display()
+                    )));
+                }
+                Some(Arc::from(token))
+            }
+            None => None,
+        };
+        let server_identity = match (&config.tls_cert, &config.tls_key) {
+            (Some(cert), Some(key)) => Some((read("network.tls_cert", cert)?, read("network.tls_key", key)?)),
+            (None, None) => None,
+            _ => return Err(SecurityError::Invalid("tls_cert and tls_key go together".into())),
+        };
+        let client_ca = config.tls_ca.as_deref().map(|p| read("network.tls_ca", p)).transpose()?;
+        Ok(Self { token, server_identity, client_ca, domain: config.tls_domain.clone() })
+    }
+
+    /// Refuses to listen beyond loopback without TLS and a token: rollouts and weights are
+    /// not for the whole network to read or forge.
+    pub fn check_listen(&self, addr: &SocketAddr) -> Result<(), SecurityError> {
+        if !addr.ip().is_loopback() && (self.server_identity.is_none() || self.token.is_none()) {
+            return Err(SecurityError::Invalid(format!(
+                "listening on {addr} (beyond loopback) needs network.tls_cert, network.tls_key and network.token_file"
+            )));
+        }
+        Ok(())
+    }
+
+    /// A server builder with TLS (when configured) and large flow-control windows.
+    pub fn server(&self) -> Result<Server, SecurityError> {
+        let mut server = Server::builder()
+            .initial_stream_window_size(WINDOW_BYTES)
+            .initial_connection_window_size(WINDOW_BYTES)
+            .http2_keepalive_interval(Some(Duration::from_secs(10)));
+        if let Some((cert, key)) = &self.server_identity {
+            server = server.tls_config(ServerTlsConfig::new().identity(Identity::from_pem(cert, key)))?;
+        }
+        Ok(server)
+    }
+
+    /// The interceptor servers wrap their services in.
+    pub fn token_check(&self) -> TokenCheck {
+        TokenCheck { token: self.token.clone() }
+    }
+
+    /// A lazily connecting channel to `url` (`http://` or, with `tls_ca`, `https://`).
+    pub fn channel(&self, url: &str) -> Result<Channel, SecurityError> {
+        let mut endpoint = Endpoint::from_shared(url.to_string())
+            .map_err(|e| SecurityError::Invalid(format!("address {url:?}: {e}")))?
+            .connect_timeout(Duration::from_secs(5))
+            .initial_stream_window_size(WINDOW_BYTES)
+            .initial_connection_window_size(WINDOW_BYTES)
+            .http2_keep_alive_interval(Duration::from_secs(10))
+            .keep_alive_timeout(Duration::from_secs(20));
+        if let Some(ca) = &self.client_ca {
+            let mut tls = ClientTlsConfig::new().ca_certificate(Certificate::from_pem(ca));
+            if let Some(domain) = &self.domain {
+                tls = tls.domain_name(domain.clone());
+            }
+            endpoint = endpoint.tls_config(tls)?;
+        }
+        Ok(endpoint.connect_lazy())
+    }
+
+    /// The interceptor clients wrap their channel in (adds the bearer token).
+    pub fn token_header(&self) -> AddToken {
+        AddToken { header: self.token.as_ref().map(|t| format!("Bearer {t}").parse().expect("printable ASCII token")) }
+    }
+}
+
+/// Server side: UNAUTHENTICATED unless the request carries `authorization: Bearer <token>`.
+#[derive(Clone, Debug)]
+pub struct TokenCheck {
+    token: Option<Arc<str>>,
+}
+
+impl Interceptor for TokenCheck {
+    fn call(&mut self, request: Request<()>) -> Result<Request<()>, Status> {
+        let Some(token) = &self.token else { return Ok(request) };
+        let given = request.metadata().get("authorization").and_then(|v| v.to_str().ok());
+        let Some(given) = given.and_then(|v| v.strip_prefix("Bearer ")) else {
+            return Err(Status::unauthenticated("missing bearer token (authorization: Bearer <token>)"));
+        };
+        // Compare in time independent of where the strings differ.
+        let same = given.len() == token.len() && given.bytes().zip(token.bytes()).fold(0u8, |d, (a, b)| d | (a ^ b)) == 0;
+        if same { Ok(request) } else { Err(Status::unauthenticated("wrong bearer token")) }
+    }
+}
+
+/// Client side: adds the bearer token to every request.
+#[derive(Clone, Debug)]
+pub struct AddToken {
+    header: Option<MetadataValue<tonic::metadata::Ascii>>,
+}
+
+impl Interceptor for AddToken {
+    fn call(&mut self, mut request: Request<()>) -> Result<Request<()>, Status> {
+        if let Some(h) = &self.header {
+            request.metadata_mut().insert("authorization", h.clone());
+        }
+        Ok(request)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn with_token(token: Option<&str>) -> Request<()> {
+        let mut r = Request::new(());
+        if let Some(t) = token {
+            r.metadata_mut().insert("authorization", t.parse().unwrap());
+        }
+        r
+    }
+
+    #[test]
+    fn token_check_refuses_missing_and_wrong_tokens() {
+        let mut check = TokenCheck { token: Some(Arc::from("s3cret")) };
+        assert!(check.call(with_token(Some("Bearer s3cret"))).is_ok());
+        for bad in [None, Some("Bearer s3creT"), Some("s3cret"), Some("Bearer s3cret2")] {
+            assert_eq!(check.call(with_token(bad)).unwrap_err().code(), tonic::Code::Unauthenticated, "{bad:?}");
+        }
+        let mut open = TokenCheck { token: None };
+        assert!(open.call(with_token(None)).is_ok());
+    }
+
+    #[test]
+    fn listening_beyond_loopback_needs_tls_and_a_token() {
+        let plain = Security::default();
+        assert!(plain.check_listen(&"127.0.0.1:1".parse().unwrap()).is_ok());
+        let e = plain.check_listen(&"0.0.0.0:1".parse().unwrap()).unwrap_err().to_string();
+        assert!(e.contains("tls_cert") && e.contains("token_file"), "{e}");
+    }
+}

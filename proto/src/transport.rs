@@ -1,0 +1,132 @@
+//! Rollouts to the learner, weights to the actors: the one interface both transports
+//! (iceoryx2 on one machine, gRPC across machines) implement, so actor and learner code is the
+//! same over either.
+
+use std::time::Duration;
+
+use policy::RolloutChunk;
+
+/// Weights as they travel to actors.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WeightsUpdate {
+    /// The learner process lifetime that produced them (versions restart with a learner).
+    pub learner_epoch: u64,
+    /// Policy version.
+    pub version: u64,
+    /// Versions a rollout may lag behind (0: synchronous, actors wait for every version).
+    pub max_policy_lag: u32,
+    /// `policy::WeightsBlob` bytes.
+    pub blob: Vec<u8>,
+}
+
+/// A rollout as the learner receives it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Delivery {
+    /// Sending actor's name.
+    pub actor: String,
+    /// Learner epoch of the weights the rollout was collected with.
+    pub learner_epoch: u64,
+    /// The rollout.
+    pub chunk: RolloutChunk,
+}
+
+/// A transport failure (the peer is gone, a resource could not be opened, …).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct LinkError(pub String);
+
+impl LinkError {
+    /// Wraps any displayable error with context.
+    pub fn new(context: &str, error: impl std::fmt::Display) -> Self {
+        Self(format!("{context}: {error}"))
+    }
+}
+
+/// The actor's end: send rollouts, pick up the newest weights (used on the thread that opened it:
+/// iceoryx2 ports are single-threaded).
+pub trait ActorLink {
+    /// Sends one whole rollout; it arrives whole or not at all.
+    fn send_rollout(&mut self, actor: &str, learner_epoch: u64, chunk: &RolloutChunk) -> Result<(), LinkError>;
+    /// The newest weights that arrived since the last call, if any (never blocks).
+    fn newest_weights(&mut self) -> Result<Option<WeightsUpdate>, LinkError>;
+}
+
+/// The learner's end: take rollouts, publish weights.
+pub trait LearnerLink {
+    /// The next rollout, waiting at most `timeout`.
+    fn receive(&mut self, timeout: Duration) -> Result<Option<Delivery>, LinkError>;
+    /// Makes `weights` the newest for every actor, including those that connect later.
+    fn publish(&mut self, weights: &WeightsUpdate) -> Result<(), LinkError>;
+}
+
+/// What a learner at `(epoch, version)` accepts from actors.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Admission {
+    /// Current learner epoch.
+    pub learner_epoch: u64,
+    /// Version being trained.
+    pub version: u64,
+    /// Versions a rollout may lag.
+    pub max_policy_lag: u32,
+    /// Observation length of the policy.
+    pub observation_dim: usize,
+    /// Action length of the policy.
+    pub action_dim: usize,
+    /// Environments in the whole run (global indices must fall below it).
+    pub total_envs: usize,
+}
+
+/// Why a rollout is refused.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum Refusal {
+    /// Shapes, numbers or environment ids are wrong.
+    #[error("malformed rollout: {0}")]
+    Malformed(String),
+    /// Collected with weights of another learner lifetime, or too old, or from the future.
+    #[error("rollout of policy version {version} (learner epoch {epoch:#x}) while training version {current} (epoch {current_epoch:#x}, max_policy_lag {lag})")]
+    WrongVersion {
+        /// Version in the rollout.
+        version: u64,
+        /// Epoch in the rollout.
+        epoch: u64,
+        /// Version being trained.
+        current: u64,
+        /// Current epoch.
+        current_epoch: u64,
+        /// Allowed lag.
+        lag: u32,
+    },
+}
+
+impl Admission {
+    /// Accepts a rollout the learner can train on now, or says why not.
+    pub fn check(&self, actor: &str, learner_epoch: u64, chunk: &RolloutChunk) -> Result<(), Refusal> {
+        check_actor_name(actor).map_err(Refusal::Malformed)?;
+        chunk.check(self.observation_dim, self.action_dim).map_err(Refusal::Malformed)?;
+        if chunk.first_env.checked_add(chunk.envs).is_none_or(|end| end > self.total_envs) {
+            return Err(Refusal::Malformed(format!(
+                "environments {}..{} are not all known (the run has {})",
+                chunk.first_env,
+                chunk.first_env.saturating_add(chunk.envs),
+                self.total_envs
+            )));
+        }
+        let v = chunk.policy_version;
+        if learner_epoch != self.learner_epoch || v > self.version || self.version - v > u64::from(self.max_policy_lag) {
+            return Err(Refusal::WrongVersion {
+                version: v,
+                epoch: learner_epoch,
+                current: self.version,
+                current_epoch: self.learner_epoch,
+                lag: self.max_policy_lag,
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Actor names: 1–64 characters of `[A-Za-z0-9_.-]` (they become log keys and shm headers).
+pub fn check_actor_name(actor: &str) -> Result<(), String> {
+    let ok = !actor.is_empty() && actor.len() <= 64 && actor.bytes().all(|b| b.is_ascii_alphanumeric() || b"_.-".contains(&b));
+    if ok { Ok(()) } else { Err(format!("actor name {actor:?} must be 1-64 characters of A-Z a-z 0-9 _ . -")) }
+}

@@ -1,0 +1,284 @@
+//! The three processes of the distributed runtime: `dronerace taskctl`, `dronerace learner`,
+//! `dronerace actor`. Each reads the run config (TOML, as for `train`) plus flags naming
+//! addresses; SIGINT or SIGTERM stops each cleanly (the learner checkpoints first).
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use anyhow::Context;
+use clap::{Args, ValueEnum};
+use learner::process::{LearnerProcess, TaskView};
+use learner::{Run, TrainConfig};
+use proto::grpc_link::{GrpcActorLink, LearnerService};
+use proto::shm::{ShmActorLink, ShmConfig, ShmLearnerLink};
+use proto::{LearnerLink, Security};
+use taskctl::client::TaskClient;
+
+/// How rollouts and weights travel between actors and the learner.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Transport {
+    /// iceoryx2 shared memory (actors on the learner's machine).
+    Shm,
+    /// gRPC streams (actors anywhere).
+    Grpc,
+}
+
+/// Raised by SIGINT/SIGTERM.
+pub fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst)).context("installing the signal handler")?;
+    Ok(stop)
+}
+
+fn read_config(path: &Option<PathBuf>) -> anyhow::Result<TrainConfig> {
+    Ok(match path {
+        Some(p) => TrainConfig::read(p)?,
+        None => TrainConfig::default(),
+    })
+}
+
+fn runtime(threads: usize) -> anyhow::Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread().worker_threads(threads).enable_all().build().context("starting the async runtime")
+}
+
+async fn until(stop: Arc<AtomicBool>) {
+    while !stop.load(Ordering::SeqCst) {
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+/// Arguments of `dronerace taskctl`.
+#[derive(Args)]
+pub struct TaskctlArgs {
+    /// Run configuration (TOML; tracks, generator, switching, environment count, network).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Address to serve gRPC on.
+    #[arg(long, default_value = "127.0.0.1:50051")]
+    listen: SocketAddr,
+    /// Snapshot file: restored at start when present, rewritten after every change.
+    #[arg(long)]
+    snapshot: PathBuf,
+}
+
+/// Serves the task controller until SIGINT/SIGTERM.
+pub fn taskctl(args: TaskctlArgs) -> anyhow::Result<()> {
+    let config = read_config(&args.config)?;
+    let security = Security::load(&config.network)?;
+    let controller = if args.snapshot.exists() {
+        let c = taskctl::TaskController::restore(&args.snapshot)?;
+        eprintln!("taskctl: restored {} environments and {} switches from {}", c.len(), c.history().len(), args.snapshot.display());
+        c
+    } else {
+        let c = config.task_controller(config.resolved_profile()?.envs)?;
+        c.snapshot(&args.snapshot)?;
+        c
+    };
+    let stop = stop_flag()?;
+    let service = taskctl::grpc::TaskControllerService::new(controller, args.snapshot.clone());
+    eprintln!("taskctl: serving on {}", args.listen);
+    runtime(1)?
+        .block_on(taskctl::grpc::serve(args.listen, &security, service, until(stop)))
+        .map_err(|e| anyhow::anyhow!("taskctl on {}: {e}", args.listen))
+}
+
+/// Arguments of `dronerace learner`.
+#[derive(Args)]
+pub struct LearnerArgs {
+    /// Run configuration (TOML); ignored when the run directory already holds a run.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Run directory: a new run starts there, or the run there resumes from its newest checkpoint.
+    #[arg(long)]
+    out: PathBuf,
+    /// Address to serve gRPC on (status, weights, and rollouts with `--transport grpc`).
+    #[arg(long, default_value = "127.0.0.1:50052")]
+    listen: SocketAddr,
+    /// How rollouts arrive.
+    #[arg(long, value_enum, default_value_t = Transport::Shm)]
+    transport: Transport,
+    /// iceoryx2 run identifier (with `--transport shm`).
+    #[arg(long, default_value = "main")]
+    shm_run: String,
+    /// Actors the first iteration waits for.
+    #[arg(long, default_value_t = 1)]
+    actors: usize,
+    /// Task controller address (for the switch count in the progress line).
+    #[arg(long)]
+    taskctl: Option<String>,
+    /// Stop after this many iterations (a checkpoint is written on the way out).
+    #[arg(long)]
+    iterations: Option<u64>,
+}
+
+/// The switch count and mean q, read from the task controller.
+struct RemoteTasks(Option<TaskClient>);
+
+impl TaskView for RemoteTasks {
+    fn switches_and_mean_q(&mut self) -> Option<(usize, f64)> {
+        let tasks = self.0.as_ref()?.list_tasks().ok()?;
+        let switches = tasks.iter().map(|t| t.switches as usize).sum();
+        let qs: Vec<f64> = tasks.iter().filter_map(|t| t.q).collect();
+        Some((switches, if qs.is_empty() { f64::NAN } else { qs.iter().sum::<f64>() / qs.len() as f64 }))
+    }
+}
+
+/// Runs the learner process until the budget is spent, `--iterations` are done, or SIGINT.
+pub fn learner(args: LearnerArgs) -> anyhow::Result<()> {
+    let config = read_config(&args.config)?;
+    let (run, checkpoint) = Run::open_or_create(config, &args.out)?;
+    let security = Security::load(&run.config().network)?;
+    security.check_listen(&args.listen)?;
+    let mut settings = run.config().learner;
+    settings.expected_actors = args.actors.max(1);
+    let stop = stop_flag()?;
+    let rt = runtime(1)?;
+    let tasks = match &args.taskctl {
+        Some(url) => Some(TaskClient::new(rt.handle().clone(), url, &security)?),
+        None => None,
+    };
+    let resumed = checkpoint.is_some();
+    match args.transport {
+        Transport::Grpc => {
+            let (service, link) = LearnerService::with_rollouts();
+            let shared = link.shared().clone();
+            let server = serve_learner(&rt, args.listen, &security, service, stop.clone())?;
+            let process = LearnerProcess::start(run, checkpoint.as_ref(), link, shared, settings)?;
+            drive(process, resumed, &args, &stop, RemoteTasks(tasks))?;
+            finish_server(&rt, server, &stop);
+        }
+        Transport::Shm => {
+            let shm = ShmConfig { run: args.shm_run.clone(), max_actors: args.actors.max(1) };
+            let link = ShmLearnerLink::open(&shm)?;
+            let (service, shared) = LearnerService::status_only();
+            let server = serve_learner(&rt, args.listen, &security, service, stop.clone())?;
+            let process = LearnerProcess::start(run, checkpoint.as_ref(), link, shared, settings)?;
+            drive(process, resumed, &args, &stop, RemoteTasks(tasks))?;
+            finish_server(&rt, server, &stop);
+        }
+    }
+    Ok(())
+}
+
+type ServerTask = tokio::task::JoinHandle<Result<(), tonic::transport::Error>>;
+
+fn serve_learner(
+    rt: &tokio::runtime::Runtime,
+    addr: SocketAddr,
+    security: &Security,
+    service: LearnerService,
+    stop: Arc<AtomicBool>,
+) -> anyhow::Result<ServerTask> {
+    // Bind now, so a taken port is an error at start rather than a silent background failure.
+    let listener = rt.block_on(tokio::net::TcpListener::bind(addr)).with_context(|| format!("learner: binding {addr}"))?;
+    let (health, reflection) = rt.block_on(proto::health_and_reflection(&["dronerace.v1.Learner"]));
+    let router = security
+        .server()?
+        .add_service(health)
+        .add_service(reflection)
+        .add_service(tonic::service::interceptor::InterceptedService::new(service.into_server(), security.token_check()));
+    let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
+    eprintln!("learner: serving on {addr}");
+    Ok(rt.spawn(router.serve_with_incoming_shutdown(incoming, until(stop))))
+}
+
+fn finish_server(rt: &tokio::runtime::Runtime, server: ServerTask, stop: &AtomicBool) {
+    stop.store(true, Ordering::SeqCst);
+    let _ = rt.block_on(async { tokio::time::timeout(Duration::from_secs(5), server).await });
+}
+
+fn drive<L: LearnerLink>(mut process: LearnerProcess<L>, resumed: bool, args: &LearnerArgs, stop: &AtomicBool, mut tasks: RemoteTasks) -> anyhow::Result<()> {
+    let dir = process.run().dir().to_path_buf();
+    let log_path = dir.join("train.log");
+    let mut log = std::fs::OpenOptions::new().create(true).append(true).open(&log_path).with_context(|| format!("opening {}", log_path.display()))?;
+    eprintln!(
+        "learner: {} run in {} at iteration {} ({} transport)",
+        if resumed { "resuming the" } else { "starting a new" },
+        dir.display(),
+        process.run().iteration(),
+        match args.transport {
+            Transport::Shm => "iceoryx2",
+            Transport::Grpc => "gRPC",
+        }
+    );
+    let mut done = 0;
+    while !process.finished() && !stop.load(Ordering::SeqCst) && args.iterations.is_none_or(|n| done < n) {
+        let Some(s) = process.iteration_step(stop, &mut tasks)? else { break };
+        done += 1;
+        let line = super::train::progress_line(&s, process.eta_seconds(s.sps));
+        eprintln!("{line}");
+        use std::io::Write;
+        writeln!(log, "{line}").with_context(|| format!("writing {}", log_path.display()))?;
+    }
+    let path = process.checkpoint()?;
+    eprintln!("learner: checkpoint written to {}", path.display());
+    Ok(())
+}
+
+/// Arguments of `dronerace actor`.
+#[derive(Args)]
+pub struct ActorArgs {
+    /// Run configuration (TOML; environment, seed, n_steps of the profile, network).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Actor name (stable across restarts: it takes back its environments).
+    #[arg(long)]
+    name: String,
+    /// Environments this actor runs.
+    #[arg(long)]
+    envs: usize,
+    /// Task controller address.
+    #[arg(long, default_value = "http://127.0.0.1:50051")]
+    taskctl: String,
+    /// How rollouts travel.
+    #[arg(long, value_enum, default_value_t = Transport::Shm)]
+    transport: Transport,
+    /// Learner address (with `--transport grpc`).
+    #[arg(long, default_value = "http://127.0.0.1:50052")]
+    learner: String,
+    /// iceoryx2 run identifier (with `--transport shm`).
+    #[arg(long, default_value = "main")]
+    shm_run: String,
+    /// Most actors of the run on this machine (sizes the iceoryx2 services; same on all).
+    #[arg(long, default_value_t = 1)]
+    max_actors: usize,
+    /// Stop after this many rollouts.
+    #[arg(long)]
+    rollouts: Option<u64>,
+}
+
+/// Runs one actor until SIGINT/SIGTERM.
+pub fn actor(args: ActorArgs) -> anyhow::Result<()> {
+    let config = read_config(&args.config)?;
+    anyhow::ensure!(args.envs > 0, "--envs must be at least 1");
+    proto::transport::check_actor_name(&args.name).map_err(|e| anyhow::anyhow!("--name: {e}"))?;
+    let profile = config.resolved_profile()?;
+    let security = Security::load(&config.network)?;
+    let rt = runtime(1)?;
+    let tasks = TaskClient::new(rt.handle().clone(), &args.taskctl, &security)?;
+    let settings = actor::process::ActorSettings {
+        name: args.name.clone(),
+        envs: args.envs,
+        seed: config.seed,
+        env: config.env,
+        n_steps: profile.ppo.n_steps,
+        weights_timeout: Duration::from_secs_f64(config.learner.actor_timeout_seconds.max(0.1)),
+        max_rollouts: args.rollouts,
+    };
+    let stop = stop_flag()?;
+    match args.transport {
+        Transport::Grpc => {
+            let mut link = GrpcActorLink::connect(rt.handle().clone(), &args.learner, &security)?;
+            actor::process::run_actor(&settings, &mut link, &tasks, &stop)?;
+        }
+        Transport::Shm => {
+            let mut link = ShmActorLink::open(&ShmConfig { run: args.shm_run.clone(), max_actors: args.max_actors.max(1) })?;
+            actor::process::run_actor(&settings, &mut link, &tasks, &stop)?;
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,311 @@
+//! The distributed runtime end to end: real taskctl, learner and actor processes over
+//! iceoryx2 and gRPC, killed with -9 and restarted, and refusing bad input.
+
+mod support;
+
+use std::path::Path;
+use std::time::Duration;
+
+use support::*;
+
+const MINUTE: Duration = Duration::from_secs(60);
+
+/// `dronerace train` with 2 actor processes for 3 iterations over `transport`.
+fn one_command_run(transport: &str) {
+    let _serial = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let config = write_config(tmp.path(), "");
+    let out = tmp.path().join("run");
+    let shm_before = shm_files();
+    let mut train = Proc::start(
+        tmp.path(),
+        "train",
+        &args(&["train", "--config", config.to_str().unwrap(), "--out", out.to_str().unwrap(), "--actors", "2", "--iterations", "3", "--transport", transport]),
+    );
+    let status = train.wait_exit(3 * MINUTE);
+    let log = train.output();
+    assert!(status.success(), "train failed:\n{log}");
+    let rows = metrics_rows(&out);
+    assert_eq!(rows.iter().map(|r| r.0).collect::<Vec<_>>(), vec![1, 2, 3], "{log}");
+    // Both actors' rollouts (4 environments × 32 steps each) went into every update.
+    assert_eq!(rows.last().unwrap().1, 3 * 8 * 32, "{log}");
+    assert!(out.join("checkpoints").read_dir().unwrap().count() >= 2);
+    assert!(out.join("taskctl.snapshot").exists());
+    let left: Vec<String> = shm_files().into_iter().filter(|f| !shm_before.contains(f)).collect();
+    assert!(left.is_empty(), "shared memory left behind after a clean shutdown: {left:?}");
+}
+
+#[test]
+fn one_command_trains_with_two_actor_processes_over_iceoryx2() {
+    one_command_run("shm");
+}
+
+#[test]
+fn one_command_trains_with_two_actor_processes_over_grpc() {
+    one_command_run("grpc");
+}
+
+/// Hand-started processes of one run (so tests can kill and restart each).
+struct Cluster {
+    dir: std::path::PathBuf,
+    config: String,
+    out: String,
+    taskctl_addr: String,
+    learner_addr: String,
+    transport: &'static str,
+    shm_run: String,
+}
+
+impl Cluster {
+    fn new(dir: &Path, transport: &'static str, extra: &str) -> Self {
+        Self {
+            dir: dir.to_path_buf(),
+            config: write_config(dir, extra).display().to_string(),
+            out: dir.join("run").display().to_string(),
+            taskctl_addr: format!("127.0.0.1:{}", free_port()),
+            learner_addr: format!("127.0.0.1:{}", free_port()),
+            transport,
+            shm_run: {
+                // Each cluster gets its own services, whatever earlier tests left behind.
+                static COUNT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+                format!("test-{}-{}", std::process::id(), COUNT.fetch_add(1, std::sync::atomic::Ordering::SeqCst))
+            },
+        }
+    }
+
+    fn taskctl(&self) -> Proc {
+        let snapshot = self.dir.join("taskctl.snapshot").display().to_string();
+        Proc::start(&self.dir, "taskctl", &args(&["taskctl", "--config", &self.config, "--listen", &self.taskctl_addr, "--snapshot", &snapshot]))
+    }
+
+    fn learner(&self) -> Proc {
+        Proc::start(
+            &self.dir,
+            "learner",
+            &args(&[
+                "learner", "--config", &self.config, "--out", &self.out, "--listen", &self.learner_addr, "--transport", self.transport,
+                "--shm-run", &self.shm_run, "--actors", "2", "--taskctl", &self.taskctl_url(),
+            ]),
+        )
+    }
+
+    fn actor(&self, name: &str) -> Proc {
+        Proc::start(
+            &self.dir,
+            name,
+            &args(&[
+                "actor", "--config", &self.config, "--name", name, "--envs", "4", "--taskctl", &self.taskctl_url(), "--transport",
+                self.transport, "--learner", &self.learner_url(), "--shm-run", &self.shm_run, "--max-actors", "2",
+            ]),
+        )
+    }
+
+    fn taskctl_url(&self) -> String {
+        format!("http://{}", self.taskctl_addr)
+    }
+
+    fn learner_url(&self) -> String {
+        format!("http://{}", self.learner_addr)
+    }
+}
+
+fn iteration(clients: &Clients, c: &Cluster) -> u64 {
+    clients.status(&c.learner_url()).map_or(0, |s| s.iteration)
+}
+
+#[test]
+fn an_actor_killed_mid_rollout_is_dropped_and_a_restarted_one_rejoins() {
+    let _serial = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let c = Cluster::new(tmp.path(), "grpc", "");
+    let clients = Clients::new(proto::Security::default());
+    let _taskctl = c.taskctl();
+    let learner = c.learner();
+    let a0 = c.actor("a0");
+    let mut a1 = c.actor("a1");
+    wait_until(2 * MINUTE, "iteration 3", &[&learner, &a0, &a1], || iteration(&clients, &c) >= 3);
+    a1.kill9();
+    let killed_at = iteration(&clients, &c);
+    // Training goes on with a0 alone once a1 has missed the timeout.
+    wait_until(MINUTE, "5 iterations after the kill", &[&learner, &a0], || iteration(&clients, &c) >= killed_at + 5);
+    let status = clients.status(&c.learner_url()).unwrap();
+    assert_eq!(status.connected_actors, vec!["a0".to_string()]);
+    assert!(learner.output().contains("dropping actor a1"), "{}", learner.output());
+    // A restarted a1 takes back its environments and rejoins.
+    let a1 = c.actor("a1");
+    wait_until(MINUTE, "a1 to rejoin", &[&learner, &a0, &a1], || {
+        clients.status(&c.learner_url()).is_some_and(|s| s.connected_actors.len() == 2)
+    });
+    let ranges: Vec<String> = a1.output().lines().filter(|l| l.contains(": environments ")).map(String::from).collect();
+    assert_eq!(ranges.len(), 2, "{}", a1.output());
+    assert_eq!(ranges[0], ranges[1], "the restarted actor got other environments");
+    // Every update used whole rollouts only: each step of env_steps is one or two whole chunks
+    // (4 environments × 32 steps), never a part of one.
+    let rows = metrics_rows(tmp.path().join("run").as_path());
+    let mut previous = 0;
+    for (i, steps) in rows {
+        let delta = steps - previous;
+        assert!(delta == 128 || delta == 256, "iteration {i} trained on {delta} transitions");
+        previous = steps;
+    }
+}
+
+#[test]
+fn a_killed_learner_resumes_from_its_checkpoint_and_the_running_actors_reconnect() {
+    let _serial = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let c = Cluster::new(tmp.path(), "shm", "");
+    let clients = Clients::new(proto::Security::default());
+    let _taskctl = c.taskctl();
+    let mut learner = c.learner();
+    let mut a0 = c.actor("a0");
+    let mut a1 = c.actor("a1");
+    wait_until(2 * MINUTE, "iteration 4", &[&learner, &a0, &a1], || iteration(&clients, &c) >= 4);
+    let before = clients.status(&c.learner_url()).unwrap();
+    learner.kill9();
+    let checkpointed = metrics_rows(tmp.path().join("run").as_path()).len() as u64;
+    let learner = c.learner();
+    wait_until(MINUTE, "the restarted learner to answer", &[&learner], || clients.status(&c.learner_url()).is_some());
+    let after = clients.status(&c.learner_url()).unwrap();
+    assert_ne!(after.learner_epoch, before.learner_epoch);
+    assert!(after.iteration + 1 >= checkpointed && after.iteration >= 3, "resumed at {} (checkpoints up to {checkpointed})", after.iteration);
+    let resumed_at = after.iteration;
+    // The same actor processes (never restarted) feed the new learner.
+    wait_until(MINUTE, "3 iterations with the new learner", &[&learner, &a0, &a1], || iteration(&clients, &c) >= resumed_at + 3);
+    assert!(a0.running() && a1.running());
+    assert_eq!(clients.status(&c.learner_url()).unwrap().connected_actors.len(), 2);
+    assert!(learner.output().contains("resuming the run"), "{}", learner.output());
+}
+
+#[test]
+fn a_killed_task_controller_restores_its_snapshot_and_loses_no_report() {
+    let _serial = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let c = Cluster::new(tmp.path(), "shm", "");
+    let clients = Clients::new(proto::Security::default());
+    let mut taskctl = c.taskctl();
+    let learner = c.learner();
+    let a0 = c.actor("a0");
+    let a1 = c.actor("a1");
+    wait_until(2 * MINUTE, "iteration 5", &[&learner, &a0, &a1], || iteration(&clients, &c) >= 5);
+    let tasks = clients.tasks(&c.taskctl_url());
+    taskctl.kill9();
+    // What the dead controller had acknowledged is in its snapshot (written before each answer).
+    let acknowledged = taskctl::TaskController::restore(&tmp.path().join("taskctl.snapshot")).unwrap();
+    let taskctl = c.taskctl();
+    wait_until(MINUTE, "the restarted task controller", &[&taskctl], || tasks.list_tasks().is_ok());
+    let restored = tasks.list_tasks().unwrap();
+    assert_eq!(restored.len(), 8);
+    for (slot, task) in acknowledged.slots().iter().zip(&restored) {
+        assert!(task.last_rollout >= slot.last_iteration, "env {}: {:?} < {:?}", task.env, task.last_rollout, slot.last_iteration);
+        assert!(task.switches >= slot.switches);
+    }
+    // Reporting goes on: every environment gets newer reports, and training continues.
+    let at = iteration(&clients, &c);
+    wait_until(MINUTE, "new reports and iterations", &[&taskctl, &learner, &a0, &a1], || {
+        let now = tasks.list_tasks().unwrap_or_default();
+        iteration(&clients, &c) >= at + 3
+            && now.iter().zip(acknowledged.slots()).all(|(t, s)| t.last_rollout > s.last_iteration)
+    });
+}
+
+#[test]
+fn bad_messages_are_refused_with_a_clear_status() {
+    use proto::v1;
+    let _serial = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    std::fs::write(tmp.path().join("token"), "t0ken\n").unwrap();
+    let token = tmp.path().join("token").display().to_string();
+    let c = Cluster::new(tmp.path(), "grpc", &format!("\n[network]\ntoken_file = {token:?}\n"));
+    let _taskctl = c.taskctl();
+    let learner = c.learner();
+    let authed = Clients::new(proto::Security::load(&proto::NetworkConfig { token_file: Some(token.clone().into()), ..Default::default() }).unwrap());
+    let anonymous = Clients::new(proto::Security::default());
+    wait_until(MINUTE, "the learner", &[&learner], || authed.status(&c.learner_url()).is_some());
+
+    wait_until(MINUTE, "the task controller", &[&learner], || authed.tasks(&c.taskctl_url()).list_tasks().is_ok());
+
+    // Missing and wrong tokens.
+    std::fs::write(tmp.path().join("wrong"), "t0keN\n").unwrap();
+    let wrong_token = proto::NetworkConfig { token_file: Some(tmp.path().join("wrong")), ..Default::default() };
+    let wrong = Clients::new(proto::Security::load(&wrong_token).unwrap());
+    for clients in [&anonymous, &wrong] {
+        let _g = clients.rt.enter();
+        let mut learner_client = proto::grpc_link::learner_client(&c.learner_url(), &clients.security).unwrap();
+        let e = clients.rt.block_on(learner_client.status(v1::StatusRequest {})).unwrap_err();
+        assert_eq!(e.code(), tonic::Code::Unauthenticated, "{e:?}");
+        let e = clients.tasks(&c.taskctl_url()).list_tasks().unwrap_err();
+        assert_eq!(e.code, tonic::Code::Unauthenticated, "{e:?}");
+    }
+
+    let status = authed.status(&c.learner_url()).unwrap();
+    let push = |parts: Vec<v1::RolloutPart>| {
+        let _g = authed.rt.enter();
+        // The client's own limit would stop an oversized message before the server sees it.
+        let client = proto::grpc_link::learner_client(&c.learner_url(), &authed.security).unwrap();
+        let mut client = client.max_encoding_message_size(64 << 20);
+        authed.rt.block_on(client.push_rollouts(tokio_stream::iter(parts))).map(|r| r.into_inner().accepted)
+    };
+    let part = |data: Vec<u8>, epoch: u64, version: u64| v1::RolloutPart {
+        actor: "probe".into(),
+        learner_epoch: epoch,
+        policy_version: version,
+        part: 0,
+        parts: 1,
+        data: data.into(),
+    };
+    let chunk = |version: u64, first_env: usize, poison: bool| {
+        let (envs, steps) = (2, 3);
+        let t = envs * steps;
+        let mut observations = vec![0.1f32; t * sim::STATE_OBS_DIM];
+        if poison {
+            observations[5] = f32::NAN;
+        }
+        policy::RolloutChunk {
+            policy_version: version,
+            first_env,
+            envs,
+            steps,
+            observations,
+            actions: vec![0.0; t * sim::ACTION_DIM],
+            log_probs: vec![-1.0; t],
+            values: vec![0.0; t],
+            rewards: vec![0.0; t],
+            terminated: vec![false; t],
+            truncated: vec![false; t],
+            truncation_values: vec![0.0; t],
+            last_values: vec![0.0; envs],
+            episodes: vec![],
+        }
+        .to_bytes()
+    };
+    let (epoch, version) = (status.learner_epoch, status.iteration);
+    let code = |r: Result<u64, tonic::Status>| r.unwrap_err().code();
+    assert_eq!(code(push(vec![part(b"garbage".to_vec(), epoch, version)])), tonic::Code::InvalidArgument, "malformed");
+    assert_eq!(code(push(vec![part(chunk(version, 0, true), epoch, version)])), tonic::Code::InvalidArgument, "NaN");
+    assert_eq!(code(push(vec![part(chunk(version, 7, false), epoch, version)])), tonic::Code::InvalidArgument, "unknown envs");
+    assert_eq!(code(push(vec![part(chunk(version + 5, 0, false), epoch, version + 5)])), tonic::Code::FailedPrecondition, "future version");
+    assert_eq!(code(push(vec![part(chunk(version, 0, false), epoch ^ 1, version)])), tonic::Code::FailedPrecondition, "other epoch");
+    let oversized = vec![0u8; proto::security::MAX_MESSAGE_BYTES + 1024];
+    assert_eq!(code(push(vec![part(oversized, epoch, version)])), tonic::Code::OutOfRange, "oversized");
+    let mut split = part(chunk(version, 0, false), epoch, version);
+    split.parts = 2;
+    assert_eq!(code(push(vec![split])), tonic::Code::InvalidArgument, "a stream ending inside a rollout");
+    // A well-formed rollout of the current version is accepted, and the learner is still up.
+    assert_eq!(push(vec![part(chunk(version, 0, false), epoch, version)]).unwrap(), 1);
+    assert!(authed.status(&c.learner_url()).unwrap().refused_chunks >= 5);
+
+    // The task controller refuses bad reports with statuses naming the problem.
+    let tasks = authed.tasks(&c.taskctl_url());
+    tasks.register("probe", 2).unwrap();
+    let refused = |r: Result<Vec<_>, taskctl::client::ClientError>| r.unwrap_err();
+    assert_eq!(refused(tasks.report("nobody", 0, &[1.0])).code, tonic::Code::NotFound);
+    let e = refused(tasks.report("probe", 0, &[1.0]));
+    assert_eq!(e.code, tonic::Code::InvalidArgument);
+    assert!(e.message.contains("2 environments but reported 1 rewards"), "{}", e.message);
+    assert_eq!(refused(tasks.report("probe", 0, &[1.0, f64::INFINITY])).code, tonic::Code::InvalidArgument);
+    assert_eq!(tasks.register("bad name!", 1).unwrap_err().code, tonic::Code::InvalidArgument);
+    assert_eq!(tasks.register("greedy", 100).unwrap_err().code, tonic::Code::ResourceExhausted);
+    tasks.report("probe", 0, &[1.0, 2.0]).unwrap();
+    assert_eq!(refused(tasks.report("probe", 0, &[1.0, 2.0])).code, tonic::Code::AlreadyExists, "a repeated rollout");
+}
