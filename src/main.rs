@@ -29,8 +29,12 @@ enum Command {
     Taskctl(commands::services::TaskctlArgs),
     /// Run the learner process (PPO; takes rollouts, publishes weights).
     Learner(commands::services::LearnerArgs),
+    /// Show the task controller's state: every environment's track, window, ρ, q, switches.
+    Tasks(commands::tasks::TasksArgs),
     /// Run an actor process (environments, inference, rollouts).
     Actor(commands::services::ActorArgs),
+    /// Measure rollout throughput and weight-broadcast latency of a transport.
+    TransportBench(commands::transport_bench::TransportBenchArgs),
     /// Time one PPO gradient step (forward, backward, optimiser) on this machine.
     LearnerBench(commands::train::LearnerBenchArgs),
 }
@@ -50,7 +54,9 @@ fn main() -> std::process::ExitCode {
         Command::Taskctl(a) => commands::services::taskctl(a),
         Command::Learner(a) => commands::services::learner(a),
         Command::Actor(a) => commands::services::actor(a),
+        Command::Tasks(a) => commands::tasks::run(a),
         Command::LearnerBench(a) => commands::train::bench(a),
+        Command::TransportBench(a) => commands::transport_bench::run(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -207,6 +207,11 @@ fn a_killed_task_controller_restores_its_snapshot_and_loses_no_report() {
         iteration(&clients, &c) >= at + 3
             && now.iter().zip(acknowledged.slots()).all(|(t, s)| t.last_rollout > s.last_iteration)
     });
+    // The command-line view of the same state: one row per environment, with its actor.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_dronerace")).args(["tasks", "--taskctl", &c.taskctl_url()]).output().unwrap();
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(table.lines().filter(|l| l.contains(" a0 ") || l.contains(" a1 ")).count(), 8, "{table}");
 }
 
 #[test]

@@ -1,5 +1,5 @@
-//! Training end to end in one process: resuming from a checkpoint continues exactly, and the
-//! train → resume → evaluate commands work together.
+//! Training end to end: in one process, resuming from a checkpoint continues exactly; and the
+//! train (as processes) → resume → evaluate commands work together.
 
 use std::path::Path;
 use std::process::Command;
@@ -107,7 +107,7 @@ fn train_resume_and_evaluate_from_the_command_line() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let o = dronerace(&["train", "--resume", run.to_str().unwrap(), "--iterations", "1"]);
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success() && err.contains("from iteration 2") && err.contains("iter     3"), "{err}");
+    assert!(o.status.success() && err.contains("resuming the run") && err.contains("at iteration 2") && err.contains("iter     3"), "{err}");
     for file in ["config.toml", "metrics.csv", "train.log", "checkpoints/ckpt-000000003.bin"] {
         assert!(run.join(file).exists(), "{file}");
     }

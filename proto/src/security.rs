@@ -151,6 +151,18 @@ impl Security {
     }
 }
 
+/// Connections accepted on a bound listener, with Nagle's algorithm off (tonic applies its own
+/// `tcp_nodelay` only to listeners it binds itself; without it, streamed parts wait out delayed
+/// ACKs of ~40 ms).
+pub fn incoming(listener: tokio::net::TcpListener) -> impl tokio_stream::Stream<Item = std::io::Result<tokio::net::TcpStream>> {
+    use tokio_stream::StreamExt;
+    tokio_stream::wrappers::TcpListenerStream::new(listener).map(|conn| {
+        let conn = conn?;
+        conn.set_nodelay(true)?;
+        Ok(conn)
+    })
+}
+
 /// Server side: UNAUTHENTICATED unless the request carries `authorization: Bearer <token>`.
 #[derive(Clone, Debug)]
 pub struct TokenCheck {

@@ -4,8 +4,10 @@ pub mod cluster;
 pub mod eval;
 pub mod services;
 pub mod sim;
+pub mod tasks;
 pub mod tracks;
 pub mod train;
+pub mod transport_bench;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

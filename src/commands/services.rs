@@ -181,7 +181,7 @@ fn serve_learner(
         .add_service(health)
         .add_service(reflection)
         .add_service(tonic::service::interceptor::InterceptedService::new(service.into_server(), security.token_check()));
-    let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
+    let incoming = proto::security::incoming(listener);
     eprintln!("learner: serving on {addr}");
     Ok(rt.spawn(router.serve_with_incoming_shutdown(incoming, until(stop))))
 }

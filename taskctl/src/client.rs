@@ -97,4 +97,16 @@ impl TaskClient {
         let mut c = self.client.clone();
         Ok(self.call(Duration::from_secs(5), c.list_tasks(v1::ListTasksRequest {}))?.tasks)
     }
+
+    /// One environment's task.
+    pub fn get_task(&self, env: usize) -> Result<v1::Task, ClientError> {
+        let mut c = self.client.clone();
+        self.call(Duration::from_secs(5), c.get_task(v1::GetTaskRequest { env: env as u32 }))
+    }
+
+    /// Switches from index `from` on, oldest first.
+    pub fn switch_history(&self, from: u64) -> Result<Vec<v1::SwitchEvent>, ClientError> {
+        let mut c = self.client.clone();
+        Ok(self.call(Duration::from_secs(5), c.get_switch_history(v1::SwitchHistoryRequest { from }))?.events)
+    }
 }
