@@ -45,6 +45,38 @@ fn one_command_trains_with_two_actor_processes_over_grpc() {
     one_command_run("grpc");
 }
 
+/// Processes whose command line mentions `needle`.
+fn processes_mentioning(needle: &str) -> Vec<String> {
+    std::fs::read_dir("/proc")
+        .unwrap()
+        .filter_map(|e| std::fs::read(e.ok()?.path().join("cmdline")).ok())
+        .map(|c| String::from_utf8_lossy(&c).replace('\0', " "))
+        .filter(|c| c.contains(needle))
+        .collect()
+}
+
+#[test]
+fn ctrl_c_checkpoints_and_stops_every_process_leaving_no_shared_memory() {
+    let _serial = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let config = write_config(tmp.path(), "");
+    let out = tmp.path().join("run");
+    let shm_before = shm_files();
+    let mut train = Proc::start(tmp.path(), "train", &args(&["train", "--config", config.to_str().unwrap(), "--out", out.to_str().unwrap(), "--actors", "2"]));
+    wait_until(2 * MINUTE, "two iterations", &[&train], || metrics_rows(&out).len() >= 2);
+    // The supervisor, the task controller, the learner and two actors all name the run directory.
+    assert_eq!(processes_mentioning(out.to_str().unwrap()).len(), 5, "{:?}", processes_mentioning(out.to_str().unwrap()));
+    let status = train.interrupt();
+    assert!(status.success(), "{}", train.output());
+    let log = train.output();
+    assert!(log.contains("learner: checkpoint written"), "{log}");
+    let last = metrics_rows(&out).last().unwrap().0;
+    assert!(out.join(format!("checkpoints/ckpt-{last:09}.bin")).exists(), "the checkpoint of iteration {last}:\n{log}");
+    assert!(processes_mentioning(out.to_str().unwrap()).is_empty(), "processes left running");
+    let left: Vec<String> = shm_files().into_iter().filter(|f| !shm_before.contains(f)).collect();
+    assert!(left.is_empty(), "shared memory left behind: {left:?}");
+}
+
 /// Hand-started processes of one run (so tests can kill and restart each).
 struct Cluster {
     dir: std::path::PathBuf,

@@ -23,9 +23,21 @@ pub struct StepTiming {
     pub gflops: f64,
 }
 
+/// The autodiff device of a backend this build has: `flex`, or `ndarray` with the `ndarray`
+/// (or `openblas`) feature.
+pub fn device(backend: &str) -> Result<Device, String> {
+    match backend {
+        "flex" => Ok(Device::flex().autodiff()),
+        #[cfg(feature = "ndarray")]
+        #[allow(deprecated)] // measured for the record; flex is the backend we use
+        "ndarray" => Ok(Device::ndarray().autodiff()),
+        other => Err(format!("backend {other:?} is not in this build (flex; ndarray with --features ndarray or openblas)")),
+    }
+}
+
 /// Times `repeats` gradient steps on `samples` random samples (after one warm-up step).
-pub fn time_gradient_step(profile: &Profile, samples: usize, repeats: usize) -> StepTiming {
-    let device = Device::flex().autodiff();
+pub fn time_gradient_step(profile: &Profile, samples: usize, repeats: usize, device: &Device) -> StepTiming {
+    let device = device.clone();
     let arch = &profile.architecture;
     let mut model = ActorCritic::new(arch, profile.ppo.initial_log_std, 0, &device);
     let mut optimizer = burn::optim::AdamConfig::new().init();

@@ -42,6 +42,20 @@ fn spawn(args: &[String], envs: &[(String, String)]) -> anyhow::Result<Child> {
     let exe = std::env::current_exe().context("locating the dronerace executable")?;
     let mut command = Command::new(exe);
     command.args(args).stdin(Stdio::null());
+    // A supervisor killed with -9 must not leave its children running unsupervised.
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::unix::process::CommandExt;
+        // SAFETY: prctl is async-signal-safe; nothing else runs between fork and exec.
+        unsafe {
+            command.pre_exec(|| {
+                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+    }
     for (k, v) in envs {
         command.env(k, v);
     }

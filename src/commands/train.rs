@@ -166,17 +166,22 @@ pub struct LearnerBenchArgs {
     /// Timed steps (after one warm-up).
     #[arg(long, default_value_t = 5)]
     repeats: usize,
+    /// burn backend: flex, or ndarray in a build with `--features ndarray` / `openblas`.
+    #[arg(long, default_value = "flex")]
+    backend: String,
 }
 
 /// Times forward, backward and the optimiser step of one PPO gradient step.
 pub fn bench(args: LearnerBenchArgs) -> anyhow::Result<()> {
     let profile = learner::Profile::named(&args.profile).with_context(|| format!("--profile: unknown profile {:?}", args.profile))?;
     anyhow::ensure!(args.samples > 0 && args.repeats > 0, "--samples and --repeats must be at least 1");
-    let t = learner::bench::time_gradient_step(&profile, args.samples, args.repeats);
+    let device = learner::bench::device(&args.backend).map_err(|e| anyhow::anyhow!("--backend: {e}"))?;
+    let t = learner::bench::time_gradient_step(&profile, args.samples, args.repeats, &device);
     println!(
-        "{} profile, {} samples, flex backend, {} threads: forward {:.1} ms, backward {:.1} ms, optimiser {:.1} ms, {:.1} GFLOP/s (forward+backward)",
+        "{} profile, {} samples, {} backend, {} threads: forward {:.1} ms, backward {:.1} ms, optimiser {:.1} ms, {:.1} GFLOP/s (forward+backward)",
         profile.name,
         args.samples,
+        args.backend,
         rayon::current_num_threads(),
         t.forward * 1e3,
         t.backward * 1e3,
