@@ -130,3 +130,45 @@ pub fn check_actor_name(actor: &str) -> Result<(), String> {
     let ok = !actor.is_empty() && actor.len() <= 64 && actor.bytes().all(|b| b.is_ascii_alphanumeric() || b"_.-".contains(&b));
     if ok { Ok(()) } else { Err(format!("actor name {actor:?} must be 1-64 characters of A-Z a-z 0-9 _ . -")) }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn chunk(version: u64, first_env: usize) -> RolloutChunk {
+        let (envs, steps, t) = (2, 1, 2);
+        RolloutChunk {
+            policy_version: version,
+            first_env,
+            envs,
+            steps,
+            observations: vec![0.0; t * 3],
+            actions: vec![0.0; t * 2],
+            log_probs: vec![0.0; t],
+            values: vec![0.0; t],
+            rewards: vec![0.0; t],
+            terminated: vec![false; t],
+            truncated: vec![false; t],
+            truncation_values: vec![0.0; t],
+            last_values: vec![0.0; envs],
+            episodes: vec![],
+        }
+    }
+
+    #[test]
+    fn admission_takes_versions_within_the_lag_of_this_epoch_only() {
+        let sync = Admission { learner_epoch: 7, version: 10, max_policy_lag: 0, observation_dim: 3, action_dim: 2, total_envs: 4 };
+        assert_eq!(sync.check("a", 7, &chunk(10, 2)), Ok(()));
+        assert!(matches!(sync.check("a", 7, &chunk(9, 2)), Err(Refusal::WrongVersion { .. })));
+        assert!(matches!(sync.check("a", 7, &chunk(11, 2)), Err(Refusal::WrongVersion { .. })));
+        assert!(matches!(sync.check("a", 8, &chunk(10, 2)), Err(Refusal::WrongVersion { .. })));
+        let lagged = Admission { max_policy_lag: 2, ..sync };
+        assert_eq!(lagged.check("a", 7, &chunk(8, 0)), Ok(()));
+        assert!(matches!(lagged.check("a", 7, &chunk(7, 0)), Err(Refusal::WrongVersion { .. })));
+        assert!(matches!(sync.check("a", 7, &chunk(10, 3)), Err(Refusal::Malformed(m)) if m.contains("not all known")));
+        assert!(matches!(sync.check("a b", 7, &chunk(10, 0)), Err(Refusal::Malformed(_))));
+        let mut short = chunk(10, 0);
+        short.rewards.pop();
+        assert!(matches!(sync.check("a", 7, &short), Err(Refusal::Malformed(m)) if m.contains("rewards")));
+    }
+}
