@@ -292,29 +292,11 @@ fn bad_messages_are_refused_with_a_clear_status() {
         data: data.into(),
     };
     let chunk = |version: u64, first_env: usize, poison: bool| {
-        let (envs, steps) = (2, 3);
-        let t = envs * steps;
-        let mut observations = vec![0.1f32; t * sim::STATE_OBS_DIM];
+        let mut chunk = policy::RolloutChunk::zeroed(version, first_env, 2, 3, sim::STATE_OBS_DIM, sim::ACTION_DIM);
         if poison {
-            observations[5] = f32::NAN;
+            chunk.observations[5] = f32::NAN;
         }
-        policy::RolloutChunk {
-            policy_version: version,
-            first_env,
-            envs,
-            steps,
-            observations,
-            actions: vec![0.0; t * sim::ACTION_DIM],
-            log_probs: vec![-1.0; t],
-            values: vec![0.0; t],
-            rewards: vec![0.0; t],
-            terminated: vec![false; t],
-            truncated: vec![false; t],
-            truncation_values: vec![0.0; t],
-            last_values: vec![0.0; envs],
-            episodes: vec![],
-        }
-        .to_bytes()
+        chunk.to_bytes()
     };
     let (epoch, version) = (status.learner_epoch, status.iteration);
     let code = |r: Result<u64, tonic::Status>| r.unwrap_err().code();

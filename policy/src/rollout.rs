@@ -102,6 +102,28 @@ impl RolloutChunk {
         sums
     }
 
+    /// A chunk of the given shape with every value zero and no episodes (for tests and
+    /// benchmarks of what carries chunks).
+    pub fn zeroed(policy_version: u64, first_env: usize, envs: usize, steps: usize, observation_dim: usize, action_dim: usize) -> Self {
+        let t = envs * steps;
+        Self {
+            policy_version,
+            first_env,
+            envs,
+            steps,
+            observations: vec![0.0; t * observation_dim],
+            actions: vec![0.0; t * action_dim],
+            log_probs: vec![0.0; t],
+            values: vec![0.0; t],
+            rewards: vec![0.0; t],
+            terminated: vec![false; t],
+            truncated: vec![false; t],
+            truncation_values: vec![0.0; t],
+            last_values: vec![0.0; envs],
+            episodes: Vec::new(),
+        }
+    }
+
     /// Number of transitions.
     pub fn transitions(&self) -> usize {
         self.envs * self.steps

@@ -136,23 +136,7 @@ mod tests {
     use super::*;
 
     fn chunk(version: u64, first_env: usize) -> RolloutChunk {
-        let (envs, steps, t) = (2, 1, 2);
-        RolloutChunk {
-            policy_version: version,
-            first_env,
-            envs,
-            steps,
-            observations: vec![0.0; t * 3],
-            actions: vec![0.0; t * 2],
-            log_probs: vec![0.0; t],
-            values: vec![0.0; t],
-            rewards: vec![0.0; t],
-            terminated: vec![false; t],
-            truncated: vec![false; t],
-            truncation_values: vec![0.0; t],
-            last_values: vec![0.0; envs],
-            episodes: vec![],
-        }
+        RolloutChunk::zeroed(version, first_env, 2, 1, 3, 2)
     }
 
     #[test]

@@ -38,23 +38,10 @@ pub struct TransportBenchArgs {
 }
 
 fn chunk(envs: usize, steps: usize) -> policy::RolloutChunk {
-    let t = envs * steps;
-    policy::RolloutChunk {
-        policy_version: 0,
-        first_env: 0,
-        envs,
-        steps,
-        observations: (0..t * sim::STATE_OBS_DIM).map(|i| (i % 97) as f32 * 0.01).collect(),
-        actions: vec![0.1; t * sim::ACTION_DIM],
-        log_probs: vec![-1.0; t],
-        values: vec![0.5; t],
-        rewards: vec![0.01; t],
-        terminated: vec![false; t],
-        truncated: vec![false; t],
-        truncation_values: vec![0.0; t],
-        last_values: vec![0.0; envs],
-        episodes: vec![],
-    }
+    let mut chunk = policy::RolloutChunk::zeroed(0, 0, envs, steps, sim::STATE_OBS_DIM, sim::ACTION_DIM);
+    // Varied values, so nothing compresses or short-cuts a run of zeros.
+    chunk.observations.iter_mut().enumerate().for_each(|(i, x)| *x = (i % 97) as f32 * 0.01);
+    chunk
 }
 
 /// The learner end runs on this thread, the actor end on a thread `make_actor` opens it in.
