@@ -50,7 +50,8 @@ pub fn run(args: TasksArgs) -> anyhow::Result<()> {
         None => Default::default(),
     };
     let security = Security::load(&network)?;
-    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+    // The blocking client drives calls through a Handle, which needs a runtime with its own worker.
+    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build()?;
     let client = TaskClient::new(rt.handle().clone(), &args.taskctl, &security)?;
     if args.history {
         println!("{:>8} {:>4}  {:<32} {:<32} {:>8} {:>8}", "rollout", "env", "old track", "new track", "rho", "q");

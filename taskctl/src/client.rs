@@ -47,7 +47,9 @@ pub struct TaskClient {
 }
 
 impl TaskClient {
-    /// A client of the task controller at `url` (connects lazily, reconnects by itself).
+    /// A client of the task controller at `url` (connects lazily, reconnects by itself). The
+    /// runtime must be multi-threaded: calls block on its handle, which cannot drive a
+    /// current-thread runtime's I/O.
     pub fn new(runtime: Handle, url: &str, security: &proto::Security) -> Result<Self, proto::SecurityError> {
         let channel = {
             let _guard = runtime.enter();
