@@ -113,7 +113,6 @@ impl<L: LearnerLink> LearnerProcess<L> {
         };
         self.shared.set_admission(self.admission());
         self.link.publish(&update).map_err(|e| TrainError::Io(e.to_string()))?;
-        proto::grpc_link::publish_weights(&self.shared, &update);
         Ok(())
     }
 

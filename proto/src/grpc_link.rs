@@ -176,7 +176,7 @@ impl LearnerService {
         (Self { shared: shared.clone(), deliveries: Some(tx) }, GrpcLearnerLink { shared, deliveries: rx })
     }
 
-    /// A service answering `Status` (and `WatchWeights`) only: rollouts go over iceoryx2.
+    /// A service answering `Status` only: rollouts and weights go over iceoryx2.
     pub fn status_only() -> (Self, Arc<LearnerShared>) {
         let shared = Self::shared();
         (Self { shared: shared.clone(), deliveries: None }, shared)
@@ -225,9 +225,9 @@ impl LearnerLink for GrpcLearnerLink {
     }
 }
 
-/// Publishes weights to gRPC watchers when the rollouts travel another way.
-pub fn publish_weights(shared: &LearnerShared, weights: &WeightsUpdate) {
-    shared.weights.send_replace(Some(Arc::new(weights.clone())));
+/// What a learner whose actors use iceoryx2 answers to the transport calls.
+fn shm_only() -> Status {
+    Status::failed_precondition("this learner exchanges rollouts and weights over iceoryx2 (--transport shm)")
 }
 
 type PartStream = Pin<Box<dyn Stream<Item = Result<v1::WeightsPart, Status>> + Send>>;
@@ -235,9 +235,7 @@ type PartStream = Pin<Box<dyn Stream<Item = Result<v1::WeightsPart, Status>> + S
 #[tonic::async_trait]
 impl Learner for LearnerService {
     async fn push_rollouts(&self, request: Request<Streaming<v1::RolloutPart>>) -> Result<Response<v1::PushSummary>, Status> {
-        let Some(deliveries) = &self.deliveries else {
-            return Err(Status::failed_precondition("this learner takes rollouts over iceoryx2 (transport = \"shm\")"));
-        };
+        let Some(deliveries) = &self.deliveries else { return Err(shm_only()) };
         let mut stream = request.into_inner();
         let mut parts = Reassembler::default();
         let mut accepted = 0;
@@ -271,6 +269,9 @@ impl Learner for LearnerService {
     type WatchWeightsStream = PartStream;
 
     async fn watch_weights(&self, _: Request<v1::WatchWeightsRequest>) -> Result<Response<PartStream>, Status> {
+        if self.deliveries.is_none() {
+            return Err(shm_only());
+        }
         let mut updates = self.shared.weights.subscribe();
         let (tx, rx) = mpsc::channel(8);
         tokio::spawn(async move {
