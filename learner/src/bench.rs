@@ -46,7 +46,7 @@ pub fn time_gradient_step(profile: &Profile, samples: usize, repeats: usize, dev
     let mut optimizer = burn::optim::AdamConfig::new().init();
     // Gaussian data, as normalised observations are: activations then change sign at random,
     // as in training. (A regular pattern let the branch predictor hide the cost of burn's
-    // branchy masking kernels, so this benchmark once reported a quarter less time than
+    // branchy masking kernels, so this benchmark once reported ~30 % less time than
     // training spent.)
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     let mut data = |n: usize| (0..n).map(|_| rng.sample::<f32, _>(StandardNormal)).collect::<Vec<f32>>();

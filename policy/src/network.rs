@@ -21,7 +21,7 @@ pub struct Mlp {
 
 /// LeakyReLU as `s·x + (1 − s)·relu(x)`. burn's own `leaky_relu` is a mask-where under
 /// autodiff, whose kernels branch per element: on real activations (random signs) that made
-/// the backward pass a quarter of the gradient step. ReLU has a branch-free kernel and a
+/// the masking a third of the gradient step. ReLU has a branch-free kernel and a
 /// dedicated backward.
 fn leaky_relu(x: Tensor<2>, negative_slope: f64) -> Tensor<2> {
     x.clone().mul_scalar(negative_slope) + relu(x).mul_scalar(1.0 - negative_slope)
