@@ -44,7 +44,7 @@ enum Command {
 /// burn allocates and frees activation and gradient buffers of tens of MB in every layer of
 /// every gradient step; glibc serves blocks that large with mmap and returns them with munmap,
 /// so every reuse page-faults fresh zeroed pages. Measured here (BENCHMARKS.md): the paper
-/// profile's gradient step went from 58 to 83 GFLOP/s and the cpu profile's from 25 to 53 once
+/// profile's gradient step went from 58 to 83 GFLOP/s and the cpu profile's from 25 to 37–53 once
 /// allocations stay on the heap. The cost is a resident size that stays at its peak.
 fn keep_freed_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
