@@ -23,6 +23,9 @@ enum Command {
     /// Simulator tools: replay action files, measure stepping speed.
     #[command(subcommand)]
     Sim(commands::sim::SimCommand),
+    /// Run an experiment file (variants × seeds, resumable) and write its report.
+    #[command(subcommand)]
+    Experiment(commands::experiment::ExperimentCommand),
     /// Train a policy with PPO: task controller, learner and actors as processes on this machine.
     Train(commands::train::TrainArgs),
     /// Serve the task controller (tracks and switching of every environment) over gRPC.
@@ -68,6 +71,7 @@ fn main() -> std::process::ExitCode {
         Command::Eval(a) => commands::eval::run(a),
         Command::Sim(c) => commands::sim::run(c),
         Command::Train(a) => commands::train::run(a),
+        Command::Experiment(c) => commands::experiment::run(c),
         Command::Taskctl(a) => commands::services::taskctl(a),
         Command::Learner(a) => commands::services::learner(a),
         Command::Actor(a) => commands::services::actor(a),

@@ -158,3 +158,53 @@ fn draw_view(
     chart.draw_series(std::iter::once(PathElement::new(vec![start, ahead], START.stroke_width(2))))?;
     Ok(())
 }
+
+/// Validation S_pw against environment steps: one line per variant (the mean over its seeds at
+/// the steps every seed reached), its seeds' range as a band.
+pub fn draw_validation_curves(variants: &[learner::experiment::VariantSummary], out: &Path) -> anyhow::Result<()> {
+    register_font();
+    let root = BitMapBackend::new(out, (960, 600)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let points = variants.iter().flat_map(|v| v.curves.iter().flat_map(|(_, c)| c.iter()));
+    let (max_steps, max_s_pw) = points.fold((1.0f64, 0.01f64), |(x, y), p| (x.max(p.env_steps as f64 / 1e6), y.max(p.s_pw)));
+    let mut chart = ChartBuilder::on(&root)
+        .caption("validation S_pw during training", ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..max_steps * 1.02, 0.0..max_s_pw * 1.1)?;
+    chart.configure_mesh().x_desc("environment steps (millions)").y_desc("S_pw (1/s)").draw()?;
+    for (i, variant) in variants.iter().enumerate() {
+        let colour = Palette99::pick(i).to_rgba();
+        // Seeds are evaluated at the same iterations, so their points line up by env steps.
+        let mut by_steps: std::collections::BTreeMap<u64, Vec<f64>> = Default::default();
+        for (_, curve) in &variant.curves {
+            for p in curve {
+                by_steps.entry(p.env_steps).or_default().push(p.s_pw);
+            }
+        }
+        let seeds = variant.curves.len();
+        let rows: Vec<(f64, f64, f64, f64)> = by_steps
+            .iter()
+            .filter(|(_, v)| v.len() == seeds)
+            .map(|(x, v)| {
+                let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+                let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                (*x as f64 / 1e6, v.iter().sum::<f64>() / v.len() as f64, lo, hi)
+            })
+            .collect();
+        if rows.is_empty() {
+            continue;
+        }
+        let band: Vec<(f64, f64)> =
+            rows.iter().map(|r| (r.0, r.3)).chain(rows.iter().rev().map(|r| (r.0, r.2))).collect();
+        chart.draw_series(std::iter::once(Polygon::new(band, colour.mix(0.2).filled())))?;
+        chart
+            .draw_series(LineSeries::new(rows.iter().map(|r| (r.0, r.1)), colour.stroke_width(2)))?
+            .label(format!("{} ({} seed{})", variant.name, seeds, if seeds == 1 { "" } else { "s" }))
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
+    }
+    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).position(SeriesLabelPosition::UpperLeft).draw()?;
+    root.present().with_context(|| format!("writing {}", out.display()))?;
+    Ok(())
+}

@@ -4,14 +4,17 @@
 pub mod bench;
 pub mod checkpoint;
 pub mod config;
+pub mod experiment;
 pub mod learner;
 pub mod metrics;
 pub mod ppo;
 pub mod process;
 pub mod run;
 pub mod trainer;
+pub mod validation;
 
 pub use config::{PpoConfig, Profile};
 pub use learner::{IterationReport, Learner, LearnerError};
 pub use run::{IterationSummary, Run, TrackSource, TrainConfig, TrainError};
+pub use validation::{EvalSettings, Validation, Validator};
 pub use trainer::Trainer;

@@ -6,7 +6,7 @@ use std::io::Write;
 use std::path::Path;
 
 /// Metric names, in CSV column order.
-pub const METRICS: [&str; 17] = [
+pub const METRICS: [&str; 28] = [
     "charts/episodic_return",
     "charts/episodic_length",
     "charts/laps_per_episode",
@@ -20,10 +20,21 @@ pub const METRICS: [&str; 17] = [
     "losses/clipfrac",
     "losses/explained_variance",
     "losses/grad_norm",
+    "losses/actor_grad_norm",
+    "losses/critic_grad_norm",
+    "policy/log_std",
     "policy/version_lag",
     "tasks/switches",
     "tasks/mean_q",
     "eval/S_pw",
+    "eval/success",
+    "eval/mean_lap",
+    "eval/crash_ground",
+    "eval/crash_ceiling",
+    "eval/crash_wall",
+    "eval/crash_gate",
+    "eval/no_lap",
+    "eval/seconds",
 ];
 
 /// Appends metric rows to the CSV and the TensorBoard file of a run directory.

@@ -22,6 +22,7 @@ use serde::{Deserialize, Serialize};
 use crate::checkpoint::Checkpoint;
 use crate::learner::Learner;
 use crate::run::{IterationSummary, IterationTiming, Run, TrainError};
+use crate::validation::Validator;
 
 /// How the learner process treats its actors (`[learner]` in the run config).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -60,6 +61,7 @@ pub struct LearnerProcess<L: LearnerLink> {
     total_envs: usize,
     members: BTreeSet<String>,
     iterations_here: u64,
+    validator: Option<Validator>,
 }
 
 impl<L: LearnerLink> LearnerProcess<L> {
@@ -74,7 +76,19 @@ impl<L: LearnerLink> LearnerProcess<L> {
         // A fresh epoch per process lifetime: versions repeat after a restart, epochs do not.
         let clock = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default().as_nanos() as u64;
         let epoch = taskctl::switching::mix(clock ^ u64::from(std::process::id()));
-        let mut process = Self { run, learner, link, shared, settings, epoch, total_envs: profile.envs, members: BTreeSet::new(), iterations_here: 0 };
+        let validator = Validator::new(&run.config().eval)?;
+        let mut process = Self {
+            run,
+            learner,
+            link,
+            shared,
+            settings,
+            epoch,
+            total_envs: profile.envs,
+            members: BTreeSet::new(),
+            iterations_here: 0,
+            validator,
+        };
         process.publish()?;
         process.set_status(0.0, 0);
         Ok(process)
@@ -190,7 +204,9 @@ impl<L: LearnerLink> LearnerProcess<L> {
         self.publish()?;
         let (switches, mean_q) = tasks.switches_and_mean_q().unwrap_or((0, f64::NAN));
         let timing = IterationTiming { seconds: started.elapsed().as_secs_f64(), update_seconds, switches, mean_q, version_lag };
-        let (summary, best) = self.run.record(&chunks, report, timing)?;
+        // After publishing: the actors collect the next rollout while this runs.
+        let validation = Validator::evaluate_if_due(self.validator.as_ref(), self.run.next_iteration(), || self.learner.weights())?;
+        let (summary, best) = self.run.record(&chunks, report, timing, validation.as_ref())?;
         if best {
             self.run.save_best(self.learner.checkpoint())?;
         }

@@ -14,6 +14,7 @@ use crate::checkpoint::{Checkpoint, CheckpointDir, CheckpointError};
 use crate::config::{PpoConfig, Profile};
 use crate::learner::{IterationReport, LearnerError};
 use crate::metrics::{METRICS, MetricsWriter};
+use crate::validation::Validation;
 
 /// Where the training tracks come from.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -60,6 +61,8 @@ pub struct TrainConfig {
     pub learner: crate::process::LearnerSettings,
     /// TLS and bearer-token settings of every server and client of the run.
     pub network: proto::NetworkConfig,
+    /// Evaluation on the validation set during training.
+    pub eval: crate::validation::EvalSettings,
 }
 
 impl Default for TrainConfig {
@@ -79,6 +82,7 @@ impl Default for TrainConfig {
             keep_checkpoints: 3,
             learner: Default::default(),
             network: Default::default(),
+            eval: Default::default(),
         }
     }
 }
@@ -123,6 +127,8 @@ impl TrainConfig {
         if let Some(ppo) = self.ppo {
             profile.ppo = ppo;
         }
+        // The network reads observations in the frame the environments write them.
+        profile.architecture.observation_frame = self.env.observation_frame;
         if profile.envs == 0 || profile.ppo.n_steps == 0 || profile.ppo.batch_size == 0 || profile.ppo.n_epochs == 0 {
             return Err(TrainError::Config("envs, ppo.n_steps, ppo.batch_size and ppo.n_epochs must be ≥ 1".into()));
         }
@@ -148,6 +154,12 @@ pub enum TrainError {
     /// Actor error.
     #[error(transparent)]
     Actor(#[from] actor::ActorError),
+    /// The validation set could not be built.
+    #[error("validation set: {0}")]
+    ValidationSet(#[from] taskctl::TrackSetError),
+    /// A weights blob could not be used.
+    #[error(transparent)]
+    Blob(#[from] policy::BlobError),
     /// Other I/O.
     #[error("{0}")]
     Io(String),
@@ -172,6 +184,8 @@ pub struct IterationSummary {
     pub laps_per_episode: f64,
     /// Task switches so far.
     pub switches: usize,
+    /// Validation S_pw and success rate, when this iteration was evaluated.
+    pub validation: Option<(f64, f64)>,
 }
 
 /// Run bookkeeping saved with checkpoints.
@@ -180,7 +194,11 @@ struct Progress {
     iteration: u64,
     wall_seconds: f64,
     best_return: Option<f64>,
+    /// Highest validation S_pw so far (when evaluation is on, it picks `best.bin`).
+    #[serde(default)]
+    best_validation: Option<f64>,
 }
+
 
 /// Timing and curriculum figures of one iteration, measured by the loop that ran it.
 #[derive(Clone, Copy, Debug)]
@@ -223,7 +241,7 @@ impl Run {
         taskctl::files::write_atomic(&dir.join("config.toml"), text.as_bytes())
             .map_err(|e| TrainError::Io(format!("{}: {e}", dir.join("config.toml").display())))?;
         let metrics = MetricsWriter::open(dir).map_err(|e| TrainError::Io(format!("{}: {e}", dir.display())))?;
-        let progress = Progress { iteration: 0, wall_seconds: 0.0, best_return: None };
+        let progress = Progress { iteration: 0, wall_seconds: 0.0, best_return: None, best_validation: None };
         Ok(Self { config, dir: dir.to_path_buf(), checkpoints, metrics, progress })
     }
 
@@ -267,11 +285,33 @@ impl Run {
         self.progress.iteration
     }
 
-    /// Counts one iteration, writes its metrics row and says whether its mean return is the
-    /// best so far (the caller then saves the best checkpoint).
-    pub fn record(&mut self, chunks: &[RolloutChunk], report: IterationReport, timing: IterationTiming) -> Result<(IterationSummary, bool), TrainError> {
+    /// Wall seconds of training so far, over every sitting.
+    pub fn wall_seconds(&self) -> f64 {
+        self.progress.wall_seconds
+    }
+
+    /// Highest validation S_pw so far (`None` before the first evaluation).
+    pub fn best_validation(&self) -> Option<f64> {
+        self.progress.best_validation
+    }
+
+    /// The iteration about to be recorded (1-based).
+    pub fn next_iteration(&self) -> u64 {
+        self.progress.iteration + 1
+    }
+
+    /// Counts one iteration, writes its metrics row and says whether it is the best so far
+    /// (the caller then saves `best.bin`): by validation S_pw when evaluation is on, else by
+    /// mean training return.
+    pub fn record(
+        &mut self,
+        chunks: &[RolloutChunk],
+        report: IterationReport,
+        timing: IterationTiming,
+        validation: Option<&Validation>,
+    ) -> Result<(IterationSummary, bool), TrainError> {
         self.progress.iteration += 1;
-        self.progress.wall_seconds += timing.seconds;
+        self.progress.wall_seconds += timing.seconds + validation.map_or(0.0, |v| v.seconds);
         let episodes: Vec<&policy::EpisodeRecord> = chunks.iter().flat_map(|c| &c.episodes).collect();
         let mean = |f: &dyn Fn(&policy::EpisodeRecord) -> f64| {
             if episodes.is_empty() { f64::NAN } else { episodes.iter().map(|e| f(e)).sum::<f64>() / episodes.len() as f64 }
@@ -286,8 +326,11 @@ impl Run {
             mean_return: mean(&|e| e.episode_return),
             laps_per_episode: mean(&|e| f64::from(e.laps)),
             switches: timing.switches,
+            validation: validation.map(|v| (v.report.s_pw, v.report.success_rate)),
             report,
         };
+        let eval = validation.map(|v| &v.report);
+        let eval_value = |f: &dyn Fn(&sim::eval::EvalReport) -> f64| eval.map_or(f64::NAN, f);
         let s = &summary.report.stats;
         let values: [f64; METRICS.len()] = [
             summary.mean_return,
@@ -303,18 +346,38 @@ impl Run {
             s.clip_fraction,
             s.explained_variance,
             s.grad_norm,
+            s.actor_grad_norm,
+            s.critic_grad_norm,
+            s.log_std,
             timing.version_lag as f64,
             summary.switches as f64,
             timing.mean_q,
-            f64::NAN,
+            eval_value(&|r| r.s_pw),
+            eval_value(&|r| r.success_rate),
+            eval_value(&|r| r.mean_lap.unwrap_or(f64::NAN)),
+            eval_value(&|r| r.outcomes.fraction(r.outcomes.ground)),
+            eval_value(&|r| r.outcomes.fraction(r.outcomes.ceiling)),
+            eval_value(&|r| r.outcomes.fraction(r.outcomes.wall)),
+            eval_value(&|r| r.outcomes.fraction(r.outcomes.gate_total())),
+            eval_value(&|r| r.outcomes.fraction(r.outcomes.no_lap)),
+            validation.map_or(f64::NAN, |v| v.seconds),
         ];
         self.metrics
             .write(self.progress.iteration, summary.report.env_steps, self.progress.wall_seconds, &values)
             .map_err(|e| TrainError::Io(format!("{}: metrics: {e}", self.dir.display())))?;
-        let best = summary.mean_return.is_finite() && self.progress.best_return.is_none_or(|b| summary.mean_return > b);
-        if best {
-            self.progress.best_return = Some(summary.mean_return);
-        }
+        let best = if self.config.eval.every > 0 {
+            let best = eval.is_some_and(|r| self.progress.best_validation.is_none_or(|b| r.s_pw > b));
+            if best {
+                self.progress.best_validation = eval.map(|r| r.s_pw);
+            }
+            best
+        } else {
+            let best = summary.mean_return.is_finite() && self.progress.best_return.is_none_or(|b| summary.mean_return > b);
+            if best {
+                self.progress.best_return = Some(summary.mean_return);
+            }
+            best
+        };
         Ok((summary, best))
     }
 

@@ -16,6 +16,7 @@ use taskctl::TaskController;
 use crate::checkpoint::Checkpoint;
 use crate::learner::Learner;
 use crate::run::{IterationSummary, IterationTiming, Run, TrainConfig, TrainError};
+use crate::validation::Validator;
 
 /// The in-process training loop and its run directory.
 pub struct Trainer {
@@ -23,6 +24,7 @@ pub struct Trainer {
     learner: Learner,
     actor: Actor,
     tasks: TaskController,
+    validator: Option<Validator>,
 }
 
 impl Trainer {
@@ -32,8 +34,9 @@ impl Trainer {
         let tasks = config.task_controller(profile.envs)?;
         let actor = Actor::new(tasks.tracks(), config.env, config.seed, 0);
         let learner = Learner::new(profile, config.total_env_steps, config.seed);
+        let validator = Validator::new(&config.eval)?;
         let run = Run::create(config, dir)?;
-        Ok(Self { run, learner, actor, tasks })
+        Ok(Self { run, learner, actor, tasks, validator })
     }
 
     /// Continues the run in `dir` from its newest checkpoint.
@@ -43,7 +46,8 @@ impl Trainer {
         let origin = dir.join("checkpoints");
         let state: ActorState = serde_json::from_slice(ckpt.get("actor")?).map_err(|e| TrainError::Io(format!("{}: actor: {e}", origin.display())))?;
         let tasks = TaskController::from_snapshot_bytes(ckpt.get("taskctl")?, &origin).map_err(|e| TrainError::Io(e.to_string()))?;
-        Ok(Self { run, learner, actor: Actor::restore(state), tasks })
+        let validator = Validator::new(&run.config().eval)?;
+        Ok(Self { run, learner, actor: Actor::restore(state), tasks, validator })
     }
 
     /// The learner (weights, version, counters).
@@ -59,6 +63,16 @@ impl Trainer {
     /// Iterations done.
     pub fn iteration(&self) -> u64 {
         self.run.iteration()
+    }
+
+    /// Wall seconds of training so far, over every sitting.
+    pub fn wall_seconds(&self) -> f64 {
+        self.run.wall_seconds()
+    }
+
+    /// Highest validation S_pw so far.
+    pub fn best_validation(&self) -> Option<f64> {
+        self.run.best_validation()
     }
 
     /// True once the run's environment-step budget is spent.
@@ -88,7 +102,8 @@ impl Trainer {
             mean_q: mean_q(&self.tasks),
             version_lag: 0,
         };
-        let (summary, best) = self.run.record(std::slice::from_ref(&chunk), report, timing)?;
+        let validation = Validator::evaluate_if_due(self.validator.as_ref(), self.run.next_iteration(), || self.learner.weights())?;
+        let (summary, best) = self.run.record(std::slice::from_ref(&chunk), report, timing, validation.as_ref())?;
         if best {
             self.run.save_best(self.snapshot())?;
         }

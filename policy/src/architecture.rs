@@ -14,12 +14,16 @@ pub struct Architecture {
     pub hidden: Vec<usize>,
     /// Negative slope of the LeakyReLU activations.
     pub negative_slope: f64,
+    /// Frame the observations were written in; a policy is evaluated in the frame it learned.
+    /// Blobs written before this field existed were world-frame.
+    #[serde(default)]
+    pub observation_frame: sim::ObservationFrame,
 }
 
 impl Architecture {
     /// The thesis' network: two hidden layers of 512 (the `paper` profile).
     pub fn paper() -> Self {
-        Self { observation_dim: sim::STATE_OBS_DIM, action_dim: sim::ACTION_DIM, hidden: vec![512, 512], negative_slope: 0.01 }
+        Self { observation_dim: sim::STATE_OBS_DIM, action_dim: sim::ACTION_DIM, hidden: vec![512, 512], negative_slope: 0.01, observation_frame: sim::ObservationFrame::World }
     }
 
     /// Two hidden layers of 128: the `cpu` profile, about 14× fewer multiply-adds.

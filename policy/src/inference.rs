@@ -46,6 +46,7 @@ pub struct Policy {
     normalizer: ObsNormalizer,
     log_std: Vec<f32>,
     version: u64,
+    frame: sim::ObservationFrame,
     device: Device,
 }
 
@@ -55,12 +56,18 @@ impl Policy {
         let device = Device::flex();
         let model = blob.model(&device)?.valid();
         let log_std = blob.params.last().map(|p| p.values.clone()).unwrap_or_default();
-        Ok(Self { model, normalizer: blob.normalizer.clone(), log_std, version: blob.version, device })
+        let frame = blob.architecture.observation_frame;
+        Ok(Self { model, normalizer: blob.normalizer.clone(), log_std, version: blob.version, frame, device })
     }
 
     /// Policy version this was built from.
     pub fn version(&self) -> u64 {
         self.version
+    }
+
+    /// Frame of the observations this policy reads.
+    pub fn observation_frame(&self) -> sim::ObservationFrame {
+        self.frame
     }
 
     /// Action dimension.
@@ -114,7 +121,7 @@ impl Controller for PolicyController {
     fn reset(&mut self, _env: &RaceEnv) {}
 
     fn act(&mut self, env: &RaceEnv) -> [f32; 4] {
-        let (mean, _) = self.policy.means_and_values(&env.observation());
+        let (mean, _) = self.policy.means_and_values(&env.observation_in(self.policy.observation_frame()));
         std::array::from_fn(|i| mean[i].clamp(-1.0, 1.0))
     }
 }

@@ -44,7 +44,91 @@ pub struct Deployment {
     pub steps: u32,
 }
 
+/// How one deployment ended (SPEC §9 success, or why not).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Outcome {
+    /// At least one lap and no crash.
+    Success,
+    /// Crashed (whether or not it had completed a lap before).
+    Crash(CrashCause),
+    /// No crash, but no lap within the step limit.
+    NoLap,
+}
+
+/// How many deployments ended each way.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct OutcomeCounts {
+    /// Deployments counted.
+    pub deployments: usize,
+    /// Successes.
+    pub success: usize,
+    /// Crashes on the ground.
+    pub ground: usize,
+    /// Crashes into the ceiling.
+    pub ceiling: usize,
+    /// Crashes into a side wall of the arena.
+    pub wall: usize,
+    /// Crashes into a gate frame, indexed by gate (length = the largest gate index hit + 1).
+    pub gate: Vec<usize>,
+    /// No crash and no lap within the step limit.
+    pub no_lap: usize,
+}
+
+impl OutcomeCounts {
+    /// Counts the outcomes of `deployments`.
+    pub fn of<'a>(deployments: impl IntoIterator<Item = &'a Deployment>) -> Self {
+        let mut counts = Self::default();
+        for d in deployments {
+            counts.add(d.outcome());
+        }
+        counts
+    }
+
+    fn add(&mut self, outcome: Outcome) {
+        self.deployments += 1;
+        match outcome {
+            Outcome::Success => self.success += 1,
+            Outcome::NoLap => self.no_lap += 1,
+            Outcome::Crash(CrashCause::Ground) => self.ground += 1,
+            Outcome::Crash(CrashCause::Ceiling) => self.ceiling += 1,
+            Outcome::Crash(CrashCause::Wall) => self.wall += 1,
+            Outcome::Crash(CrashCause::Gate(i)) => {
+                if self.gate.len() <= i {
+                    self.gate.resize(i + 1, 0);
+                }
+                self.gate[i] += 1;
+            }
+        }
+    }
+
+    /// Crashes into any gate frame.
+    pub fn gate_total(&self) -> usize {
+        self.gate.iter().sum()
+    }
+
+    /// `count` as a fraction of the deployments (0 when there are none).
+    pub fn fraction(&self, count: usize) -> f64 {
+        if self.deployments == 0 { 0.0 } else { count as f64 / self.deployments as f64 }
+    }
+
+    /// Gate-frame crashes by gate, e.g. `g0 3, g4 1` (`–` when none).
+    pub fn gate_summary(&self) -> String {
+        let parts: Vec<String> = self.gate.iter().enumerate().filter(|(_, n)| **n > 0).map(|(i, n)| format!("g{i} {n}")).collect();
+        if parts.is_empty() { "–".into() } else { parts.join(", ") }
+    }
+}
+
 impl Deployment {
+    /// How this deployment ended.
+    pub fn outcome(&self) -> Outcome {
+        match (self.crash, self.success) {
+            (Some(cause), _) => Outcome::Crash(cause),
+            (None, true) => Outcome::Success,
+            (None, false) => Outcome::NoLap,
+        }
+    }
+
     /// Fastest completed lap (s).
     pub fn fastest_lap(&self) -> Option<f64> {
         self.lap_times.iter().copied().reduce(f64::min)
@@ -72,6 +156,8 @@ pub struct TrackResult {
     pub fastest_lap: Option<f64>,
     /// This track's S_pw (s⁻¹).
     pub s_pw: f64,
+    /// How its deployments ended.
+    pub outcomes: OutcomeCounts,
     /// Every deployment.
     pub deployments: Vec<Deployment>,
 }
@@ -87,6 +173,12 @@ pub struct EvalReport {
     pub s_pw: f64,
     /// Fraction of all deployments that succeeded.
     pub success_rate: f64,
+    /// Mean over every lap of every successful deployment (s).
+    pub mean_lap: Option<f64>,
+    /// Fastest lap of any successful deployment (s).
+    pub fastest_lap: Option<f64>,
+    /// How all deployments ended.
+    pub outcomes: OutcomeCounts,
     /// Per-track results, in the order the tracks were given.
     pub tracks: Vec<TrackResult>,
 }
@@ -140,12 +232,15 @@ pub fn evaluate(
             summarise(&track.name, runs)
         })
         .collect();
-    let total = deployments.len().max(1) as f64;
+    let all = summarise("all", deployments);
     EvalReport {
         controller: controller_name.to_owned(),
         config: *config,
-        s_pw: deployments.iter().map(Deployment::score).sum::<f64>() / total,
-        success_rate: deployments.iter().filter(|d| d.success).count() as f64 / total,
+        s_pw: all.s_pw,
+        success_rate: all.success_rate,
+        mean_lap: all.mean_lap,
+        fastest_lap: all.fastest_lap,
+        outcomes: all.outcomes,
         tracks: results,
     }
 }
@@ -159,6 +254,7 @@ fn summarise(track: &str, deployments: Vec<Deployment>) -> TrackResult {
         mean_lap: (!laps.is_empty()).then(|| laps.iter().sum::<f64>() / laps.len() as f64),
         fastest_lap: laps.iter().copied().reduce(f64::min),
         s_pw: deployments.iter().map(Deployment::score).sum::<f64>() / n,
+        outcomes: OutcomeCounts::of(&deployments),
         deployments,
     }
 }
@@ -171,23 +267,29 @@ impl EvalReport {
             "## Evaluation of `{}`\n\n{} deployments × {} steps per track, seed {}.\n\n",
             self.controller, self.config.runs, self.config.steps, self.config.seed
         );
-        out.push_str("| track | success | mean lap (s) | fastest lap (s) | S_pw (1/s) |\n|---|---:|---:|---:|---:|\n");
+        out.push_str(
+            "| track | success | mean lap (s) | fastest lap (s) | S_pw (1/s) | ground | ceiling | wall | gate frame | no lap | gate frames hit |\n\
+             |---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|\n",
+        );
+        let row = |name: &str, success: f64, mean: Option<f64>, fastest: Option<f64>, s_pw: f64, o: &OutcomeCounts| {
+            format!(
+                "| {name} | {:.0} % | {} | {} | {s_pw:.4} | {} | {} | {} | {} | {} | {} |\n",
+                100.0 * success,
+                secs(mean),
+                secs(fastest),
+                o.ground,
+                o.ceiling,
+                o.wall,
+                o.gate_total(),
+                o.no_lap,
+                o.gate_summary()
+            )
+        };
         for t in &self.tracks {
-            out.push_str(&format!(
-                "| {} | {:.0} % | {} | {} | {:.4} |\n",
-                t.track,
-                100.0 * t.success_rate,
-                secs(t.mean_lap),
-                secs(t.fastest_lap),
-                t.s_pw
-            ));
+            out.push_str(&row(&t.track, t.success_rate, t.mean_lap, t.fastest_lap, t.s_pw, &t.outcomes));
         }
-        out.push_str(&format!(
-            "| **all {} tracks** | **{:.0} %** | | | **{:.4}** |\n",
-            self.tracks.len(),
-            100.0 * self.success_rate,
-            self.s_pw
-        ));
+        let all = format!("**all {} tracks**", self.tracks.len());
+        out.push_str(&row(&all, self.success_rate, self.mean_lap, self.fastest_lap, self.s_pw, &self.outcomes));
         out
     }
 }
@@ -220,6 +322,7 @@ mod tests {
         let crashed =
             Deployment { success: false, lap_times: vec![2.0], crash: Some(CrashCause::Ground), gates_passed: 5, steps: 300 };
         let r = summarise("t", vec![ok(&[5.0, 4.0]), ok(&[8.0]), crashed]);
+        assert_eq!((r.outcomes.success, r.outcomes.ground, r.outcomes.deployments), (2, 1, 3));
         assert!((r.s_pw - (0.25 + 0.125 + 0.0) / 3.0).abs() < 1e-12);
         assert!((r.success_rate - 2.0 / 3.0).abs() < 1e-12);
         assert_eq!(r.fastest_lap, Some(4.0));
@@ -237,5 +340,54 @@ mod tests {
         assert!(pilot.s_pw > 0.0);
         // Deterministic: the same seed reproduces the report exactly.
         assert_eq!(pilot, evaluate("pilot", &[oval()], &|| Box::new(ReferencePilot::default()), &config));
+    }
+
+    /// One hand-built deployment per outcome, each classified and counted where it belongs.
+    #[test]
+    fn every_outcome_is_classified_and_counted() {
+        let d = |success: bool, laps: &[f64], crash: Option<CrashCause>| Deployment {
+            success,
+            lap_times: laps.to_vec(),
+            crash,
+            gates_passed: 3,
+            steps: 500,
+        };
+        let cases = [
+            (d(true, &[6.0], None), Outcome::Success),
+            (d(false, &[], Some(CrashCause::Ground)), Outcome::Crash(CrashCause::Ground)),
+            (d(false, &[], Some(CrashCause::Ceiling)), Outcome::Crash(CrashCause::Ceiling)),
+            (d(false, &[], Some(CrashCause::Wall)), Outcome::Crash(CrashCause::Wall)),
+            // A crash after a completed lap is a crash, not a success.
+            (d(false, &[6.0], Some(CrashCause::Gate(2))), Outcome::Crash(CrashCause::Gate(2))),
+            (d(false, &[], None), Outcome::NoLap),
+        ];
+        for (deployment, expected) in &cases {
+            assert_eq!(deployment.outcome(), *expected);
+        }
+        let counts = OutcomeCounts::of(cases.iter().map(|(d, _)| d));
+        assert_eq!(
+            (counts.success, counts.ground, counts.ceiling, counts.wall, counts.gate.clone(), counts.no_lap),
+            (1, 1, 1, 1, vec![0, 0, 1], 1)
+        );
+        assert_eq!(counts.gate_summary(), "g2 1");
+        assert_eq!(counts.deployments, 6);
+    }
+
+    /// Real flights into the floor and the ceiling end with those causes.
+    #[test]
+    fn flights_into_the_floor_ceiling_wall_and_a_frame_are_told_apart() {
+        let config = EvalConfig { runs: 1, steps: 200, env: EnvConfig { randomization: crate::RandomizationParams::none(), ..EnvConfig::evaluation() }, ..EvalConfig::default() };
+        // Constant actions from the start pose of the oval (gate 0 at (0, -6, 2.5), facing +x).
+        struct Constant([f32; 4]);
+        impl Controller for Constant {
+            fn reset(&mut self, _: &RaceEnv) {}
+            fn act(&mut self, _: &RaceEnv) -> [f32; 4] {
+                self.0
+            }
+        }
+        let fly = |action: [f32; 4]| deploy(oval(), &mut Constant(action), &config, 0).outcome();
+        assert_eq!(fly([-1.0, 0.0, 0.0, 0.0]), Outcome::Crash(CrashCause::Ground), "no thrust");
+        assert_eq!(fly([1.0, 0.0, 0.0, 0.0]), Outcome::Crash(CrashCause::Ceiling), "full thrust, level");
+        // Wall and gate-frame causes from placed states: race.rs tests.
     }
 }

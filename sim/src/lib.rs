@@ -14,10 +14,10 @@ pub mod track;
 pub mod vec_env;
 
 pub use nalgebra;
-pub use observation::STATE_OBS_DIM;
+pub use observation::{ObservationFrame, STATE_OBS_DIM};
 pub use params::{GRAVITY, QuadrotorParams, RaceParams};
 pub use pilot::{Controller, PilotParams, ReferencePilot};
-pub use race::{CrashCause, EnvConfig, EpisodeStats, RaceEnv, StepOutcome};
+pub use race::{ControllerModel, CrashCause, EnvConfig, EpisodeStats, RaceEnv, StepOutcome};
 pub use randomization::RandomizationParams;
 pub use reward::{RewardParams, RewardTerms};
 pub use track::{Arena, Gate, Pose, Track};

@@ -10,7 +10,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::observation::{STATE_OBS_DIM, write_state_observation};
+use crate::observation::{ObservationFrame, STATE_OBS_DIM, write_state_observation};
 use crate::params::{QuadrotorParams, RaceParams};
 use crate::quadrotor::{BodyState, Command, Quadrotor};
 use crate::randomization::RandomizationParams;
@@ -20,12 +20,30 @@ use crate::track::Track;
 /// Camera tilt above the body x axis (rad): the forward camera of the vision profile (SPEC §5).
 pub const CAMERA_TILT: f64 = 30.0 * std::f64::consts::PI / 180.0;
 
+/// What the low-level flight controller believes about the randomised vehicle.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ControllerModel {
+    /// The nominal vehicle, whatever was drawn: a ±20 % thrust-map draw is a ±20 % error in
+    /// collective thrust that the policy must absorb without observing it.
+    #[default]
+    Nominal,
+    /// The drawn vehicle (mass, inertia, thrust map), as Flightmare's `Quadrotor::updateDynamics`
+    /// hands its controller: commanded collective thrust and body-rate responses come out as
+    /// commanded. Drag and command delay stay unmodelled.
+    Compensating,
+}
+
 /// Everything that configures an environment except its track.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct EnvConfig {
-    /// Nominal vehicle; the low-level controller always believes these values.
+    /// Nominal vehicle; actions map to commands with these values.
     pub quadrotor: QuadrotorParams,
+    /// What the low-level controller believes under randomisation. Default nominal.
+    pub controller_model: ControllerModel,
+    /// Frame of the observation's vectors. Default world (SPEC §5).
+    pub observation_frame: ObservationFrame,
     /// Per-episode randomisation around the nominal vehicle and start pose.
     pub randomization: RandomizationParams,
     /// Timing and episode length.
@@ -46,13 +64,16 @@ impl EnvConfig {
 }
 
 /// Why an episode terminated.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum CrashCause {
-    /// Below the ground plane z = 0.
+    /// Below the ground plane z = 0 (or below the arena's floor).
     Ground,
-    /// Outside the arena box.
-    Arena,
+    /// Above the arena's ceiling.
+    Ceiling,
+    /// Outside the arena through one of its side walls (x or y).
+    #[serde(alias = "arena")]
+    Wall,
     /// The collision sphere touched the frame of this gate.
     Gate(usize),
 }
@@ -61,7 +82,8 @@ impl std::fmt::Display for CrashCause {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             CrashCause::Ground => write!(f, "ground"),
-            CrashCause::Arena => write!(f, "arena"),
+            CrashCause::Ceiling => write!(f, "ceiling"),
+            CrashCause::Wall => write!(f, "wall"),
             CrashCause::Gate(i) => write!(f, "gate {i}"),
         }
     }
@@ -157,7 +179,11 @@ impl RaceEnv {
     pub fn reset(&mut self) {
         let c = &self.config;
         let draw = c.randomization.sample(&c.quadrotor, &self.track.start, c.race.substep(), &mut self.rng);
-        self.quad = Quadrotor::new(c.quadrotor, draw.plant, draw.start);
+        let model = match c.controller_model {
+            ControllerModel::Nominal => c.quadrotor,
+            ControllerModel::Compensating => draw.plant,
+        };
+        self.quad = Quadrotor::new(model, draw.plant, draw.start);
         self.delay_substeps = draw.delay_substeps;
         // Before the first action arrives the flight controller holds a hover.
         self.previous_command = Command::hover();
@@ -239,14 +265,19 @@ impl RaceEnv {
         crash
     }
 
-    /// Crash test on the current state (SPEC §12.2): ground, arena, then gate frames.
+    /// Crash test on the current state (SPEC §12.2): ground, arena (floor, ceiling, walls),
+    /// then gate frames.
     fn crash_cause(&self) -> Option<CrashCause> {
         let p = &self.quad.body.position;
-        if p.z < 0.0 {
+        let arena = &self.track.arena;
+        if p.z < 0.0 || p.z < arena.min.z {
             return Some(CrashCause::Ground);
         }
-        if !self.track.arena.contains(p) {
-            return Some(CrashCause::Arena);
+        if p.z > arena.max.z {
+            return Some(CrashCause::Ceiling);
+        }
+        if !arena.contains(p) {
+            return Some(CrashCause::Wall);
         }
         let radius = self.quad.plant().collision_radius;
         self.track.gates.iter().position(|g| g.frame_touches_sphere(p, radius)).map(CrashCause::Gate)
@@ -275,16 +306,26 @@ impl RaceEnv {
         self.quad.body.rotation() * Vector3::new(CAMERA_TILT.cos(), 0.0, CAMERA_TILT.sin())
     }
 
-    /// Writes the state observation into `out` (length [`STATE_OBS_DIM`]).
+    /// Writes the state observation in the configured frame into `out` (length [`STATE_OBS_DIM`]).
     pub fn observe(&self, out: &mut [f32]) {
-        write_state_observation(&self.quad.body, &self.previous_action, &self.track, self.target, out);
+        self.observe_in(self.config.observation_frame, out);
     }
 
-    /// The state observation as a new array.
-    pub fn observation(&self) -> [f32; STATE_OBS_DIM] {
+    /// Writes the state observation in `frame` (a policy evaluates in the frame it learned).
+    pub fn observe_in(&self, frame: ObservationFrame, out: &mut [f32]) {
+        write_state_observation(&self.quad.body, &self.previous_action, &self.track, self.target, frame, out);
+    }
+
+    /// The state observation in `frame` as a new array.
+    pub fn observation_in(&self, frame: ObservationFrame) -> [f32; STATE_OBS_DIM] {
         let mut out = [0f32; STATE_OBS_DIM];
-        self.observe(&mut out);
+        self.observe_in(frame, &mut out);
         out
+    }
+
+    /// Parameters the low-level controller believes this episode.
+    pub fn controller_params(&self) -> &QuadrotorParams {
+        self.quad.model()
     }
 
     /// Rigid-body state.
@@ -406,13 +447,19 @@ mod tests {
     }
 
     #[test]
-    fn ground_and_arena_exits_terminate_with_their_cause() {
+    fn ground_ceiling_and_wall_exits_terminate_with_their_cause() {
         let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
         place(&mut env, Vector3::new(-5.0, -5.0, 0.05), Vector3::new(0.0, 0.0, -5.0));
         assert_eq!(env.step(&hover_action(&env)).crash, Some(CrashCause::Ground));
         let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
+        place(&mut env, Vector3::new(-5.0, -5.0, 5.95), Vector3::new(0.0, 0.0, 5.0));
+        assert_eq!(env.step(&hover_action(&env)).crash, Some(CrashCause::Ceiling));
+        let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
         place(&mut env, Vector3::new(-11.95, -5.0, 2.0), Vector3::new(-5.0, 0.0, 0.0));
-        assert_eq!(env.step(&hover_action(&env)).crash, Some(CrashCause::Arena));
+        assert_eq!(env.step(&hover_action(&env)).crash, Some(CrashCause::Wall));
+        let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
+        place(&mut env, Vector3::new(-5.0, 11.95, 2.0), Vector3::new(0.0, 5.0, 0.0));
+        assert_eq!(env.step(&hover_action(&env)).crash, Some(CrashCause::Wall));
     }
 
     #[test]
@@ -482,5 +529,38 @@ mod tests {
         assert!(b.body().velocity.z.abs() < 1e-9);
         b.step(&full);
         assert!(b.body().velocity.z > 0.1);
+    }
+
+    /// Hovers for 2 s on a vehicle whose mass and thrust map were drawn away from nominal;
+    /// returns (altitude change, drawn mass / nominal, drawn thrust coefficient / nominal).
+    fn hover_under_a_draw(model: ControllerModel, seed: u64) -> (f64, f64, f64) {
+        let gates = vec![Gate::new(Vector3::new(0.0, 0.0, 2.0), 0.0), Gate::new(Vector3::new(6.0, 0.0, 2.0), 0.0)];
+        let start = Pose { position: Vector3::new(-8.0, -8.0, 3.0), yaw: 0.0 };
+        let track = Track::new("hover", gates, Some(start), Arena::default()).unwrap();
+        let randomization = RandomizationParams { mass: 0.2, thrust_map: 0.2, ..RandomizationParams::none() };
+        let config = EnvConfig { randomization, controller_model: model, ..EnvConfig::default() };
+        let mut env = RaceEnv::new(Arc::new(track), config, seed, 0);
+        let action = hover_action(&env);
+        for _ in 0..100 {
+            assert!(!env.step(&action).terminated);
+        }
+        let (plant, nominal) = (env.quad.plant(), &env.config.quadrotor);
+        (env.body().position.z - 3.0, plant.mass / nominal.mass, plant.thrust_coefficient / nominal.thrust_coefficient)
+    }
+
+    #[test]
+    fn compensating_controller_model_holds_a_hover_under_a_mass_and_thrust_map_draw() {
+        for seed in 0..4 {
+            let (dz, mass, thrust) = hover_under_a_draw(ControllerModel::Compensating, seed);
+            assert!(dz.abs() < 0.02, "seed {seed}: drifted {dz} m (mass ×{mass:.3}, thrust map ×{thrust:.3})");
+            let (dz_nominal, m2, t2) = hover_under_a_draw(ControllerModel::Nominal, seed);
+            assert_eq!((mass, thrust), (m2, t2), "both models fly the same draw");
+            // The nominal controller commands the nominal hover thrust: with thrust map ×k and
+            // mass ×m the vehicle accelerates by g (k/m − 1), and climbs or sinks accordingly.
+            let excess = thrust / mass - 1.0;
+            if excess.abs() > 0.03 {
+                assert!(dz_nominal.signum() == excess.signum() && dz_nominal.abs() > 0.1, "seed {seed}: {dz_nominal} m with k/m − 1 = {excess}");
+            }
+        }
     }
 }

@@ -2,6 +2,7 @@
 
 pub mod cluster;
 pub mod eval;
+pub mod experiment;
 pub mod services;
 pub mod sim;
 pub mod tasks;

@@ -12,9 +12,6 @@ use taskctl::{GeneratorKind, SwitchParams, TaskController, TrackGenParams, Track
 use super::load_tracks;
 use crate::plot::Layout;
 
-/// Number of tracks in the evaluation test set (SPEC §9).
-pub const TEST_SET_SIZE: usize = 40;
-
 /// Track subcommands.
 #[derive(Subcommand)]
 pub enum TracksCommand {
@@ -56,7 +53,7 @@ pub enum TracksCommand {
     /// Write the evaluation test set: the library topped up with generated tracks to 40.
     Testset {
         /// Seed of the generated part; keep it out of training.
-        #[arg(long, default_value_t = DEFAULT_TEST_SEED)]
+        #[arg(long, default_value_t = taskctl::track_sets::TEST_SEED)]
         seed: u64,
         /// Directory to write into.
         #[arg(long)]
@@ -75,9 +72,6 @@ pub enum TracksCommand {
         window: usize,
     },
 }
-
-/// Seed of the default evaluation test set; training seeds are hashed and never equal it.
-pub const DEFAULT_TEST_SEED: u64 = 9_000_000;
 
 /// Generator choice on the command line.
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -124,18 +118,13 @@ pub fn run(command: TracksCommand) -> anyhow::Result<()> {
             Ok(())
         }
         TracksCommand::Testset { seed, out } => {
-            let library = taskctl::library()?;
+            let tracks = taskctl::test_set(seed)?;
             std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-            for (i, track) in library.iter().enumerate() {
+            // Numbered so the directory lists in test-set order.
+            for (i, track) in tracks.iter().enumerate() {
                 taskctl::write_track(track, &out.join(format!("{i:02}-{}.toml", track.name.to_lowercase())))?;
             }
-            let generated = TEST_SET_SIZE.saturating_sub(library.len());
-            // Numbered after the library so the directory lists in test-set order.
-            generate_into(&TrackGenerator::default(), seed, generated, &out, |i| {
-                let name = format!("test-{}", seed + i as u64);
-                (name.clone(), format!("{:02}-{name}.toml", library.len() + i))
-            })?;
-            println!("wrote {} library + {generated} generated tracks (seed {seed}) to {}", library.len(), out.display());
+            println!("wrote {} tracks (library, then generated from seed {seed}) to {}", tracks.len(), out.display());
             Ok(())
         }
         TracksCommand::Bench { count, envs, window } => bench(count, envs, window),

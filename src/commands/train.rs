@@ -131,8 +131,11 @@ fn run_in_process(args: &TrainArgs, dir: PathBuf, config: TrainConfig, resume: b
 
 /// The live progress line of one iteration.
 pub fn progress_line(s: &IterationSummary, eta_seconds: f64) -> String {
+    let validation = s.validation.map_or(String::new(), |(s_pw, success)| {
+        format!(" | validation S_pw {s_pw:.4}, success {:.0} %", 100.0 * success)
+    });
     format!(
-        "iter {:>5} | {:>11} steps | {:>6.0} SPS (collect {:.1} s, update {:.1} s) | return {:>8.2} | laps/ep {:>5.2} | switches {:>5} | kl {:.4} | ETA {}",
+        "iter {:>5} | {:>11} steps | {:>6.0} SPS (collect {:.1} s, update {:.1} s) | return {:>8.2} | laps/ep {:>5.2} | switches {:>5} | kl {:.4} | ETA {}{validation}",
         s.iteration,
         s.report.env_steps,
         s.sps,

@@ -414,6 +414,10 @@ impl State {
         let mut last_error = None;
         for attempt in 0..SEED_TRIES {
             let track_seed = mix(mix(mix(self.seed ^ 0x7472_6163_6b73) ^ env as u64) ^ (generation << 8 | attempt));
+            if crate::track_sets::is_held_out(track_seed) {
+                // Validation and test tracks are never trained on (a 2⁻⁴³ chance per draw).
+                continue;
+            }
             let name = format!("{:?}-{track_seed:016x}", self.generator.kind).to_lowercase();
             match self.generator.generate(track_seed, &name) {
                 Ok(g) => return Ok((Arc::new(g.track), track_seed)),

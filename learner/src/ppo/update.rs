@@ -56,6 +56,12 @@ pub struct UpdateStats {
     pub explained_variance: f64,
     /// Global gradient norm before clipping, averaged.
     pub grad_norm: f64,
+    /// The policy's part of it (actor network and log std), averaged.
+    pub actor_grad_norm: f64,
+    /// The value function's part of it (critic network), averaged.
+    pub critic_grad_norm: f64,
+    /// Mean of the policy's log standard deviation after the update (`policy/log_std`).
+    pub log_std: f64,
     /// Gradient steps taken.
     pub gradient_steps: usize,
 }
@@ -77,6 +83,9 @@ pub fn update(
     let mut stats = UpdateStats::default();
     let mut indices: Vec<usize> = (0..n).collect();
     let ids = model.param_ids();
+    // Export order: actor layers, critic layers (as many as the actor's), then the log std.
+    let critic = (ids.len() - 1) / 2..ids.len() - 1;
+    let groups: Vec<usize> = (0..ids.len()).map(|i| usize::from(config.clip_per_network && critic.contains(&i))).collect();
     for _ in 0..config.n_epochs {
         indices.shuffle(rng);
         for chunk in indices.chunks(minibatch) {
@@ -103,7 +112,7 @@ pub fn update(
             let loss = policy_loss.clone() + value_loss.clone().mul_scalar(config.vf_coef);
 
             let mut grads = GradientsParams::from_grads(loss.backward(), &model);
-            let norm = clip_global_norm(&mut grads, &ids, config.max_grad_norm);
+            let squares = clip_grad_norm(&mut grads, &ids, &groups, config.max_grad_norm);
             model = optimizer.step(learning_rate, model, grads);
 
             let ratios = ratio.into_data().try_into_vec::<f32>().expect("float ratios");
@@ -113,48 +122,70 @@ pub fn update(
                 ratios.iter().filter(|r| (f64::from(**r) - 1.0).abs() > config.clip_range).count() as f64 / b as f64;
             stats.policy_loss += f64::from(scalar(policy_loss));
             stats.value_loss += f64::from(scalar(value_loss));
-            stats.grad_norm += norm;
+            let critic_square: f64 = squares[critic.clone()].iter().sum();
+            let total_square: f64 = squares.iter().sum();
+            stats.grad_norm += total_square.sqrt();
+            stats.critic_grad_norm += critic_square.sqrt();
+            stats.actor_grad_norm += (total_square - critic_square).max(0.0).sqrt();
             stats.gradient_steps += 1;
         }
     }
     let steps = stats.gradient_steps.max(1) as f64;
-    for x in [&mut stats.policy_loss, &mut stats.value_loss, &mut stats.approx_kl, &mut stats.clip_fraction, &mut stats.grad_norm] {
+    for x in [
+        &mut stats.policy_loss,
+        &mut stats.value_loss,
+        &mut stats.approx_kl,
+        &mut stats.clip_fraction,
+        &mut stats.grad_norm,
+        &mut stats.actor_grad_norm,
+        &mut stats.critic_grad_norm,
+    ] {
         *x /= steps;
     }
     stats.explained_variance = explained_variance(&batch.old_values, &batch.returns);
+    stats.log_std = f64::from(scalar(model.log_std.val().mean()));
     (model, stats)
 }
 
-/// Scales every gradient by `max / (norm + 1e-6)` when the global norm exceeds `max`
-/// (torch `clip_grad_norm_`); returns the norm before clipping.
-pub fn clip_global_norm(grads: &mut GradientsParams, ids: &[(ParamId, usize)], max: f64) -> f64 {
-    let mut squares = 0.0f64;
-    for &(id, rank) in ids {
-        let sum = match rank {
-            1 => grads.get::<1>(id).map(|g| scalar(g.powf_scalar(2.0).sum())),
-            _ => grads.get::<2>(id).map(|g| scalar(g.powf_scalar(2.0).sum())),
-        };
-        squares += f64::from(sum.unwrap_or(0.0));
+/// Gradient-norm clipping (torch `clip_grad_norm_`) over groups of parameters: `groups[i]` is
+/// the group of `ids[i]`, and each group whose norm exceeds `max` is scaled by
+/// `max / (norm + 1e-6)` on its own (one group: SB3's global clipping). Returns each
+/// parameter's squared gradient norm before clipping, in `ids` order.
+pub fn clip_grad_norm(grads: &mut GradientsParams, ids: &[(ParamId, usize)], groups: &[usize], max: f64) -> Vec<f64> {
+    let squares: Vec<f64> = ids
+        .iter()
+        .map(|&(id, rank)| {
+            let sum = match rank {
+                1 => grads.get::<1>(id).map(|g| scalar(g.powf_scalar(2.0).sum())),
+                _ => grads.get::<2>(id).map(|g| scalar(g.powf_scalar(2.0).sum())),
+            };
+            f64::from(sum.unwrap_or(0.0))
+        })
+        .collect();
+    let group_count = groups.iter().max().map_or(0, |g| g + 1);
+    let mut group_squares = vec![0.0; group_count];
+    for (square, &group) in squares.iter().zip(groups) {
+        group_squares[group] += square;
     }
-    let norm = squares.sqrt();
-    let coefficient = max / (norm + 1e-6);
-    if coefficient < 1.0 {
-        for &(id, rank) in ids {
-            match rank {
-                1 => {
-                    if let Some(g) = grads.remove::<1>(id) {
-                        grads.register(id, g.mul_scalar(coefficient));
-                    }
+    for (&(id, rank), &group) in ids.iter().zip(groups) {
+        let coefficient = max / (group_squares[group].sqrt() + 1e-6);
+        if coefficient >= 1.0 {
+            continue;
+        }
+        match rank {
+            1 => {
+                if let Some(g) = grads.remove::<1>(id) {
+                    grads.register(id, g.mul_scalar(coefficient));
                 }
-                _ => {
-                    if let Some(g) = grads.remove::<2>(id) {
-                        grads.register(id, g.mul_scalar(coefficient));
-                    }
+            }
+            _ => {
+                if let Some(g) = grads.remove::<2>(id) {
+                    grads.register(id, g.mul_scalar(coefficient));
                 }
             }
         }
     }
-    norm
+    squares
 }
 
 /// 1 − Var(returns − values) / Var(returns); NaN when the returns do not vary (SB3).
@@ -192,7 +223,8 @@ mod tests {
         let loss = model.log_std.val().sum().mul_scalar(3.0);
         let mut grads = GradientsParams::from_grads(loss.backward(), &model);
         // Only log_std has a gradient: norm = 3·√4 = 6.
-        let norm = clip_global_norm(&mut grads, &ids, 0.5);
+        let global = vec![0; ids.len()];
+        let norm = clip_grad_norm(&mut grads, &ids, &global, 0.5).iter().sum::<f64>().sqrt();
         assert!((norm - 6.0).abs() < 1e-5, "{norm}");
         let (log_std_id, _) = *ids.last().unwrap();
         let clipped = grads.get::<1>(log_std_id).unwrap().into_data().try_into_vec::<f32>().unwrap();
@@ -202,10 +234,33 @@ mod tests {
         // Below the limit nothing changes.
         let loss = model.log_std.val().sum().mul_scalar(0.1);
         let mut grads = GradientsParams::from_grads(loss.backward(), &model);
-        let norm = clip_global_norm(&mut grads, &ids, 0.5);
-        assert!((norm - 0.2).abs() < 1e-6);
+        let squares = clip_grad_norm(&mut grads, &ids, &global, 0.5);
+        assert!((squares.iter().sum::<f64>().sqrt() - 0.2).abs() < 1e-6);
+        assert!(squares[..squares.len() - 1].iter().all(|&s| s == 0.0), "only log std has a gradient");
         let g = grads.get::<1>(log_std_id).unwrap().into_data().try_into_vec::<f32>().unwrap();
         assert!(g.iter().all(|x| (x - 0.1).abs() < 1e-7));
+    }
+
+    /// Two groups: the large one is clipped to the limit, the small one left alone.
+    #[test]
+    fn grouped_clipping_scales_each_group_on_its_own() {
+        let device = Device::flex().autodiff();
+        let arch = policy::Architecture { hidden: vec![3], ..policy::Architecture::paper() };
+        let model = ActorCritic::new(&arch, -0.5, 1, &device);
+        let ids = model.param_ids();
+        // loss = 3 Σ log_std + 0.01 Σ critic output bias: gradients 3 (×4) and 0.01.
+        let (critic_bias, _) = ids[ids.len() - 2];
+        let loss = model.log_std.val().sum().mul_scalar(3.0) + model.critic.forward(Tensor::zeros([1, 40], &device)).sum().mul_scalar(0.01);
+        let mut grads = GradientsParams::from_grads(loss.backward(), &model);
+        let mut groups = vec![0; ids.len()];
+        groups[ids.len() - 2] = 1;
+        groups[ids.len() - 3] = 1;
+        clip_grad_norm(&mut grads, &ids, &groups, 0.5);
+        let (log_std_id, _) = *ids.last().unwrap();
+        let policy_grad = grads.get::<1>(log_std_id).unwrap().into_data().try_into_vec::<f32>().unwrap();
+        assert!(policy_grad.iter().all(|g| (f64::from(*g) - 3.0 * 0.5 / (6.0 + 1e-6)).abs() < 1e-6), "{policy_grad:?}");
+        let value_grad = grads.get::<1>(critic_bias).unwrap().into_data().try_into_vec::<f32>().unwrap();
+        assert!((value_grad[0] - 0.01).abs() < 1e-7, "the small group is untouched: {value_grad:?}");
     }
 
     #[test]

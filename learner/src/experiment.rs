@@ -1,0 +1,480 @@
+//! Experiments as files: a base run config plus named variants (each a set of config
+//! overrides) × seeds. Every run trains in its own run directory `<out>/<variant>/seed-<s>/`;
+//! when its budget is spent, its final policy and its `best.bin` (chosen on the validation set)
+//! fly the test set and `test.json` marks the run done. Running the file again skips done runs
+//! and resumes interrupted ones from their newest checkpoint, so a grid can outlive a sitting.
+//!
+//! ```toml
+//! description = "observation frame"
+//! seeds = [0, 1]
+//! [base]                      # any run-config fields (TrainConfig)
+//! total_env_steps = 30_000_000
+//! [[variant]]
+//! name = "world"
+//! [[variant]]
+//! name = "heading"
+//! set = { env.observation_frame = "heading" }
+//! ```
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use policy::{Policy, PolicyController};
+use serde::{Deserialize, Serialize};
+use sim::eval::{EvalConfig, EvalReport, OutcomeCounts, evaluate};
+
+use crate::checkpoint::CheckpointDir;
+use crate::run::{IterationSummary, TrainConfig, TrainError};
+use crate::trainer::Trainer;
+
+/// One variant: a name and the overrides that make it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Variant {
+    /// Name (its runs live in `<out>/<name>/`).
+    pub name: String,
+    /// Run-config overrides, merged into `base` key by key.
+    #[serde(default)]
+    pub set: toml::Table,
+}
+
+/// How the finished runs are tested (SPEC §9).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TestSettings {
+    /// Seed of the test set's generated tracks. Default 9,000,000.
+    pub track_seed: u64,
+    /// Deployments per track. Default 25.
+    pub runs: usize,
+    /// Steps per deployment. Default 1000.
+    pub steps: u32,
+}
+
+impl Default for TestSettings {
+    fn default() -> Self {
+        Self { track_seed: taskctl::track_sets::TEST_SEED, runs: 25, steps: 1000 }
+    }
+}
+
+/// An experiment file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Experiment {
+    /// What the experiment asks.
+    #[serde(default)]
+    pub description: String,
+    /// Seeds every variant runs with.
+    pub seeds: Vec<u64>,
+    /// Run-config fields shared by every variant.
+    #[serde(default)]
+    pub base: toml::Table,
+    /// The variants, in the order the report lists them.
+    #[serde(rename = "variant")]
+    pub variants: Vec<Variant>,
+    /// Test-set evaluation of the finished runs.
+    #[serde(default)]
+    pub test: TestSettings,
+}
+
+/// Why an experiment cannot run or be reported.
+#[derive(Debug, thiserror::Error)]
+pub enum ExperimentError {
+    /// The file is unreadable or invalid; the message names the file and the field.
+    #[error("{0}")]
+    Invalid(String),
+    /// Training one of the runs failed.
+    #[error("{run}: {source}")]
+    Run {
+        /// The run directory.
+        run: String,
+        /// What failed.
+        source: TrainError,
+    },
+    /// Reading or writing a result file.
+    #[error("{0}")]
+    Io(String),
+}
+
+impl Experiment {
+    /// Reads and checks an experiment file: every variant's config must resolve.
+    pub fn read(path: &Path) -> Result<Self, ExperimentError> {
+        let text = std::fs::read_to_string(path).map_err(|e| ExperimentError::Invalid(format!("{}: {e}", path.display())))?;
+        let experiment: Self = toml::from_str(&text).map_err(|e| ExperimentError::Invalid(format!("{}: {e}", path.display())))?;
+        experiment.check().map_err(|e| ExperimentError::Invalid(format!("{}: {e}", path.display())))?;
+        Ok(experiment)
+    }
+
+    fn check(&self) -> Result<(), String> {
+        if self.seeds.is_empty() || self.variants.is_empty() {
+            return Err("name at least one seed and one [[variant]]".into());
+        }
+        let mut names = std::collections::BTreeSet::new();
+        for v in &self.variants {
+            let safe = !v.name.is_empty() && v.name.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_');
+            if !safe {
+                return Err(format!("variant name {:?}: use letters, digits, '-' and '_'", v.name));
+            }
+            if !names.insert(&v.name) {
+                return Err(format!("variant name {:?} appears twice", v.name));
+            }
+            self.config(v, self.seeds[0])?;
+        }
+        Ok(())
+    }
+
+    /// The run config of `variant` with `seed`: the defaults, then `base`, then the variant's
+    /// overrides. Unknown keys are refused, named with the variant.
+    pub fn config(&self, variant: &Variant, seed: u64) -> Result<TrainConfig, String> {
+        let mut table = self.base.clone();
+        merge(&mut table, &variant.set);
+        table.insert("seed".into(), toml::Value::Integer(seed as i64));
+        table.insert("name".into(), toml::Value::String(format!("{}-seed-{seed}", variant.name)));
+        // Through text, so that toml's error shows the offending line and key.
+        let text = toml::to_string(&table).map_err(|e| format!("variant {:?}: {e}", variant.name))?;
+        let config: TrainConfig = toml::from_str(&text).map_err(|e| format!("variant {:?}: {e}", variant.name))?;
+        config.resolved_profile().map_err(|e| format!("variant {:?}: {e}", variant.name))?;
+        Ok(config)
+    }
+
+    /// The run directory of `variant` with `seed` under `out`.
+    pub fn run_dir(out: &Path, variant: &str, seed: u64) -> PathBuf {
+        out.join(variant).join(format!("seed-{seed}"))
+    }
+}
+
+/// Merges `overrides` into `table`: tables key by key, anything else replaced.
+pub fn merge(table: &mut toml::Table, overrides: &toml::Table) {
+    for (key, value) in overrides {
+        match (table.get_mut(key), value) {
+            (Some(toml::Value::Table(existing)), toml::Value::Table(inner)) => merge(existing, inner),
+            _ => {
+                table.insert(key.clone(), value.clone());
+            }
+        }
+    }
+}
+
+/// The test-set results of one finished run (`test.json`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct RunResult {
+    /// Variant.
+    pub variant: String,
+    /// Seed.
+    pub seed: u64,
+    /// Environment steps trained.
+    pub env_steps: u64,
+    /// Iterations trained.
+    pub iterations: u64,
+    /// Wall seconds of training (validation included, test evaluation not).
+    pub wall_seconds: f64,
+    /// Highest validation S_pw seen (the one `best.bin` holds).
+    pub best_validation_s_pw: Option<f64>,
+    /// Policy version in `best.bin`.
+    pub best_version: u64,
+    /// The final policy on the test set (per-track results without the deployments).
+    pub final_policy: EvalReport,
+    /// `best.bin` on the test set.
+    pub best_policy: EvalReport,
+}
+
+/// What one call of [`run_experiment`] did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RunLog {
+    /// Runs already done before this call.
+    pub skipped: Vec<PathBuf>,
+    /// Runs continued from a checkpoint.
+    pub resumed: Vec<PathBuf>,
+    /// Runs started from scratch.
+    pub started: Vec<PathBuf>,
+    /// Runs finished (and tested) in this call.
+    pub finished: Vec<PathBuf>,
+    /// True when `stop` ended the call before every run was done.
+    pub interrupted: bool,
+}
+
+/// Runs every seed × variant of `experiment` under `out` (seed-major, so an interrupted grid
+/// has compared every variant on the first seeds), until all are done or
+/// `stop` is raised (then the current run checkpoints and the call returns). `on_iteration`
+/// sees every iteration's summary (for a progress line).
+pub fn run_experiment(
+    experiment: &Experiment,
+    out: &Path,
+    stop: &AtomicBool,
+    on_iteration: &mut dyn FnMut(&Path, &IterationSummary),
+) -> Result<RunLog, ExperimentError> {
+    let mut log = RunLog::default();
+    for &seed in &experiment.seeds {
+        for variant in &experiment.variants {
+            let dir = Experiment::run_dir(out, &variant.name, seed);
+            if dir.join("test.json").exists() {
+                log.skipped.push(dir);
+                continue;
+            }
+            if stop.load(Ordering::SeqCst) {
+                log.interrupted = true;
+                return Ok(log);
+            }
+            let config = experiment.config(variant, seed).map_err(ExperimentError::Invalid)?;
+            let failed = |source: TrainError| ExperimentError::Run { run: dir.display().to_string(), source };
+            let has_checkpoint = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints).map_err(|e| failed(e.into()))?.latest().is_some();
+            let mut trainer = if has_checkpoint {
+                log.resumed.push(dir.clone());
+                Trainer::resume(&dir).map_err(failed)?
+            } else {
+                std::fs::create_dir_all(&dir).map_err(|e| ExperimentError::Io(format!("{}: {e}", dir.display())))?;
+                log.started.push(dir.clone());
+                Trainer::start(config, &dir).map_err(failed)?
+            };
+            while !trainer.finished() {
+                if stop.load(Ordering::SeqCst) {
+                    trainer.checkpoint().map_err(failed)?;
+                    log.interrupted = true;
+                    return Ok(log);
+                }
+                let summary = trainer.iteration_step().map_err(failed)?;
+                on_iteration(&dir, &summary);
+            }
+            trainer.checkpoint().map_err(failed)?;
+            let result = test_run(&trainer, &variant.name, seed, &experiment.test).map_err(failed)?;
+            let json = serde_json::to_vec_pretty(&result).map_err(|e| ExperimentError::Io(e.to_string()))?;
+            taskctl::files::write_atomic(&dir.join("test.json"), &json).map_err(|e| ExperimentError::Io(format!("{}: {e}", dir.display())))?;
+            log.finished.push(dir);
+        }
+    }
+    Ok(log)
+}
+
+/// Flies the final policy and `best.bin` of a finished run on the test set.
+fn test_run(trainer: &Trainer, variant: &str, seed: u64, test: &TestSettings) -> Result<RunResult, TrainError> {
+    let tracks: Vec<Arc<sim::Track>> = taskctl::test_set(test.track_seed)?.into_iter().map(Arc::new).collect();
+    let config = EvalConfig { runs: test.runs, steps: test.steps, ..EvalConfig::default() };
+    let fly = |blob: &policy::WeightsBlob, name: &str| -> Result<EvalReport, TrainError> {
+        let policy = Arc::new(Policy::from_blob(blob)?);
+        let mut report = evaluate(name, &tracks, &|| Box::new(PolicyController::new(policy.clone())), &config);
+        for t in &mut report.tracks {
+            t.deployments.clear();
+        }
+        Ok(report)
+    };
+    let final_blob = trainer.learner().weights();
+    let best_path = trainer.dir().join("checkpoints").join("best.bin");
+    let best_blob = if best_path.exists() { crate::checkpoint::read_policy(&best_path)? } else { final_blob.clone() };
+    Ok(RunResult {
+        variant: variant.to_owned(),
+        seed,
+        env_steps: trainer.learner().env_steps(),
+        iterations: trainer.iteration(),
+        wall_seconds: trainer.wall_seconds(),
+        best_validation_s_pw: trainer.best_validation(),
+        best_version: best_blob.version,
+        final_policy: fly(&final_blob, "final")?,
+        best_policy: fly(&best_blob, "best")?,
+    })
+}
+
+/// One point of a validation curve.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CurvePoint {
+    /// Environment steps at the evaluation.
+    pub env_steps: u64,
+    /// Validation S_pw.
+    pub s_pw: f64,
+}
+
+/// Everything the report shows of one variant.
+#[derive(Clone, Debug)]
+pub struct VariantSummary {
+    /// Variant name.
+    pub name: String,
+    /// Finished runs' results, by seed.
+    pub results: Vec<RunResult>,
+    /// Validation curve of every run that has one (finished or not), by seed.
+    pub curves: Vec<(u64, Vec<CurvePoint>)>,
+    /// Runs not finished yet.
+    pub unfinished: Vec<u64>,
+}
+
+/// Reads every run of `experiment` under `out`.
+pub fn summarise(experiment: &Experiment, out: &Path) -> Result<Vec<VariantSummary>, ExperimentError> {
+    let mut summaries = Vec::new();
+    for variant in &experiment.variants {
+        let mut summary = VariantSummary { name: variant.name.clone(), results: Vec::new(), curves: Vec::new(), unfinished: Vec::new() };
+        for &seed in &experiment.seeds {
+            let dir = Experiment::run_dir(out, &variant.name, seed);
+            let curve = validation_curve(&dir.join("metrics.csv"))?;
+            if !curve.is_empty() {
+                summary.curves.push((seed, curve));
+            }
+            let path = dir.join("test.json");
+            match std::fs::read(&path) {
+                Ok(bytes) => summary.results.push(
+                    serde_json::from_slice(&bytes).map_err(|e| ExperimentError::Io(format!("{}: {e}", path.display())))?,
+                ),
+                Err(_) => summary.unfinished.push(seed),
+            }
+        }
+        summaries.push(summary);
+    }
+    Ok(summaries)
+}
+
+/// `(env_steps, eval/S_pw)` of every evaluated iteration in a metrics file (empty if none).
+/// A resumed run repeats iterations after its last checkpoint; the later row wins.
+pub fn validation_curve(metrics: &Path) -> Result<Vec<CurvePoint>, ExperimentError> {
+    let Ok(text) = std::fs::read_to_string(metrics) else { return Ok(Vec::new()) };
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let column = |name: &str| header.iter().position(|h| *h == name);
+    let (Some(steps), Some(s_pw)) = (column("env_steps"), column("eval/S_pw")) else { return Ok(Vec::new()) };
+    let mut points: std::collections::BTreeMap<u64, f64> = Default::default();
+    for line in lines {
+        let cells: Vec<&str> = line.split(',').collect();
+        let (Some(x), Some(y)) = (cells.get(steps), cells.get(s_pw)) else { continue };
+        if let (Ok(x), Ok(y)) = (x.parse::<u64>(), y.parse::<f64>()) {
+            points.insert(x, y);
+        }
+    }
+    Ok(points.into_iter().map(|(env_steps, s_pw)| CurvePoint { env_steps, s_pw }).collect())
+}
+
+/// Mean and sample standard deviation (0 for one value).
+fn mean_std(values: &[f64]) -> (f64, f64) {
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let var = if values.len() > 1 { values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0) } else { 0.0 };
+    (mean, var.sqrt())
+}
+
+/// `report.md`: per variant, the seeds, budget, wall time, best validation S_pw and the test
+/// set's success and S_pw (mean ± sample standard deviation over seeds, then each seed's), with
+/// the crash breakdown of the chosen (`best.bin`) policies.
+pub fn markdown_report(experiment: &Experiment, summaries: &[VariantSummary]) -> String {
+    let mut out = format!("# Experiment report\n\n{}\n\n", experiment.description.trim());
+    out.push_str(&format!(
+        "Seeds {:?}; test set: library + generated from seed {}, {} deployments × {} steps per track. \
+         `best` is the checkpoint with the highest validation S_pw; mean ± sample standard deviation over seeds, \
+         then each seed's value.\n\n",
+        experiment.seeds, experiment.test.track_seed, experiment.test.runs, experiment.test.steps
+    ));
+    out.push_str("| variant | runs done | env steps | wall time (min) | best validation S_pw | test success (best) | test S_pw (best) | test success (final) | test S_pw (final) |\n");
+    out.push_str("|---|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+    let spread = |values: Vec<f64>, percent: bool| -> String {
+        if values.is_empty() {
+            return "–".into();
+        }
+        let scale = if percent { 100.0 } else { 1.0 };
+        let (m, s) = mean_std(&values);
+        let each: Vec<String> =
+            values.iter().map(|v| if percent { format!("{:.0}", v * scale) } else { format!("{v:.4}") }).collect();
+        if percent {
+            format!("{:.0} ± {:.0} % ({})", m * scale, s * scale, each.join(", "))
+        } else {
+            format!("{m:.4} ± {s:.4} ({})", each.join(", "))
+        }
+    };
+    for v in summaries {
+        let r = &v.results;
+        let steps: Vec<String> = r.iter().map(|x| format!("{:.1}M", x.env_steps as f64 / 1e6)).collect();
+        let minutes: Vec<String> = r.iter().map(|x| format!("{:.0}", x.wall_seconds / 60.0)).collect();
+        out.push_str(&format!(
+            "| {} | {} of {} | {} | {} | {} | {} | {} | {} | {} |\n",
+            v.name,
+            r.len(),
+            r.len() + v.unfinished.len(),
+            if steps.is_empty() { "–".into() } else { steps.join(", ") },
+            if minutes.is_empty() { "–".into() } else { minutes.join(", ") },
+            spread(r.iter().filter_map(|x| x.best_validation_s_pw).collect(), false),
+            spread(r.iter().map(|x| x.best_policy.success_rate).collect(), true),
+            spread(r.iter().map(|x| x.best_policy.s_pw).collect(), false),
+            spread(r.iter().map(|x| x.final_policy.success_rate).collect(), true),
+            spread(r.iter().map(|x| x.final_policy.s_pw).collect(), false),
+        ));
+    }
+    out.push_str("\n## How the test deployments of `best` ended (all seeds together)\n\n");
+    out.push_str("| variant | deployments | success | ground | ceiling | wall | gate frame | no lap | mean lap (s) |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+    for v in summaries {
+        let mut total = OutcomeCounts::default();
+        for x in &v.results {
+            let o = &x.best_policy.outcomes;
+            total.deployments += o.deployments;
+            total.success += o.success;
+            total.ground += o.ground;
+            total.ceiling += o.ceiling;
+            total.wall += o.wall;
+            total.no_lap += o.no_lap;
+            total.gate.push(o.gate_total());
+        }
+        let pct = |n: usize| format!("{:.0} %", 100.0 * total.fraction(n));
+        let laps: Vec<f64> = v.results.iter().filter_map(|x| x.best_policy.mean_lap).collect();
+        out.push_str(&format!(
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+            v.name,
+            total.deployments,
+            pct(total.success),
+            pct(total.ground),
+            pct(total.ceiling),
+            pct(total.wall),
+            pct(total.gate_total()),
+            pct(total.no_lap),
+            if laps.is_empty() { "–".into() } else { format!("{:.2}", mean_std(&laps).0) }
+        ));
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const FILE: &str = r#"
+        description = "frames"
+        seeds = [0, 1]
+        [base]
+        total_env_steps = 1000
+        [base.ppo]
+        n_epochs = 3
+        [[variant]]
+        name = "world"
+        [[variant]]
+        name = "heading"
+        set = { env.observation_frame = "heading", ppo.batch_size = 64 }
+    "#;
+
+    #[test]
+    fn variants_merge_over_the_base_key_by_key() {
+        let e: Experiment = toml::from_str(FILE).unwrap();
+        e.check().unwrap();
+        let world = e.config(&e.variants[0], 1).unwrap();
+        let heading = e.config(&e.variants[1], 0).unwrap();
+        assert_eq!((world.seed, world.total_env_steps, world.ppo.unwrap().n_epochs), (1, 1000, 3));
+        assert_eq!(world.env.observation_frame, sim::ObservationFrame::World);
+        assert_eq!(heading.env.observation_frame, sim::ObservationFrame::Heading);
+        // The nested override kept the base's sibling key.
+        assert_eq!((heading.ppo.unwrap().n_epochs, heading.ppo.unwrap().batch_size), (3, 64));
+        assert_eq!(heading.name, "heading-seed-0");
+    }
+
+    #[test]
+    fn unknown_override_keys_are_refused_by_name() {
+        let mut e: Experiment = toml::from_str(FILE).unwrap();
+        e.variants[1].set = toml::from_str("env = { observation_fram = \"heading\" }").unwrap();
+        let error = e.check().unwrap_err();
+        assert!(error.contains("observation_fram") && error.contains("heading"), "{error}");
+        e.variants[1].set = toml::from_str("learning_rate = 0.1").unwrap();
+        let error = e.check().unwrap_err();
+        assert!(error.contains("learning_rate"), "{error}");
+        e.variants[1].set = toml::from_str("profile = \"gpu\"").unwrap();
+        assert!(e.check().unwrap_err().contains("gpu"));
+    }
+
+    #[test]
+    fn validation_curves_keep_the_latest_row_of_repeated_iterations() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("metrics.csv");
+        std::fs::write(&path, "iteration,env_steps,eval/S_pw\n1,100,\n2,200,0.5\n3,300,\n2,200,0.25\n4,400,0.75\n").unwrap();
+        let curve = validation_curve(&path).unwrap();
+        assert_eq!(curve, vec![CurvePoint { env_steps: 200, s_pw: 0.25 }, CurvePoint { env_steps: 400, s_pw: 0.75 }]);
+        assert!(validation_curve(&dir.path().join("missing.csv")).unwrap().is_empty());
+    }
+}

@@ -1,0 +1,85 @@
+//! Evaluation during training on the validation set: every `every` iterations the current
+//! policy's mean action flies the SPEC §9 protocol (fewer deployments) on generated tracks from
+//! the validation seed range, which neither training nor the test set ever uses. Its S_pw picks
+//! `best.bin`, so checkpoints are chosen on validation and reported on test.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use policy::{BlobError, Policy, PolicyController, WeightsBlob};
+use serde::{Deserialize, Serialize};
+use sim::Track;
+use sim::eval::{EvalConfig, EvalReport, evaluate};
+
+/// `[eval]` of the run config.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvalSettings {
+    /// Iterations between evaluations; 0 turns evaluation off (then `best.bin` is the
+    /// iteration with the highest mean training return). Default 50.
+    pub every: u64,
+    /// Validation tracks (informed generator, seeds from 8,000,000). Default 20.
+    pub tracks: usize,
+    /// Deployments per track. Default 10.
+    pub runs: usize,
+    /// Steps per deployment. Default 1000 (SPEC §9).
+    pub steps: u32,
+    /// Seed of the start perturbations. Default 0.
+    pub seed: u64,
+}
+
+impl Default for EvalSettings {
+    fn default() -> Self {
+        Self { every: 50, tracks: 20, runs: 10, steps: 1000, seed: 0 }
+    }
+}
+
+/// The validation tracks and how to fly them.
+pub struct Validator {
+    every: u64,
+    tracks: Vec<Arc<Track>>,
+    config: EvalConfig,
+}
+
+impl Validator {
+    /// The validator `settings` describe; `None` when evaluation is off.
+    pub fn new(settings: &EvalSettings) -> Result<Option<Self>, taskctl::TrackSetError> {
+        if settings.every == 0 || settings.tracks == 0 || settings.runs == 0 {
+            return Ok(None);
+        }
+        let tracks = taskctl::validation_set(settings.tracks)?.into_iter().map(Arc::new).collect();
+        let config = EvalConfig { runs: settings.runs, steps: settings.steps, seed: settings.seed, ..EvalConfig::default() };
+        Ok(Some(Self { every: settings.every, tracks, config }))
+    }
+
+    /// True when the iteration just finished (1-based) is one to evaluate.
+    pub fn due(&self, iteration: u64) -> bool {
+        iteration % self.every == 0
+    }
+
+    /// Flies `blob`'s deterministic policy on every validation track.
+    pub fn evaluate(&self, blob: &WeightsBlob) -> Result<Validation, BlobError> {
+        let started = Instant::now();
+        let policy = Arc::new(Policy::from_blob(blob)?);
+        let name = format!("policy v{}", blob.version);
+        let report = evaluate(&name, &self.tracks, &|| Box::new(PolicyController::new(policy.clone())), &self.config);
+        Ok(Validation { report, seconds: started.elapsed().as_secs_f64() })
+    }
+
+    /// [`Validator::evaluate`] when `iteration` is due, with weights taken only then.
+    pub fn evaluate_if_due(validator: Option<&Self>, iteration: u64, weights: impl FnOnce() -> WeightsBlob) -> Result<Option<Validation>, BlobError> {
+        match validator {
+            Some(v) if v.due(iteration) => v.evaluate(&weights()).map(Some),
+            _ => Ok(None),
+        }
+    }
+}
+
+/// One evaluation on the validation set, with its wall time.
+#[derive(Clone, Debug)]
+pub struct Validation {
+    /// The report.
+    pub report: EvalReport,
+    /// Seconds it took.
+    pub seconds: f64,
+}

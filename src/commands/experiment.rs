@@ -1,0 +1,66 @@
+//! `dronerace experiment`: run an experiment file (variants × seeds, resumable) and report it.
+
+use std::path::PathBuf;
+use std::sync::atomic::Ordering;
+
+use anyhow::Context;
+use clap::Subcommand;
+use learner::experiment::{Experiment, markdown_report, run_experiment, summarise};
+
+use super::services::stop_flag;
+use super::write_atomic;
+
+/// Experiment subcommands.
+#[derive(Subcommand)]
+pub enum ExperimentCommand {
+    /// Train every variant × seed of FILE under --out (done runs are skipped, interrupted ones
+    /// resumed), test each finished run, then write the report.
+    Run {
+        /// Experiment file (TOML: description, seeds, [base], [[variant]] name + set).
+        file: PathBuf,
+        /// Directory of the experiment's runs.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Write report.md and curves.png for the runs of FILE under DIR.
+    Report {
+        /// Experiment file.
+        file: PathBuf,
+        /// Directory of the experiment's runs.
+        dir: PathBuf,
+    },
+}
+
+/// Runs an experiment subcommand.
+pub fn run(command: ExperimentCommand) -> anyhow::Result<()> {
+    match command {
+        ExperimentCommand::Run { file, out } => {
+            let experiment = Experiment::read(&file)?;
+            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+            // The file travels with its results, so a report can be remade from the directory.
+            write_atomic(&out.join("experiment.toml"), std::fs::read(&file)?.as_slice())?;
+            let stop = stop_flag()?;
+            let log = run_experiment(&experiment, &out, &stop, &mut |dir, summary| {
+                let run = dir.strip_prefix(&out).unwrap_or(dir).display().to_string();
+                eprintln!("{run}: {}", super::train::progress_line(summary, f64::NAN));
+            })?;
+            eprintln!(
+                "experiment: {} runs finished now, {} were done already, {} resumed{}",
+                log.finished.len(),
+                log.skipped.len(),
+                log.resumed.len(),
+                if log.interrupted || stop.load(Ordering::SeqCst) { "; interrupted: run it again to continue" } else { "" }
+            );
+            report(&experiment, &out)
+        }
+        ExperimentCommand::Report { file, dir } => report(&Experiment::read(&file)?, &dir),
+    }
+}
+
+fn report(experiment: &Experiment, dir: &std::path::Path) -> anyhow::Result<()> {
+    let summaries = summarise(experiment, dir)?;
+    write_atomic(&dir.join("report.md"), markdown_report(experiment, &summaries).as_bytes())?;
+    crate::plot::draw_validation_curves(&summaries, &dir.join("curves.png"))?;
+    println!("wrote {} and {}", dir.join("report.md").display(), dir.join("curves.png").display());
+    Ok(())
+}

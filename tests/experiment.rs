@@ -1,0 +1,119 @@
+//! Experiments as files: two variants × two seeds of a tiny run, interrupted part-way, then run
+//! again (finished runs skipped, the interrupted one resumed), then reported (Markdown and plot).
+
+use std::path::Path;
+use std::process::Command;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use learner::experiment::{Experiment, RunLog, run_experiment};
+
+const FILE: &str = r#"
+description = "tiny frames"
+seeds = [0, 1]
+
+[base]
+total_env_steps = 384          # 3 iterations of 4 environments × 32 steps
+envs = 4
+checkpoint_every = 1
+ppo = { n_steps = 32, batch_size = 64, n_epochs = 1 }
+eval = { every = 1, tracks = 2, runs = 2, steps = 100 }
+
+[test]
+runs = 1
+steps = 50
+
+[[variant]]
+name = "world"
+
+[[variant]]
+name = "heading"
+set = { env.observation_frame = "heading" }
+"#;
+
+/// Runs the experiment, raising the stop flag after `stop_after` iterations (none: to the end).
+fn run(experiment: &Experiment, out: &Path, stop_after: Option<usize>) -> RunLog {
+    let stop = AtomicBool::new(false);
+    let mut iterations = 0;
+    run_experiment(experiment, out, &stop, &mut |_, _| {
+        iterations += 1;
+        if stop_after.is_some_and(|n| iterations >= n) {
+            stop.store(true, Ordering::SeqCst);
+        }
+    })
+    .unwrap()
+}
+
+#[test]
+fn an_interrupted_experiment_resumes_without_redoing_finished_runs_and_reports() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("tiny.toml");
+    std::fs::write(&file, FILE).unwrap();
+    let out = dir.path().join("out");
+    let experiment = Experiment::read(&file).unwrap();
+    let run_dir = |variant: &str, seed: u64| Experiment::run_dir(&out, variant, seed);
+
+    // Stop during the second run (seed-major order: world/0 then heading/0).
+    let first = run(&experiment, &out, Some(5));
+    assert!(first.interrupted);
+    assert_eq!(first.finished, vec![run_dir("world", 0)]);
+    assert_eq!(first.started, vec![run_dir("world", 0), run_dir("heading", 0)]);
+    assert!(!run_dir("heading", 0).join("test.json").exists());
+    let finished_result = std::fs::read(run_dir("world", 0).join("test.json")).unwrap();
+
+    let second = run(&experiment, &out, None);
+    assert!(!second.interrupted);
+    assert_eq!(second.skipped, vec![run_dir("world", 0)]);
+    assert_eq!(second.resumed, vec![run_dir("heading", 0)]);
+    assert_eq!(second.started, vec![run_dir("world", 1), run_dir("heading", 1)]);
+    assert_eq!(second.finished.len(), 3);
+    assert_eq!(std::fs::read(run_dir("world", 0).join("test.json")).unwrap(), finished_result, "a done run is not redone");
+    let resumed: serde_json::Value = serde_json::from_slice(&std::fs::read(run_dir("heading", 0).join("test.json")).unwrap()).unwrap();
+    assert_eq!(resumed["iterations"], 3, "the resumed run finished its budget, not more");
+    assert_eq!(resumed["final_policy"]["outcomes"]["deployments"], 40, "40 test tracks × 1 deployment");
+
+    // A third call has nothing left to do.
+    let third = run(&experiment, &out, None);
+    assert_eq!((third.skipped.len(), third.started.len(), third.resumed.len()), (4, 0, 0));
+
+    let o = Command::new(env!("CARGO_BIN_EXE_dronerace"))
+        .args(["experiment", "report", file.to_str().unwrap(), out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    for needle in ["| world | 2 of 2 |", "| heading | 2 of 2 |", "ground", "gate frame"] {
+        assert!(report.contains(needle), "report lacks {needle:?}:\n{report}");
+    }
+    let png = std::fs::read(out.join("curves.png")).unwrap();
+    assert_eq!(&png[1..4], b"PNG");
+}
+
+#[test]
+fn an_experiment_with_an_unknown_override_key_is_refused_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("bad.toml");
+    std::fs::write(&file, FILE.replace("env.observation_frame", "env.observation_fram")).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_dronerace"))
+        .args(["experiment", "run", file.to_str().unwrap(), "--out", dir.path().join("out").to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("observation_fram") && err.contains("bad.toml") && err.contains("heading"), "{err}");
+    assert!(!dir.path().join("out").join("world").exists(), "nothing ran");
+}
+
+#[test]
+fn every_shipped_experiment_file_resolves_for_every_variant() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("experiments");
+    let mut count = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let experiment = Experiment::read(&path).unwrap_or_else(|e| panic!("{e}"));
+            assert!(experiment.variants.len() >= 2, "{}: an experiment compares", path.display());
+            count += 1;
+        }
+    }
+    assert!(count >= 6, "found {count} experiment files");
+}
