@@ -21,6 +21,15 @@ pub enum ActorError {
     /// The weights blob was refused.
     #[error(transparent)]
     Blob(#[from] BlobError),
+    /// The policy reads observations in another frame than the environments write them
+    /// (e.g. a run started before the frame was configurable, resumed by a newer build).
+    #[error("the policy reads {reads:?}-frame observations but the environments write {writes:?}-frame ones")]
+    FrameMismatch {
+        /// Frame of the policy.
+        reads: sim::ObservationFrame,
+        /// Frame of the environments.
+        writes: sim::ObservationFrame,
+    },
     /// An environment index outside this actor's range.
     #[error("environment {env} is not in this actor's range {first}..{end}")]
     UnknownEnv {
@@ -90,7 +99,14 @@ impl Actor {
 
     /// Adopts new weights; later rollouts are tagged with their version.
     pub fn set_weights(&mut self, blob: &WeightsBlob) -> Result<(), ActorError> {
-        self.policy = Some(Policy::from_blob(blob)?);
+        let policy = Policy::from_blob(blob)?;
+        if let Some(env) = self.env.envs().first() {
+            let (reads, writes) = (policy.observation_frame(), env.config().observation_frame);
+            if reads != writes {
+                return Err(ActorError::FrameMismatch { reads, writes });
+            }
+        }
+        self.policy = Some(policy);
         Ok(())
     }
 

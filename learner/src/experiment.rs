@@ -437,8 +437,8 @@ mod tests {
         [[variant]]
         name = "world"
         [[variant]]
-        name = "heading"
-        set = { env.observation_frame = "heading", ppo.batch_size = 64 }
+        name = "body"
+        set = { env.observation_frame = "body", ppo.batch_size = 64 }
     "#;
 
     #[test]
@@ -446,13 +446,13 @@ mod tests {
         let e: Experiment = toml::from_str(FILE).unwrap();
         e.check().unwrap();
         let world = e.config(&e.variants[0], 1).unwrap();
-        let heading = e.config(&e.variants[1], 0).unwrap();
+        let body = e.config(&e.variants[1], 0).unwrap();
         assert_eq!((world.seed, world.total_env_steps, world.ppo.unwrap().n_epochs), (1, 1000, 3));
-        assert_eq!(world.env.observation_frame, sim::ObservationFrame::World);
-        assert_eq!(heading.env.observation_frame, sim::ObservationFrame::Heading);
+        assert_eq!(world.env.observation_frame, sim::EnvConfig::default().observation_frame, "no override: the default");
+        assert_eq!(body.env.observation_frame, sim::ObservationFrame::Body);
         // The nested override kept the base's sibling key.
-        assert_eq!((heading.ppo.unwrap().n_epochs, heading.ppo.unwrap().batch_size), (3, 64));
-        assert_eq!(heading.name, "heading-seed-0");
+        assert_eq!((body.ppo.unwrap().n_epochs, body.ppo.unwrap().batch_size), (3, 64));
+        assert_eq!(body.name, "body-seed-0");
     }
 
     #[test]
@@ -460,7 +460,7 @@ mod tests {
         let mut e: Experiment = toml::from_str(FILE).unwrap();
         e.variants[1].set = toml::from_str("env = { observation_fram = \"heading\" }").unwrap();
         let error = e.check().unwrap_err();
-        assert!(error.contains("observation_fram") && error.contains("heading"), "{error}");
+        assert!(error.contains("observation_fram") && error.contains("body"), "{error}");
         e.variants[1].set = toml::from_str("learning_rate = 0.1").unwrap();
         let error = e.check().unwrap_err();
         assert!(error.contains("learning_rate"), "{error}");
