@@ -80,6 +80,31 @@ fn two_identical_runs_are_identical() {
 }
 
 #[test]
+fn fine_tuning_starts_from_the_given_policy_at_version_zero() {
+    let dir = tempfile::tempdir().unwrap();
+    let (source, tuned) = (dir.path().join("source"), dir.path().join("tuned"));
+    std::fs::create_dir_all(&source).unwrap();
+    std::fs::create_dir_all(&tuned).unwrap();
+    let mut a = Trainer::start(tiny_config(), &source).unwrap();
+    for _ in 0..2 {
+        a.iteration_step().unwrap();
+    }
+    let checkpoint = a.checkpoint().unwrap();
+    let config = TrainConfig { init_from: Some(checkpoint), seed: 11, ..tiny_config() };
+    let b = Trainer::start(config.clone(), &tuned).unwrap();
+    let (from, to) = (a.learner().weights(), b.learner().weights());
+    assert_eq!(b.learner().version(), 0);
+    assert_eq!(b.learner().env_steps(), 0);
+    assert_eq!(to.normalizer, from.normalizer, "the normaliser travels with the weights");
+    let values = |blob: &policy::WeightsBlob| blob.params.iter().map(|p| p.values.clone()).collect::<Vec<_>>();
+    assert!(values(&to) == values(&from), "the network starts as the source policy");
+    // A policy of another shape is refused, naming the file.
+    let paper = TrainConfig { profile: "paper".into(), ..config };
+    let err = Trainer::start(paper, &dir.path().join("paper")).err().expect("refused").to_string();
+    assert!(err.contains("init_from") && err.contains("architecture"), "{err}");
+}
+
+#[test]
 fn a_run_directory_with_checkpoints_is_not_overwritten() {
     let dir = tempfile::tempdir().unwrap();
     let mut t = Trainer::start(tiny_config(), dir.path()).unwrap();

@@ -84,6 +84,18 @@ impl Learner {
         Self { counters, device, model, optimizer }
     }
 
+    /// A fresh learner (version 0, new optimiser) whose network and normaliser start from a
+    /// trained policy: fine-tuning, e.g. the generalist on one track (thesis §3.4.4).
+    pub fn from_policy(profile: Profile, total_env_steps: u64, seed: u64, blob: &WeightsBlob) -> Result<Self, LearnerError> {
+        blob.check_architecture(&profile.architecture).map_err(|e| LearnerError::State(e.to_string()))?;
+        let mut learner = Self::new(profile, total_env_steps, seed);
+        learner.model = Some(blob.model(&learner.device).map_err(|e| LearnerError::State(e.to_string()))?.train());
+        learner.counters.normalizer = blob.normalizer.clone();
+        // Adam's state is keyed by parameter id: start it for the imported parameters.
+        learner.optimizer = adam(&learner.counters.profile);
+        Ok(learner)
+    }
+
     /// Current policy version (number of updates so far).
     pub fn version(&self) -> u64 {
         self.counters.version

@@ -71,7 +71,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
         let profile = run.config().resolved_profile()?;
         let learner = match checkpoint {
             Some(c) => Learner::from_checkpoint(c)?,
-            None => Learner::new(profile.clone(), run.config().total_env_steps, run.config().seed),
+            None => run.config().initial_learner()?,
         };
         // A fresh epoch per process lifetime: versions repeat after a restart, epochs do not.
         let clock = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default().as_nanos() as u64;

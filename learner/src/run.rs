@@ -12,7 +12,7 @@ use taskctl::{SwitchParams, TaskController, TrackGenerator};
 
 use crate::checkpoint::{Checkpoint, CheckpointDir, CheckpointError};
 use crate::config::{PpoConfig, Profile};
-use crate::learner::{IterationReport, LearnerError};
+use crate::learner::{IterationReport, Learner, LearnerError};
 use crate::metrics::{METRICS, MetricsWriter};
 use crate::validation::Validation;
 
@@ -63,6 +63,9 @@ pub struct TrainConfig {
     pub network: proto::NetworkConfig,
     /// Evaluation on the validation set during training.
     pub eval: crate::validation::EvalSettings,
+    /// Start from this trained policy (checkpoint or weights blob) instead of a fresh network:
+    /// fine-tuning. Its architecture must match the profile's.
+    pub init_from: Option<PathBuf>,
 }
 
 impl Default for TrainConfig {
@@ -83,6 +86,7 @@ impl Default for TrainConfig {
             learner: Default::default(),
             network: Default::default(),
             eval: Default::default(),
+            init_from: None,
         }
     }
 }
@@ -114,6 +118,16 @@ impl TrainConfig {
                 let tracks = (0..envs).map(|i| chosen[i % chosen.len()].clone()).collect();
                 TaskController::with_tracks(tracks, self.generator, self.switching, self.seed)?
             }
+        })
+    }
+
+    /// The learner a new run of this configuration starts with: fresh, or from `init_from`.
+    pub fn initial_learner(&self) -> Result<Learner, TrainError> {
+        let profile = self.resolved_profile()?;
+        Ok(match &self.init_from {
+            None => Learner::new(profile, self.total_env_steps, self.seed),
+            Some(path) => Learner::from_policy(profile, self.total_env_steps, self.seed, &crate::checkpoint::read_policy(path)?)
+                .map_err(|e| TrainError::Config(format!("init_from {}: {e}", path.display())))?,
         })
     }
 

@@ -33,7 +33,7 @@ impl Trainer {
         let profile = config.resolved_profile()?;
         let tasks = config.task_controller(profile.envs)?;
         let actor = Actor::new(tasks.tracks(), config.env, config.seed, 0);
-        let learner = Learner::new(profile, config.total_env_steps, config.seed);
+        let learner = config.initial_learner()?;
         let validator = Validator::new(&config.eval)?;
         let run = Run::create(config, dir)?;
         Ok(Self { run, learner, actor, tasks, validator })

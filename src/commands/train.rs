@@ -22,7 +22,7 @@ pub struct TrainArgs {
     #[arg(long)]
     out: Option<PathBuf>,
     /// Continue the run in this directory from its newest checkpoint.
-    #[arg(long, conflicts_with_all = ["config", "out", "profile", "track", "total_env_steps", "seed"])]
+    #[arg(long, conflicts_with_all = ["config", "out", "profile", "track", "total_env_steps", "seed", "init_from"])]
     resume: Option<PathBuf>,
     /// Profile: cpu or paper (overrides the config).
     #[arg(long)]
@@ -36,6 +36,10 @@ pub struct TrainArgs {
     /// Seed (overrides the config).
     #[arg(long)]
     seed: Option<u64>,
+    /// Start from this trained policy (checkpoint or weights blob): fine-tuning. Pair it with
+    /// a lower learning rate in the config's [ppo] section.
+    #[arg(long)]
+    init_from: Option<PathBuf>,
     /// Stop after this many iterations (a checkpoint is written on the way out).
     #[arg(long)]
     iterations: Option<u64>,
@@ -73,6 +77,9 @@ fn prepare(args: &TrainArgs) -> anyhow::Result<(PathBuf, TrainConfig, bool)> {
     }
     if let Some(s) = args.seed {
         config.seed = s;
+    }
+    if let Some(p) = &args.init_from {
+        config.init_from = Some(p.clone());
     }
     config.resolved_profile()?;
     let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("runs").join(&config.name));
