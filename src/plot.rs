@@ -159,8 +159,8 @@ fn draw_view(
     Ok(())
 }
 
-/// Validation S_pw against environment steps: one line per variant (the mean over its seeds at
-/// the steps every seed reached), its seeds' range as a band.
+/// Validation S_pw against environment steps: per variant a thin line per seed, and the mean
+/// over its seeds (bold) with their range as a band where every seed has reached.
 pub fn draw_validation_curves(variants: &[learner::experiment::VariantSummary], out: &Path) -> anyhow::Result<()> {
     register_font();
     let root = BitMapBackend::new(out, (960, 600)).into_drawing_area();
@@ -183,6 +183,10 @@ pub fn draw_validation_curves(variants: &[learner::experiment::VariantSummary], 
                 by_steps.entry(p.env_steps).or_default().push(p.s_pw);
             }
         }
+        for (_, curve) in &variant.curves {
+            let line = curve.iter().map(|p| (p.env_steps as f64 / 1e6, p.s_pw));
+            chart.draw_series(LineSeries::new(line, colour.mix(0.45).stroke_width(1)))?;
+        }
         let seeds = variant.curves.len();
         let rows: Vec<(f64, f64, f64, f64)> = by_steps
             .iter()
@@ -193,7 +197,7 @@ pub fn draw_validation_curves(variants: &[learner::experiment::VariantSummary], 
                 (*x as f64 / 1e6, v.iter().sum::<f64>() / v.len() as f64, lo, hi)
             })
             .collect();
-        if rows.is_empty() {
+        if rows.len() < 2 {
             continue;
         }
         let band: Vec<(f64, f64)> =
