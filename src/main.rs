@@ -20,6 +20,8 @@ enum Command {
     Tracks(commands::tracks::TracksCommand),
     /// Evaluate a controller on a set of tracks (S_pw, success, lap times).
     Eval(commands::eval::EvalArgs),
+    /// Write a checkpoint's policy as a stand-alone weights blob.
+    ExportPolicy(commands::eval::ExportArgs),
     /// Simulator tools: replay action files, measure stepping speed.
     #[command(subcommand)]
     Sim(commands::sim::SimCommand),
@@ -69,6 +71,7 @@ fn main() -> std::process::ExitCode {
     let result = match Cli::parse().command {
         Command::Tracks(c) => commands::tracks::run(c),
         Command::Eval(a) => commands::eval::run(a),
+        Command::ExportPolicy(a) => commands::eval::export(a),
         Command::Sim(c) => commands::sim::run(c),
         Command::Train(a) => commands::train::run(a),
         Command::Experiment(c) => commands::experiment::run(c),

@@ -144,6 +144,24 @@ fn train_resume_and_evaluate_from_the_command_line() {
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(String::from_utf8_lossy(&o.stdout).contains("policy v3"));
+    // The exported weights blob flies exactly as the checkpoint it came from.
+    let table = |json: &Path| {
+        let mut v: serde_json::Value = serde_json::from_slice(&std::fs::read(json).unwrap()).unwrap();
+        v["controller"] = serde_json::Value::Null;
+        v
+    };
+    let from_checkpoint = table(&out.join("eval.json"));
+    let blob = dir.path().join("policy.bin");
+    let o = dronerace(&["export-policy", run.join("checkpoints/ckpt-000000003.bin").to_str().unwrap(), "--out", blob.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = dronerace(&[
+        "eval", "--controller", "policy", "--policy", blob.to_str().unwrap(),
+        "--tracks", Path::new(env!("CARGO_MANIFEST_DIR")).join("tracks/figure8.toml").to_str().unwrap(),
+        "--runs", "2", "--steps", "100", "--out", out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(table(&out.join("eval.json")), from_checkpoint);
+    assert!(std::fs::metadata(&blob).unwrap().len() < std::fs::metadata(run.join("checkpoints/ckpt-000000003.bin")).unwrap().len());
     // A bad config names the field.
     std::fs::write(&config, "profile = \"huge\"\n").unwrap();
     let o = dronerace(&["train", "--config", config.to_str().unwrap(), "--out", dir.path().join("x").to_str().unwrap()]);

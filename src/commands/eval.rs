@@ -77,3 +77,23 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     println!("wrote {} and {}", args.out.join("eval.json").display(), args.out.join("eval.md").display());
     Ok(())
 }
+
+/// Arguments of `dronerace export-policy`.
+#[derive(Args)]
+pub struct ExportArgs {
+    /// Checkpoint (or weights blob) to take the policy from.
+    checkpoint: PathBuf,
+    /// Weights blob to write: architecture, normaliser, version and weights only.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// Writes the policy of a checkpoint as a stand-alone weights blob (what `eval --policy`,
+/// `train --init-from` and actors read), without optimiser, environments or curriculum.
+pub fn export(args: ExportArgs) -> anyhow::Result<()> {
+    let blob = learner::checkpoint::read_policy(&args.checkpoint)?;
+    let bytes = blob.to_bytes();
+    write_atomic(&args.out, &bytes)?;
+    println!("wrote {} (policy v{}, {} bytes)", args.out.display(), blob.version, bytes.len());
+    Ok(())
+}
