@@ -396,14 +396,7 @@ pub fn markdown_report(experiment: &Experiment, summaries: &[VariantSummary]) ->
     for v in summaries {
         let mut total = OutcomeCounts::default();
         for x in &v.results {
-            let o = &x.best_policy.outcomes;
-            total.deployments += o.deployments;
-            total.success += o.success;
-            total.ground += o.ground;
-            total.ceiling += o.ceiling;
-            total.wall += o.wall;
-            total.no_lap += o.no_lap;
-            total.gate.push(o.gate_total());
+            total.merge(&x.best_policy.outcomes);
         }
         let pct = |n: usize| format!("{:.0} %", 100.0 * total.fraction(n));
         let laps: Vec<f64> = v.results.iter().filter_map(|x| x.best_policy.mean_lap).collect();

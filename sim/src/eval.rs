@@ -102,6 +102,22 @@ impl OutcomeCounts {
         }
     }
 
+    /// Adds another set of counts to these (e.g. several seeds' evaluations).
+    pub fn merge(&mut self, other: &OutcomeCounts) {
+        self.deployments += other.deployments;
+        self.success += other.success;
+        self.ground += other.ground;
+        self.ceiling += other.ceiling;
+        self.wall += other.wall;
+        self.no_lap += other.no_lap;
+        if self.gate.len() < other.gate.len() {
+            self.gate.resize(other.gate.len(), 0);
+        }
+        for (mine, theirs) in self.gate.iter_mut().zip(&other.gate) {
+            *mine += theirs;
+        }
+    }
+
     /// Crashes into any gate frame.
     pub fn gate_total(&self) -> usize {
         self.gate.iter().sum()
@@ -371,6 +387,10 @@ mod tests {
         );
         assert_eq!(counts.gate_summary(), "g2 1");
         assert_eq!(counts.deployments, 6);
+        let mut twice = counts.clone();
+        twice.merge(&OutcomeCounts { deployments: 1, gate: vec![0, 0, 0, 1], ..OutcomeCounts::default() });
+        twice.merge(&counts);
+        assert_eq!((twice.deployments, twice.success, twice.gate.clone()), (13, 2, vec![0, 0, 2, 1]));
     }
 
     /// Real flights into the floor and the ceiling end with those causes.
