@@ -213,7 +213,6 @@ struct Progress {
     best_validation: Option<f64>,
 }
 
-
 /// Timing and curriculum figures of one iteration, measured by the loop that ran it.
 #[derive(Clone, Copy, Debug)]
 pub struct IterationTiming {
