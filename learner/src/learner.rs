@@ -91,8 +91,7 @@ impl Learner {
         let mut learner = Self::new(profile, total_env_steps, seed);
         learner.model = Some(blob.model(&learner.device).map_err(|e| LearnerError::State(e.to_string()))?.train());
         learner.counters.normalizer = blob.normalizer.clone();
-        // Adam's state is keyed by parameter id: start it for the imported parameters.
-        learner.optimizer = adam(&learner.counters.profile);
+        // `new`'s optimiser holds no moments yet, so it starts afresh for the imported ids.
         Ok(learner)
     }
 
