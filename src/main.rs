@@ -40,6 +40,8 @@ enum Command {
     Actor(commands::services::ActorArgs),
     /// Measure rollout throughput and weight-broadcast latency of a transport.
     TransportBench(commands::transport_bench::TransportBenchArgs),
+    /// Kill -9 random processes of a training run for minutes, then audit what was lost.
+    Chaos(commands::chaos::ChaosArgs),
     /// Time one PPO gradient step (forward, backward, optimiser) on this machine.
     LearnerBench(commands::train::LearnerBenchArgs),
 }
@@ -63,9 +65,7 @@ fn keep_freed_memory() {
 fn main() -> std::process::ExitCode {
     keep_freed_memory();
     tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
-        )
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
         .with_writer(std::io::stderr)
         .init();
     let result = match Cli::parse().command {
@@ -79,6 +79,7 @@ fn main() -> std::process::ExitCode {
         Command::Learner(a) => commands::services::learner(a),
         Command::Actor(a) => commands::services::actor(a),
         Command::Tasks(a) => commands::tasks::run(a),
+        Command::Chaos(a) => commands::chaos::run(a),
         Command::LearnerBench(a) => commands::train::bench(a),
         Command::TransportBench(a) => commands::transport_bench::run(a),
     };

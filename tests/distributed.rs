@@ -20,7 +20,19 @@ fn one_command_run(transport: &str) {
     let mut train = Proc::start(
         tmp.path(),
         "train",
-        &args(&["train", "--config", config.to_str().unwrap(), "--out", out.to_str().unwrap(), "--actors", "2", "--iterations", "3", "--transport", transport]),
+        &args(&[
+            "train",
+            "--config",
+            config.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--actors",
+            "2",
+            "--iterations",
+            "3",
+            "--transport",
+            transport,
+        ]),
     );
     let status = train.wait_exit(3 * MINUTE);
     let log = train.output();
@@ -55,26 +67,92 @@ fn processes_mentioning(needle: &str) -> Vec<String> {
         .collect()
 }
 
-#[test]
-fn ctrl_c_checkpoints_and_stops_every_process_leaving_no_shared_memory() {
+/// Starts `dronerace train`, stops it with `signal` (to the supervisor alone or to its whole
+/// process group, as a terminal's Ctrl-C does) and checks one clean stop: no restart, one
+/// checkpoint of the last iteration, every process gone, no shared memory left.
+fn stops_cleanly(signal: libc::c_int, whole_group: bool) {
     let _serial = serial();
     let tmp = tempfile::tempdir().unwrap();
     let config = write_config(tmp.path(), "");
     let out = tmp.path().join("run");
     let shm_before = shm_files();
-    let mut train = Proc::start(tmp.path(), "train", &args(&["train", "--config", config.to_str().unwrap(), "--out", out.to_str().unwrap(), "--actors", "2"]));
+    let mut train = Proc::start(
+        tmp.path(),
+        "train",
+        &args(&["train", "--config", config.to_str().unwrap(), "--out", out.to_str().unwrap(), "--actors", "2"]),
+    );
     wait_until(2 * MINUTE, "two iterations", &[&train], || metrics_rows(&out).len() >= 2);
     // The supervisor, the task controller, the learner and two actors all name the run directory.
     assert_eq!(processes_mentioning(out.to_str().unwrap()).len(), 5, "{:?}", processes_mentioning(out.to_str().unwrap()));
-    let status = train.interrupt();
-    assert!(status.success(), "{}", train.output());
+    let status = train.signal(signal, whole_group);
     let log = train.output();
-    assert!(log.contains("learner: checkpoint written"), "{log}");
+    assert!(status.success(), "{log}");
+    assert!(!log.contains("restarting") && !log.contains("exited ("), "a shutdown looked like a crash:\n{log}");
+    assert_eq!(log.matches("learner: checkpoint written").count(), 1, "one checkpoint, on the way out:\n{log}");
     let last = metrics_rows(&out).last().unwrap().0;
     assert!(out.join(format!("checkpoints/ckpt-{last:09}.bin")).exists(), "the checkpoint of iteration {last}:\n{log}");
     assert!(processes_mentioning(out.to_str().unwrap()).is_empty(), "processes left running");
     let left: Vec<String> = shm_files().into_iter().filter(|f| !shm_before.contains(f)).collect();
     assert!(left.is_empty(), "shared memory left behind: {left:?}");
+}
+
+#[test]
+fn ctrl_c_to_the_supervisor_checkpoints_and_stops_every_process_leaving_no_shared_memory() {
+    stops_cleanly(libc::SIGINT, false);
+}
+
+#[test]
+fn ctrl_c_in_a_terminal_signals_the_whole_group_and_still_stops_once_without_restarts() {
+    stops_cleanly(libc::SIGINT, true);
+}
+
+#[test]
+fn sigterm_to_the_whole_group_stops_once_without_restarts() {
+    stops_cleanly(libc::SIGTERM, true);
+}
+
+#[test]
+fn sigterm_to_the_supervisor_stops_once_without_restarts() {
+    stops_cleanly(libc::SIGTERM, false);
+}
+
+/// The chaos command's CI version: one minute of kill -9 every 6 s under training load.
+#[test]
+fn a_short_chaos_run_loses_no_report_and_leaves_readable_checkpoints_and_no_shared_memory() {
+    let _serial = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let config = write_config(tmp.path(), "");
+    let out = tmp.path().join("run");
+    let mut chaos = Proc::start(
+        tmp.path(),
+        "chaos",
+        &args(&[
+            "chaos",
+            "--config",
+            config.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--minutes",
+            "1",
+            "--every",
+            "6",
+            "--seed",
+            "3",
+        ]),
+    );
+    let status = chaos.wait_exit(6 * MINUTE);
+    let log = format!("{}\n{}", chaos.output(), std::fs::read_to_string(out.join("chaos-train.log")).unwrap_or_default());
+    assert!(status.success(), "{log}");
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("chaos.json")).unwrap()).unwrap();
+    let faults: u64 = report["faults"].as_object().unwrap().values().map(|n| n.as_u64().unwrap()).sum();
+    assert!(faults >= 9, "{report}");
+    assert_eq!(report["reports_lost"], 0, "{report}");
+    assert!(report["reports_acknowledged"].as_u64().unwrap() > 0, "{report}");
+    assert!(report["checkpoints"].as_u64().unwrap() >= 1, "{report}");
+    assert_eq!(report["checkpoints_readable"], report["checkpoints"], "{report}");
+    assert_eq!(report["clean_exit"], true, "{report}");
+    assert_eq!(report["shm_left"].as_array().unwrap().len(), 0, "{report}");
+    assert!(report["iteration_at_end"].as_u64() > report["iteration_at_start"].as_u64(), "training went on under the faults: {report}");
 }
 
 /// Hand-started processes of one run (so tests can kill and restart each).
@@ -107,7 +185,11 @@ impl Cluster {
 
     fn taskctl(&self) -> Proc {
         let snapshot = self.dir.join("taskctl.snapshot").display().to_string();
-        Proc::start(&self.dir, "taskctl", &args(&["taskctl", "--config", &self.config, "--listen", &self.taskctl_addr, "--snapshot", &snapshot]))
+        Proc::start(
+            &self.dir,
+            "taskctl",
+            &args(&["taskctl", "--config", &self.config, "--listen", &self.taskctl_addr, "--snapshot", &snapshot]),
+        )
     }
 
     fn learner(&self) -> Proc {
@@ -115,8 +197,21 @@ impl Cluster {
             &self.dir,
             "learner",
             &args(&[
-                "learner", "--config", &self.config, "--out", &self.out, "--listen", &self.learner_addr, "--transport", self.transport,
-                "--shm-run", &self.shm_run, "--actors", "2", "--taskctl", &self.taskctl_url(),
+                "learner",
+                "--config",
+                &self.config,
+                "--out",
+                &self.out,
+                "--listen",
+                &self.learner_addr,
+                "--transport",
+                self.transport,
+                "--shm-run",
+                &self.shm_run,
+                "--actors",
+                "2",
+                "--taskctl",
+                &self.taskctl_url(),
             ]),
         )
     }
@@ -126,8 +221,23 @@ impl Cluster {
             &self.dir,
             name,
             &args(&[
-                "actor", "--config", &self.config, "--name", name, "--envs", "4", "--taskctl", &self.taskctl_url(), "--transport",
-                self.transport, "--learner", &self.learner_url(), "--shm-run", &self.shm_run, "--max-actors", "2",
+                "actor",
+                "--config",
+                &self.config,
+                "--name",
+                name,
+                "--envs",
+                "4",
+                "--taskctl",
+                &self.taskctl_url(),
+                "--transport",
+                self.transport,
+                "--learner",
+                &self.learner_url(),
+                "--shm-run",
+                &self.shm_run,
+                "--max-actors",
+                "2",
             ]),
         )
     }
@@ -200,7 +310,11 @@ fn a_killed_learner_resumes_from_its_checkpoint_and_the_running_actors_reconnect
     wait_until(MINUTE, "the restarted learner to answer", &[&learner], || clients.status(&c.learner_url()).is_some());
     let after = clients.status(&c.learner_url()).unwrap();
     assert_ne!(after.learner_epoch, before.learner_epoch);
-    assert!(after.iteration + 1 >= checkpointed && after.iteration >= 3, "resumed at {} (checkpoints up to {checkpointed})", after.iteration);
+    assert!(
+        after.iteration + 1 >= checkpointed && after.iteration >= 3,
+        "resumed at {} (checkpoints up to {checkpointed})",
+        after.iteration
+    );
     let resumed_at = after.iteration;
     // The same actor processes (never restarted) feed the new learner.
     wait_until(MINUTE, "3 iterations with the new learner", &[&learner, &a0, &a1], || iteration(&clients, &c) >= resumed_at + 3);
@@ -236,8 +350,7 @@ fn a_killed_task_controller_restores_its_snapshot_and_loses_no_report() {
     let at = iteration(&clients, &c);
     wait_until(MINUTE, "new reports and iterations", &[&taskctl, &learner, &a0, &a1], || {
         let now = tasks.list_tasks().unwrap_or_default();
-        iteration(&clients, &c) >= at + 3
-            && now.iter().zip(acknowledged.slots()).all(|(t, s)| t.last_rollout > s.last_iteration)
+        iteration(&clients, &c) >= at + 3 && now.iter().zip(acknowledged.slots()).all(|(t, s)| t.last_rollout > s.last_iteration)
     });
     // The command-line view of the same state: one row per environment, with its actor.
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_dronerace")).args(["tasks", "--taskctl", &c.taskctl_url()]).output().unwrap();
@@ -256,7 +369,9 @@ fn bad_messages_are_refused_with_a_clear_status() {
     let c = Cluster::new(tmp.path(), "grpc", &format!("\n[network]\ntoken_file = {token:?}\n"));
     let _taskctl = c.taskctl();
     let learner = c.learner();
-    let authed = Clients::new(proto::Security::load(&proto::NetworkConfig { token_file: Some(token.clone().into()), ..Default::default() }).unwrap());
+    let authed = Clients::new(
+        proto::Security::load(&proto::NetworkConfig { token_file: Some(token.clone().into()), ..Default::default() }).unwrap(),
+    );
     let anonymous = Clients::new(proto::Security::default());
     wait_until(MINUTE, "the learner", &[&learner], || authed.status(&c.learner_url()).is_some());
 

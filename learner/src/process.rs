@@ -67,7 +67,13 @@ pub struct LearnerProcess<L: LearnerLink> {
 impl<L: LearnerLink> LearnerProcess<L> {
     /// A learner for `run`, continuing from `checkpoint` when there is one, then publishing
     /// its weights.
-    pub fn start(run: Run, checkpoint: Option<&Checkpoint>, link: L, shared: Arc<LearnerShared>, settings: LearnerSettings) -> Result<Self, TrainError> {
+    pub fn start(
+        run: Run,
+        checkpoint: Option<&Checkpoint>,
+        link: L,
+        shared: Arc<LearnerShared>,
+        settings: LearnerSettings,
+    ) -> Result<Self, TrainError> {
         let profile = run.config().resolved_profile()?;
         let learner = match checkpoint {
             Some(c) => Learner::from_checkpoint(c)?,
@@ -166,7 +172,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
                     }
                     Err(refusal) => {
                         self.shared.count_refused();
-                        tracing::info!(actor = %d.actor, "rollout not used: {refusal}");
+                        tracing::info!(actor = %d.actor, reason = refusal.kind(), "rollout not used: {refusal}");
                     }
                 }
             }

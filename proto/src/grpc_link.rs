@@ -3,9 +3,12 @@
 //! training loop and answers `Status`.
 
 use std::pin::Pin;
+use std::sync::Arc;
 use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError};
-use std::sync::{Arc, Mutex};
 use std::time::Duration;
+
+// parking_lot's lock does not poison: a panic in one request cannot fail every later one.
+use parking_lot::Mutex;
 
 use policy::RolloutChunk;
 use prost::bytes::Bytes;
@@ -78,7 +81,7 @@ async fn watch_weights(mut client: AuthedLearnerClient, newest: Arc<Mutex<Option
                                     max_policy_lag: p.max_policy_lag,
                                     blob,
                                 };
-                                *newest.lock().expect("weights slot") = Some(update);
+                                *newest.lock() = Some(update);
                             }
                             Ok(None) => {}
                             Err(e) => {
@@ -121,7 +124,7 @@ impl ActorLink for GrpcActorLink {
     }
 
     fn newest_weights(&mut self) -> Result<Option<WeightsUpdate>, LinkError> {
-        Ok(self.newest.lock().expect("weights slot").take())
+        Ok(self.newest.lock().take())
     }
 }
 
@@ -136,12 +139,12 @@ pub struct LearnerShared {
 impl LearnerShared {
     /// Rollouts the service lets through from now on.
     pub fn set_admission(&self, admission: Admission) {
-        *self.admission.lock().expect("admission") = Some(admission);
+        *self.admission.lock() = Some(admission);
     }
 
     /// Replaces the status `Status` answers with (the refused-chunk count is added on answering).
     pub fn set_status(&self, status: v1::StatusResponse) {
-        *self.status.lock().expect("status") = status;
+        *self.status.lock() = status;
     }
 
     /// Counts a rollout the training loop refused.
@@ -150,7 +153,7 @@ impl LearnerShared {
     }
 
     fn check(&self, actor: &str, epoch: u64, chunk: &RolloutChunk) -> Result<(), Status> {
-        let admission = *self.admission.lock().expect("admission");
+        let admission = *self.admission.lock();
         let Some(admission) = admission else { return Err(Status::unavailable("the learner is starting")) };
         admission.check(actor, epoch, chunk).map_err(|r| {
             self.count_refused();
@@ -301,8 +304,30 @@ impl Learner for LearnerService {
     }
 
     async fn status(&self, _: Request<v1::StatusRequest>) -> Result<Response<v1::StatusResponse>, Status> {
-        let mut status = self.shared.status.lock().expect("status").clone();
+        let mut status = self.shared.status.lock().clone();
         status.refused_chunks += self.shared.refused.load(std::sync::atomic::Ordering::Relaxed);
         Ok(Response::new(status))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A thread that panics while holding the status lock must not fail later requests.
+    #[test]
+    fn a_panic_while_holding_a_lock_does_not_break_later_requests() {
+        let (service, shared) = LearnerService::status_only();
+        let holder = shared.clone();
+        let crashed = std::thread::spawn(move || {
+            let _held = holder.status.lock();
+            panic!("bug while holding the lock");
+        })
+        .join();
+        assert!(crashed.is_err());
+        shared.set_status(v1::StatusResponse { iteration: 3, ..Default::default() });
+        let rt = tokio::runtime::Builder::new_current_thread().build().unwrap();
+        let status = rt.block_on(service.status(Request::new(v1::StatusRequest {}))).unwrap().into_inner();
+        assert_eq!(status.iteration, 3);
     }
 }

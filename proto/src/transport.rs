@@ -83,7 +83,9 @@ pub enum Refusal {
     #[error("malformed rollout: {0}")]
     Malformed(String),
     /// Collected with weights of another learner lifetime, or too old, or from the future.
-    #[error("rollout of policy version {version} (learner epoch {epoch:#x}) while training version {current} (epoch {current_epoch:#x}, max_policy_lag {lag})")]
+    #[error(
+        "rollout of policy version {version} (learner epoch {epoch:#x}) while training version {current} (epoch {current_epoch:#x}, max_policy_lag {lag})"
+    )]
     WrongVersion {
         /// Version in the rollout.
         version: u64,
@@ -96,6 +98,20 @@ pub enum Refusal {
         /// Allowed lag.
         lag: u32,
     },
+}
+
+impl Refusal {
+    /// A short, stable name of the reason (for logs and counts): `malformed`,
+    /// `other_learner_epoch` (collected for a learner that has since restarted), `too_old` or
+    /// `future_version`.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Self::Malformed(_) => "malformed",
+            Self::WrongVersion { epoch, current_epoch, .. } if epoch != current_epoch => "other_learner_epoch",
+            Self::WrongVersion { version, current, .. } if version > current => "future_version",
+            Self::WrongVersion { .. } => "too_old",
+        }
+    }
 }
 
 impl Admission {
@@ -143,14 +159,14 @@ mod tests {
     fn admission_takes_versions_within_the_lag_of_this_epoch_only() {
         let sync = Admission { learner_epoch: 7, version: 10, max_policy_lag: 0, observation_dim: 3, action_dim: 2, total_envs: 4 };
         assert_eq!(sync.check("a", 7, &chunk(10, 2)), Ok(()));
-        assert!(matches!(sync.check("a", 7, &chunk(9, 2)), Err(Refusal::WrongVersion { .. })));
-        assert!(matches!(sync.check("a", 7, &chunk(11, 2)), Err(Refusal::WrongVersion { .. })));
-        assert!(matches!(sync.check("a", 8, &chunk(10, 2)), Err(Refusal::WrongVersion { .. })));
+        assert_eq!(sync.check("a", 7, &chunk(9, 2)).map_err(|r| r.kind()), Err("too_old"));
+        assert_eq!(sync.check("a", 7, &chunk(11, 2)).map_err(|r| r.kind()), Err("future_version"));
+        assert_eq!(sync.check("a", 8, &chunk(10, 2)).map_err(|r| r.kind()), Err("other_learner_epoch"));
         let lagged = Admission { max_policy_lag: 2, ..sync };
         assert_eq!(lagged.check("a", 7, &chunk(8, 0)), Ok(()));
         assert!(matches!(lagged.check("a", 7, &chunk(7, 0)), Err(Refusal::WrongVersion { .. })));
         assert!(matches!(sync.check("a", 7, &chunk(10, 3)), Err(Refusal::Malformed(m)) if m.contains("not all known")));
-        assert!(matches!(sync.check("a b", 7, &chunk(10, 0)), Err(Refusal::Malformed(_))));
+        assert_eq!(sync.check("a b", 7, &chunk(10, 0)).map_err(|r| r.kind()), Err("malformed"));
         let mut short = chunk(10, 0);
         short.rewards.pop();
         assert!(matches!(sync.check("a", 7, &short), Err(Refusal::Malformed(m)) if m.contains("rewards")));

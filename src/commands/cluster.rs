@@ -1,8 +1,10 @@
 //! `dronerace train` on one machine: starts the task controller, the learner and N actor
 //! processes (iceoryx2 between actors and learner), supervises them — a crashed process is
 //! restarted and picks up where it was (actors re-register, the learner resumes from its
-//! checkpoint, the task controller from its snapshot) — and on Ctrl-C stops them in order
-//! (actors, then the learner, which checkpoints, then the task controller).
+//! checkpoint, the task controller from its snapshot) — and on Ctrl-C or SIGTERM (to it alone
+//! or to its whole process group) stops them in order (actors, then the learner, which
+//! checkpoints, then the task controller). Children run in process groups of their own, so
+//! only the supervisor hears a terminal's Ctrl-C.
 
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
@@ -41,7 +43,10 @@ struct Supervised {
 fn spawn(args: &[String], envs: &[(String, String)]) -> anyhow::Result<Child> {
     let exe = std::env::current_exe().context("locating the dronerace executable")?;
     let mut command = Command::new(exe);
-    command.args(args).stdin(Stdio::null());
+    // A process group of its own: Ctrl-C in a terminal signals the whole foreground group, and
+    // children that stopped on their own would look crashed and be restarted. Only the
+    // supervisor hears it, and stops them in order.
+    std::os::unix::process::CommandExt::process_group(command.args(args).stdin(Stdio::null()), 0);
     // A supervisor killed with -9 must not leave its children running unsupervised.
     #[cfg(target_os = "linux")]
     {
@@ -144,7 +149,15 @@ pub fn run(plan: ClusterPlan) -> anyhow::Result<()> {
 
     let mut taskctl = Supervised::start(
         "taskctl",
-        vec![s("taskctl"), s("--config"), config.clone(), s("--listen"), taskctl_addr.to_string(), s("--snapshot"), plan.dir.join("taskctl.snapshot").display().to_string()],
+        vec![
+            s("taskctl"),
+            s("--config"),
+            config.clone(),
+            s("--listen"),
+            taskctl_addr.to_string(),
+            s("--snapshot"),
+            plan.dir.join("taskctl.snapshot").display().to_string(),
+        ],
         vec![],
     )?;
     wait_for_port(taskctl_addr, &mut taskctl)?;
@@ -204,8 +217,13 @@ pub fn run(plan: ClusterPlan) -> anyhow::Result<()> {
     );
 
     let mut outcome = Ok(());
-    while !stop.load(Ordering::SeqCst) {
+    // An exit seen after a stop was requested is part of the stop, never a crash.
+    let stopping = || stop.load(Ordering::SeqCst);
+    while !stopping() {
         std::thread::sleep(Duration::from_millis(100));
+        if stopping() {
+            break;
+        }
         if let Some(status) = learner.exited() {
             if status.success() {
                 break;

@@ -1,5 +1,6 @@
 //! One module per subcommand: argument types and the glue that calls the crates.
 
+pub mod chaos;
 pub mod cluster;
 pub mod eval;
 pub mod experiment;
@@ -13,8 +14,8 @@ pub mod transport_bench;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use anyhow::Context;
 use ::sim::Track;
+use anyhow::Context;
 
 /// Tracks from files and directories of `*.toml`; the built-in library when `paths` is empty.
 pub fn load_tracks(paths: &[PathBuf]) -> anyhow::Result<Vec<Arc<Track>>> {

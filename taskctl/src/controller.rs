@@ -208,12 +208,7 @@ impl TaskController {
     }
 
     /// Environments start on the given tracks (e.g. one library track for single-track PPO).
-    pub fn with_tracks(
-        tracks: Vec<Arc<Track>>,
-        generator: TrackGenerator,
-        switching: SwitchParams,
-        seed: u64,
-    ) -> Result<Self, TaskError> {
+    pub fn with_tracks(tracks: Vec<Arc<Track>>, generator: TrackGenerator, switching: SwitchParams, seed: u64) -> Result<Self, TaskError> {
         if tracks.is_empty() {
             return Err(TaskError::NoEnvironments);
         }
@@ -284,11 +279,8 @@ impl TaskController {
             return Err(TaskError::NoRoom { actor: actor.into(), envs, free, total });
         }
         // Environments keep their rollout history: an actor taking over a range continues after it.
-        let next_rollout = self.state.slots[first_env..first_env + envs]
-            .iter()
-            .filter_map(|s| s.last_iteration)
-            .max()
-            .map_or(0, |last| last + 1);
+        let next_rollout =
+            self.state.slots[first_env..first_env + envs].iter().filter_map(|s| s.last_iteration).max().map_or(0, |last| last + 1);
         let range = ActorRange { actor: actor.into(), first_env, envs, next_rollout };
         self.state.actors.push(range.clone());
         Ok(range)
@@ -306,6 +298,12 @@ impl TaskController {
         }
         if let Some((i, &reward)) = rewards.iter().enumerate().find(|(_, r)| !r.is_finite()) {
             return Err(TaskError::NotFinite { env: range.first_env + i, reward });
+        }
+        if rollout > range.next_rollout {
+            // Actors number reports consecutively and count one only once it is acknowledged:
+            // a gap means acknowledged reports were not in the state this controller restored.
+            let lost = rollout - range.next_rollout;
+            tracing::error!(actor, lost, "acknowledged reports lost: report {rollout} follows {}", range.next_rollout);
         }
         let first_env = range.first_env;
         let mut switches = Vec::new();
@@ -364,8 +362,7 @@ impl TaskController {
 
     /// Writes [`TaskController::to_snapshot_bytes`] atomically: a temporary file, fsync, rename.
     pub fn snapshot(&self, path: &Path) -> Result<(), SnapshotError> {
-        crate::files::write_atomic(path, &self.to_snapshot_bytes())
-            .map_err(|source| SnapshotError::Io { file: path.to_path_buf(), source })
+        crate::files::write_atomic(path, &self.to_snapshot_bytes()).map_err(|source| SnapshotError::Io { file: path.to_path_buf(), source })
     }
 
     /// Reads a snapshot file, refusing anything truncated, altered or of another format.

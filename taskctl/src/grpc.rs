@@ -5,7 +5,7 @@
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::pin::Pin;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use proto::convert::track_to_proto;
 use proto::security::MAX_MESSAGE_BYTES;
@@ -20,7 +20,9 @@ use crate::controller::{EnvSlot, SwitchEvent, TaskController, TaskError};
 
 /// The service: the controller, where its snapshot goes, and the event feed.
 pub struct TaskControllerService {
-    controller: Arc<Mutex<TaskController>>,
+    /// An async lock: a request that panics cannot poison it for the ones after, and it may be
+    /// held across the snapshot write, which runs on the blocking pool.
+    controller: Arc<tokio::sync::Mutex<TaskController>>,
     snapshot: PathBuf,
     events: broadcast::Sender<v1::TaskEvent>,
 }
@@ -65,7 +67,7 @@ fn task(controller: &TaskController, env: usize, slot: &EnvSlot) -> v1::Task {
 impl TaskControllerService {
     /// Serves `controller`, writing its snapshot to `snapshot` after every change.
     pub fn new(controller: TaskController, snapshot: PathBuf) -> Self {
-        Self { controller: Arc::new(Mutex::new(controller)), snapshot, events: broadcast::channel(1024).0 }
+        Self { controller: Arc::new(tokio::sync::Mutex::new(controller)), snapshot, events: broadcast::channel(1024).0 }
     }
 
     /// The tonic server with message limits.
@@ -74,12 +76,17 @@ impl TaskControllerService {
     }
 
     /// Applies `change` to a copy, persists the copy, then makes it current: a change is either
-    /// durable and visible, or neither.
-    fn change<T>(&self, change: impl FnOnce(&mut TaskController) -> Result<T, TaskError>) -> Result<(T, TaskController), Status> {
-        let mut guard = self.controller.lock().expect("controller lock");
+    /// durable and visible, or neither. Changes are serialised by the lock; the fsync runs off
+    /// the async executor.
+    async fn change<T>(&self, change: impl FnOnce(&mut TaskController) -> Result<T, TaskError>) -> Result<(T, TaskController), Status> {
+        let mut guard = self.controller.lock().await;
         let mut next = guard.clone();
         let out = change(&mut next).map_err(status)?;
-        next.snapshot(&self.snapshot).map_err(|e| Status::internal(e.to_string()))?;
+        let (path, bytes) = (self.snapshot.clone(), next.to_snapshot_bytes());
+        tokio::task::spawn_blocking(move || crate::files::write_atomic(&path, &bytes))
+            .await
+            .map_err(|e| Status::internal(format!("snapshot writer: {e}")))?
+            .map_err(|e| Status::internal(format!("{}: {e}", self.snapshot.display())))?;
         *guard = next.clone();
         Ok((out, next))
     }
@@ -92,7 +99,7 @@ impl TaskControllerRpc for TaskControllerService {
     async fn register(&self, request: Request<v1::RegisterRequest>) -> Result<Response<v1::RegisterResponse>, Status> {
         let r = request.into_inner();
         check_actor_name(&r.actor).map_err(Status::invalid_argument)?;
-        let (range, controller) = self.change(|c| c.register(&r.actor, r.envs as usize))?;
+        let (range, controller) = self.change(|c| c.register(&r.actor, r.envs as usize)).await?;
         let tracks = controller.slots()[range.first_env..range.first_env + range.envs].iter().map(|s| track_to_proto(&s.track)).collect();
         let event = v1::task_event::Event::Registered(v1::ActorRegistered {
             actor: range.actor.clone(),
@@ -105,34 +112,36 @@ impl TaskControllerRpc for TaskControllerService {
 
     async fn report(&self, request: Request<v1::ReportRequest>) -> Result<Response<v1::ReportResponse>, Status> {
         let r = request.into_inner();
-        let history_before = self.controller.lock().expect("controller lock").history().len();
-        let (switches, controller) = self.change(|c| c.report_rollout(&r.actor, r.rollout, &r.cumulative_rewards))?;
+        let ((switches, history_before), controller) = self
+            .change(|c| {
+                let history_before = c.history().len();
+                c.report_rollout(&r.actor, r.rollout, &r.cumulative_rewards).map(|s| (s, history_before))
+            })
+            .await?;
         for e in &controller.history()[history_before..] {
             let _ = self.events.send(v1::TaskEvent { event: Some(v1::task_event::Event::Switched(switch_event(e))) });
         }
-        let switches = switches
-            .into_iter()
-            .map(|(env, track)| v1::Assignment { env: env as u32, track: Some(track_to_proto(&track)) })
-            .collect();
+        let switches =
+            switches.into_iter().map(|(env, track)| v1::Assignment { env: env as u32, track: Some(track_to_proto(&track)) }).collect();
         Ok(Response::new(v1::ReportResponse { switches }))
     }
 
     async fn get_task(&self, request: Request<v1::GetTaskRequest>) -> Result<Response<v1::Task>, Status> {
         let env = request.into_inner().env as usize;
-        let c = self.controller.lock().expect("controller lock");
+        let c = self.controller.lock().await;
         let slot = c.slots().get(env).ok_or_else(|| status(TaskError::UnknownEnv { env, envs: c.len() }))?;
         Ok(Response::new(task(&c, env, slot)))
     }
 
     async fn list_tasks(&self, _: Request<v1::ListTasksRequest>) -> Result<Response<v1::ListTasksResponse>, Status> {
-        let c = self.controller.lock().expect("controller lock");
+        let c = self.controller.lock().await;
         let tasks = c.slots().iter().enumerate().map(|(env, slot)| task(&c, env, slot)).collect();
         Ok(Response::new(v1::ListTasksResponse { tasks }))
     }
 
     async fn get_switch_history(&self, request: Request<v1::SwitchHistoryRequest>) -> Result<Response<v1::SwitchHistoryResponse>, Status> {
         let from = request.into_inner().from;
-        let c = self.controller.lock().expect("controller lock");
+        let c = self.controller.lock().await;
         let events = c.history().iter().skip(usize::try_from(from).unwrap_or(usize::MAX)).map(switch_event).collect();
         Ok(Response::new(v1::SwitchHistoryResponse { events }))
     }
@@ -189,4 +198,34 @@ pub async fn serve(
         .serve_with_shutdown(addr, shutdown)
         .await?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::generator::TrackGenerator;
+    use crate::switching::SwitchParams;
+
+    /// A request whose handler panics mid-change must leave the service usable: the lock is
+    /// not poisoned, the state is the one before the failed change, later changes persist.
+    #[test]
+    fn a_request_that_panics_does_not_break_the_ones_after() {
+        let dir = tempfile::tempdir().unwrap();
+        let controller = TaskController::new(4, TrackGenerator::default(), SwitchParams::default(), 5).unwrap();
+        let service = Arc::new(TaskControllerService::new(controller, dir.path().join("snapshot")));
+        let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+        rt.block_on(async {
+            let panicking = service.clone();
+            let crashed =
+                tokio::spawn(async move { panicking.change(|_| -> Result<(), TaskError> { panic!("handler bug") }).await.map(|_| ()) })
+                    .await;
+            assert!(crashed.is_err_and(|e| e.is_panic()));
+            let registered = service.register(Request::new(v1::RegisterRequest { actor: "a".into(), envs: 4 })).await.unwrap().into_inner();
+            assert_eq!(registered.tracks.len(), 4);
+            let listed = service.list_tasks(Request::new(v1::ListTasksRequest {})).await.unwrap().into_inner();
+            assert_eq!(listed.tasks.len(), 4);
+        });
+        let restored = TaskController::restore(&dir.path().join("snapshot")).unwrap();
+        assert_eq!(restored.slots().len(), 4, "the change after the panic was persisted");
+    }
 }

@@ -71,6 +71,9 @@ impl Proc {
             c.args(&wrapper[1..]).arg(exe);
             c
         };
+        // A process group of its own, as a shell gives a foreground job: tests can signal the
+        // group as a terminal's Ctrl-C does, without signalling the test harness.
+        std::os::unix::process::CommandExt::process_group(&mut command, 0);
         let child = command.args(args).stdin(Stdio::null()).stdout(Stdio::null()).stderr(err).spawn().unwrap();
         Self { name: name.into(), child, log }
     }
@@ -90,6 +93,15 @@ impl Proc {
     pub fn interrupt(&mut self) -> std::process::ExitStatus {
         // SAFETY: kill(2) on our own child.
         unsafe { libc::kill(self.child.id() as libc::pid_t, libc::SIGINT) };
+        self.child.wait().unwrap()
+    }
+
+    /// Sends `signal` to the process alone, or to its whole process group (a terminal's
+    /// Ctrl-C), then waits for the exit status.
+    pub fn signal(&mut self, signal: libc::c_int, whole_group: bool) -> std::process::ExitStatus {
+        let pid = self.child.id() as libc::pid_t;
+        // SAFETY: kill(2) on our own child or on the process group it leads.
+        unsafe { libc::kill(if whole_group { -pid } else { pid }, signal) };
         self.child.wait().unwrap()
     }
 
