@@ -86,8 +86,10 @@ impl Checkpoint {
         }
         let mut at = MAGIC.len();
         let mut take = |n: usize| -> Result<&[u8], CheckpointError> {
-            let slice = body.get(at..at + n).ok_or_else(|| corrupt("section runs past the end"))?;
-            at += n;
+            // A corrupt length may be near usize::MAX: the end is computed without overflow.
+            let end = at.checked_add(n).filter(|&end| end <= body.len()).ok_or_else(|| corrupt("section runs past the end"))?;
+            let slice = &body[at..end];
+            at = end;
             Ok(slice)
         };
         let count = u32::from_le_bytes(take(4)?.try_into().expect("4 bytes"));
@@ -103,8 +105,7 @@ impl Checkpoint {
 
     /// Writes atomically (a crash leaves the previous file intact).
     pub fn write(&self, path: &Path) -> Result<(), CheckpointError> {
-        taskctl::files::write_atomic(path, &self.to_bytes())
-            .map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })
+        taskctl::files::write_atomic(path, &self.to_bytes()).map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })
     }
 
     /// Reads and verifies a checkpoint file.
@@ -129,9 +130,8 @@ impl CheckpointDir {
 
     /// Periodic checkpoints, oldest first.
     pub fn periodic(&self) -> Vec<PathBuf> {
-        let mut files: Vec<PathBuf> = std::fs::read_dir(&self.dir)
-            .map(|entries| entries.filter_map(|e| e.ok().map(|e| e.path())).collect())
-            .unwrap_or_default();
+        let mut files: Vec<PathBuf> =
+            std::fs::read_dir(&self.dir).map(|entries| entries.filter_map(|e| e.ok().map(|e| e.path())).collect()).unwrap_or_default();
         files.retain(|p| p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("ckpt-") && n.ends_with(".bin")));
         files.sort();
         files

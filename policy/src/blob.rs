@@ -128,15 +128,15 @@ impl WeightsBlob {
         }
         let version = r.u64()?;
         let arch_len = r.u32()? as usize;
-        let architecture: Architecture = serde_json::from_slice(r.take(arch_len)?)
-            .map_err(|e| BlobError::Malformed(format!("architecture: {e}")))?;
+        let architecture: Architecture =
+            serde_json::from_slice(r.take(arch_len)?).map_err(|e| BlobError::Malformed(format!("architecture: {e}")))?;
         let dim = r.u32()? as usize;
         let (count, clip, epsilon) = (r.f64()?, r.f64()?, r.f64()?);
         let mean = (0..dim).map(|_| r.f64()).collect::<Result<_, _>>()?;
         let var = (0..dim).map(|_| r.f64()).collect::<Result<_, _>>()?;
         let normalizer = ObsNormalizer { mean, var, count, clip, epsilon };
         let count = r.u32()? as usize;
-        let mut params = Vec::with_capacity(count);
+        let mut params = Vec::with_capacity(r.capacity_for(count, 9)); // id u64 + rank u8 at least
         for _ in 0..count {
             let id = r.u64()?;
             let rank = r.u8()? as usize;

@@ -31,6 +31,12 @@ impl<'a> Reader<'a> {
         Ok(slice)
     }
 
+    /// A capacity to reserve for `count` items of at least `min_bytes` each: never more than
+    /// the remaining input can hold, whatever a corrupt count field says.
+    pub fn capacity_for(&self, count: usize, min_bytes: usize) -> usize {
+        count.min(self.remaining() / min_bytes.max(1))
+    }
+
     pub fn u8(&mut self) -> Result<u8, Truncated> {
         Ok(self.take(1)?[0])
     }
@@ -56,11 +62,14 @@ impl<'a> Reader<'a> {
     /// `n` booleans stored one byte each; anything but 0 or 1 is refused as `None`.
     pub fn bools(&mut self, n: usize) -> Result<Option<Vec<bool>>, Truncated> {
         let raw = self.take(n)?;
-        Ok(raw.iter().map(|&b| match b {
-            0 => Some(false),
-            1 => Some(true),
-            _ => None,
-        }).collect())
+        Ok(raw
+            .iter()
+            .map(|&b| match b {
+                0 => Some(false),
+                1 => Some(true),
+                _ => None,
+            })
+            .collect())
     }
 }
 

@@ -1,0 +1,242 @@
+//! Bad bytes never panic. Every decoder of bytes that cross a process or a disk is fed
+//! [`CASES`] mutated and truncated copies of a valid input:
+//! - the checksummed formats (weights blob, rollout chunk, checkpoint, task-controller snapshot)
+//!   must refuse every one with an error;
+//! - the same formats with the checksum recomputed after mutating (so the parser behind it is
+//!   reached), and the formats without one (track files, gRPC messages), may accept a mutation
+//!   that still means something, but must never panic.
+//!
+//! `cargo test --test decoders -- --nocapture` prints the counts (BENCHMARKS.md).
+
+use std::cell::Cell;
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::path::Path;
+use std::sync::Once;
+
+use learner::checkpoint::Checkpoint;
+use learner::{Learner, TrainConfig};
+use policy::{EpisodeRecord, RolloutChunk, WeightsBlob};
+use prost::Message;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use taskctl::{TaskController, TrackGenerator};
+
+/// Mutated inputs per decoder and mode.
+const CASES: usize = 100_000;
+
+/// Values that make length and count fields lie.
+const EXTREMES: [u64; 6] = [u64::MAX, u32::MAX as u64, i64::MAX as u64, 1 << 31, 1 << 40, 0];
+
+thread_local! {
+    /// Set while this thread feeds a decoder: its panics are counted, not printed.
+    static FUZZING: Cell<bool> = const { Cell::new(false) };
+    /// The message and place of the last panic on a fuzzing thread.
+    static LAST_PANIC: std::cell::RefCell<String> = const { std::cell::RefCell::new(String::new()) };
+}
+
+/// Installs (once) a panic hook that stays quiet for fuzzing threads only, so a real test
+/// failure elsewhere still prints its message.
+fn quiet_while_fuzzing() {
+    static INSTALL: Once = Once::new();
+    INSTALL.call_once(|| {
+        let default = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if FUZZING.get() {
+                LAST_PANIC.set(info.to_string());
+            } else {
+                default(info);
+            }
+        }));
+    });
+}
+
+/// A copy of `valid` that differs from it: truncated, bytes overwritten, inserted or removed,
+/// or a 4- or 8-byte field set to an extreme.
+fn mutate(rng: &mut ChaCha8Rng, valid: &[u8]) -> Vec<u8> {
+    loop {
+        let mut b = valid.to_vec();
+        match rng.random_range(0..5) {
+            0 => b.truncate(rng.random_range(0..valid.len())),
+            1 => {
+                for _ in 0..rng.random_range(1..=8) {
+                    let i = rng.random_range(0..b.len());
+                    b[i] = rng.random();
+                }
+            }
+            2 => {
+                let at = rng.random_range(0..=b.len());
+                let extra: Vec<u8> = (0..rng.random_range(1..=16)).map(|_| rng.random()).collect();
+                b.splice(at..at, extra);
+            }
+            3 => {
+                let at = rng.random_range(0..b.len());
+                let end = (at + rng.random_range(1..=16)).min(b.len());
+                b.drain(at..end);
+            }
+            _ => {
+                let width = if rng.random_bool(0.5) { 4 } else { 8 };
+                if b.len() >= width {
+                    let at = rng.random_range(0..=b.len() - width);
+                    let value = EXTREMES[rng.random_range(0..EXTREMES.len())].to_le_bytes();
+                    b[at..at + width].copy_from_slice(&value[..width]);
+                }
+            }
+        }
+        if b != valid {
+            return b;
+        }
+    }
+}
+
+/// Recomputes the trailing CRC-32 (of everything before it), as the blob, chunk and
+/// checkpoint formats end.
+fn with_trailing_crc(mut b: Vec<u8>) -> Vec<u8> {
+    if b.len() >= 4 {
+        let body = b.len() - 4;
+        let crc = crc32fast::hash(&b[..body]);
+        b[body..].copy_from_slice(&crc.to_le_bytes());
+    }
+    b
+}
+
+/// What one decoder made of the mutated inputs.
+#[derive(Debug, Default)]
+struct Tally {
+    refused: usize,
+    accepted: usize,
+}
+
+/// Feeds `decode` `CASES` mutations of `valid` (passed through `fix` first); `decode` returns
+/// whether it accepted. Panics, naming the decoder and the first input that made it panic.
+fn fuzz(name: &str, seed: u64, valid: &[u8], fix: impl Fn(Vec<u8>) -> Vec<u8>, decode: impl Fn(&[u8]) -> bool) -> Tally {
+    assert!(decode(valid), "{name}: the valid input must decode");
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut tally = Tally::default();
+    quiet_while_fuzzing();
+    FUZZING.set(true);
+    let mut panicked = None;
+    for case in 0..CASES {
+        let input = fix(mutate(&mut rng, valid));
+        match catch_unwind(AssertUnwindSafe(|| decode(&input))) {
+            Ok(true) => tally.accepted += 1,
+            Ok(false) => tally.refused += 1,
+            Err(_) if panicked.is_none() => panicked = Some((case, input, LAST_PANIC.take())),
+            Err(_) => {}
+        }
+    }
+    FUZZING.set(false);
+    if let Some((case, input, message)) = panicked {
+        let shown: Vec<String> = input.iter().take(96).map(|b| format!("{b:02x}")).collect();
+        panic!("{name}: mutation {case} ({} bytes) panicked the decoder ({message}); first bytes {}", input.len(), shown.join(""));
+    }
+    eprintln!("{name}: {CASES} mutated inputs, {} refused, {} accepted, 0 panics", tally.refused, tally.accepted);
+    tally
+}
+
+fn tiny_learner() -> Learner {
+    let config = TrainConfig { hidden: Some(vec![8]), envs: Some(2), ..TrainConfig::default() };
+    config.initial_learner().unwrap()
+}
+
+fn chunk() -> RolloutChunk {
+    let (envs, steps) = (2, 3);
+    let mut c = RolloutChunk::zeroed(4, 1, envs, steps, sim::STATE_OBS_DIM, sim::ACTION_DIM);
+    c.observations.iter_mut().enumerate().for_each(|(i, x)| *x = i as f32 * 0.01);
+    c.terminated[2] = true;
+    c.episodes.push(EpisodeRecord { env: 1, episode_return: 2.5, length: 40, laps: 1, fastest_lap: Some(3.5), crashed: true });
+    c
+}
+
+#[test]
+fn every_mutated_weights_blob_is_refused_and_none_panics_the_parser() {
+    let valid = tiny_learner().weights().to_bytes();
+    let decode = |b: &[u8]| WeightsBlob::from_bytes(b).is_ok();
+    let raw = fuzz("weights blob", 1, &valid, |b| b, decode);
+    assert_eq!(raw.accepted, 0);
+    fuzz("weights blob, checksum recomputed", 2, &valid, with_trailing_crc, decode);
+}
+
+#[test]
+fn every_mutated_rollout_chunk_is_refused_and_none_panics_the_parser() {
+    let valid = chunk().to_bytes();
+    let decode = |b: &[u8]| RolloutChunk::from_bytes(b).is_ok_and(|c| c.check(sim::STATE_OBS_DIM, sim::ACTION_DIM).is_ok());
+    let raw = fuzz("rollout chunk", 3, &valid, |b| b, decode);
+    assert_eq!(raw.accepted, 0);
+    fuzz("rollout chunk, checksum recomputed", 4, &valid, with_trailing_crc, decode);
+}
+
+#[test]
+fn every_mutated_checkpoint_is_refused_and_none_panics_the_restore() {
+    let valid = tiny_learner().checkpoint().to_bytes();
+    let origin = Path::new("fuzzed.bin");
+    let raw = fuzz("checkpoint", 5, &valid, |b| b, |b| Checkpoint::from_bytes(b, origin).is_ok());
+    assert_eq!(raw.accepted, 0);
+    // Past the checksum, the restore decodes every section (weights, optimiser, counters).
+    fuzz("checkpoint, checksum recomputed", 6, &valid, with_trailing_crc, |b| {
+        Checkpoint::from_bytes(b, origin).is_ok_and(|c| Learner::from_checkpoint(&c).is_ok())
+    });
+}
+
+#[test]
+fn every_mutated_task_controller_snapshot_is_refused_and_none_panics_the_parser() {
+    let controller = TaskController::new(3, TrackGenerator::default(), Default::default(), 7).unwrap();
+    let valid = controller.to_snapshot_bytes();
+    let origin = Path::new("taskctl.snapshot");
+    let decode = |b: &[u8]| TaskController::from_snapshot_bytes(b, origin).is_ok();
+    let raw = fuzz("task-controller snapshot", 7, &valid, |b| b, decode);
+    assert_eq!(raw.accepted, 0);
+    // The header line carries length and checksum of the JSON body: rewrite it to match.
+    let reheader = |b: Vec<u8>| -> Vec<u8> {
+        let Some(newline) = b.iter().position(|&c| c == b'\n') else { return b };
+        let body = &b[newline + 1..];
+        let mut out = format!("dronerace-taskctl-snapshot 1 {} {:08x}\n", body.len(), crc32fast::hash(body)).into_bytes();
+        out.extend_from_slice(body);
+        out
+    };
+    assert!(decode(&reheader(valid.clone())), "the rewritten header matches the format");
+    fuzz("task-controller snapshot, header recomputed", 8, &valid, reheader, decode);
+}
+
+#[test]
+fn no_mutated_track_file_panics_the_parser() {
+    let track = taskctl::library_track("BigS").unwrap().unwrap();
+    let valid = taskctl::track_to_toml(&track).into_bytes();
+    let file = Path::new("fuzzed.toml");
+    fuzz("track file", 9, &valid, |b| b, |b| std::str::from_utf8(b).is_ok_and(|text| taskctl::parse_track(text, file).is_ok()));
+}
+
+#[test]
+fn no_mutated_grpc_message_panics_its_decoders() {
+    use proto::v1;
+    // A rollout part: protobuf, then reassembly, then the chunk format, then admission.
+    let admission = proto::Admission {
+        learner_epoch: 1,
+        version: 4,
+        max_policy_lag: 2,
+        observation_dim: sim::STATE_OBS_DIM,
+        action_dim: sim::ACTION_DIM,
+        total_envs: 8,
+    };
+    let part = v1::RolloutPart {
+        actor: "actor-0".into(),
+        learner_epoch: 1,
+        policy_version: 4,
+        part: 0,
+        parts: 1,
+        data: chunk().to_bytes().into(),
+    };
+    let valid = part.encode_to_vec();
+    fuzz(
+        "gRPC RolloutPart",
+        10,
+        &valid,
+        |b| b,
+        |b| {
+            let Ok(p) = v1::RolloutPart::decode(b) else { return false };
+            let Ok(Some(payload)) = proto::chunking::Reassembler::default().push(p.part, p.parts, &p.data) else { return false };
+            RolloutChunk::from_bytes(&payload).is_ok_and(|c| admission.check(&p.actor, p.learner_epoch, &c).is_ok())
+        },
+    );
+    let report = v1::ReportRequest { actor: "actor-0".into(), rollout: 9, cumulative_rewards: vec![1.5, -2.0, 0.25] };
+    fuzz("gRPC ReportRequest", 11, &report.encode_to_vec(), |b| b, |b| v1::ReportRequest::decode(b).is_ok());
+}
