@@ -43,6 +43,8 @@ pub struct TrainConfig {
     pub seed: u64,
     /// Parallel environments (default: the profile's).
     pub envs: Option<usize>,
+    /// Hidden layer widths of actor and critic (default: the profile's, e.g. `[128, 128]`).
+    pub hidden: Option<Vec<usize>>,
     /// PPO settings replacing the profile's (missing fields take SPEC §10's values).
     pub ppo: Option<PpoConfig>,
     /// Training tracks.
@@ -76,6 +78,7 @@ impl Default for TrainConfig {
             total_env_steps: 50_000_000,
             seed: 0,
             envs: None,
+            hidden: None,
             ppo: None,
             tracks: TrackSource::Generated,
             generator: TrackGenerator::default(),
@@ -140,6 +143,12 @@ impl TrainConfig {
         }
         if let Some(ppo) = self.ppo {
             profile.ppo = ppo;
+        }
+        if let Some(hidden) = &self.hidden {
+            if hidden.is_empty() || hidden.contains(&0) {
+                return Err(TrainError::Config(format!("hidden: {hidden:?} needs at least one layer, every width ≥ 1")));
+            }
+            profile.architecture.hidden = hidden.clone();
         }
         // The network reads observations in the frame the environments write them.
         profile.architecture.observation_frame = self.env.observation_frame;
@@ -262,12 +271,10 @@ impl Run {
     pub fn open(dir: &Path) -> Result<(Self, Checkpoint), TrainError> {
         let config = TrainConfig::read(&dir.join("config.toml"))?;
         let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
-        let path = checkpoints
-            .latest()
-            .ok_or_else(|| TrainError::Config(format!("{} has no checkpoint to resume from", dir.display())))?;
+        let path = checkpoints.latest().ok_or_else(|| TrainError::Config(format!("{} has no checkpoint to resume from", dir.display())))?;
         let ckpt = Checkpoint::read(&path)?;
-        let progress: Progress = serde_json::from_slice(ckpt.get("progress")?)
-            .map_err(|e| TrainError::Io(format!("{}: progress: {e}", path.display())))?;
+        let progress: Progress =
+            serde_json::from_slice(ckpt.get("progress")?).map_err(|e| TrainError::Io(format!("{}: progress: {e}", path.display())))?;
         let metrics = MetricsWriter::open(dir).map_err(|e| TrainError::Io(format!("{}: {e}", dir.display())))?;
         Ok((Self { config, dir: dir.to_path_buf(), checkpoints, metrics, progress }, ckpt))
     }
