@@ -102,12 +102,7 @@ fn draw_track(area: &DrawingArea<BitMapBackend<'_>, Shift>, track: &Track, layou
     Ok(())
 }
 
-fn draw_view(
-    area: &DrawingArea<BitMapBackend<'_>, Shift>,
-    track: &Track,
-    line: &[Vector3<f64>],
-    view: View,
-) -> anyhow::Result<()> {
+fn draw_view(area: &DrawingArea<BitMapBackend<'_>, Shift>, track: &Track, line: &[Vector3<f64>], view: View) -> anyhow::Result<()> {
     let (lo, hi) = (view.project(&track.arena.min), view.project(&track.arena.max));
     let pad = 0.5;
     let (y_label, x_label) = match view {
@@ -200,8 +195,7 @@ pub fn draw_validation_curves(variants: &[learner::experiment::VariantSummary], 
         if rows.len() < 2 {
             continue;
         }
-        let band: Vec<(f64, f64)> =
-            rows.iter().map(|r| (r.0, r.3)).chain(rows.iter().rev().map(|r| (r.0, r.2))).collect();
+        let band: Vec<(f64, f64)> = rows.iter().map(|r| (r.0, r.3)).chain(rows.iter().rev().map(|r| (r.0, r.2))).collect();
         chart.draw_series(std::iter::once(Polygon::new(band, colour.mix(0.2).filled())))?;
         chart
             .draw_series(LineSeries::new(rows.iter().map(|r| (r.0, r.1)), colour.stroke_width(2)))?

@@ -46,8 +46,17 @@ fn eval_prints_and_writes_json_and_markdown() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("eval");
     let o = dronerace(&[
-        "eval", "--controller", "pilot", "--tracks", &library_file("kidney.toml"), "--runs", "3", "--steps", "600",
-        "--out", out.to_str().unwrap(),
+        "eval",
+        "--controller",
+        "pilot",
+        "--tracks",
+        &library_file("kidney.toml"),
+        "--runs",
+        "3",
+        "--steps",
+        "600",
+        "--out",
+        out.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let printed = String::from_utf8_lossy(&o.stdout);
@@ -75,8 +84,16 @@ fn replay_writes_one_row_per_step_and_stops_at_a_crash() {
     std::fs::write(&actions, text).unwrap();
     let out = dir.path().join("replay.csv");
     let o = dronerace(&[
-        "sim", "replay", "--track", &library_file("figure8.toml"), "--actions", actions.to_str().unwrap(), "--out",
-        out.to_str().unwrap(), "--start", "0,0,2,-90",
+        "sim",
+        "replay",
+        "--track",
+        &library_file("figure8.toml"),
+        "--actions",
+        actions.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--start",
+        "0,0,2,-90",
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let csv = std::fs::read_to_string(&out).unwrap();
@@ -94,7 +111,11 @@ fn replay_writes_one_row_per_step_and_stops_at_a_crash() {
 fn bad_inputs_are_refused_naming_the_file_and_the_field_or_line() {
     let dir = tempfile::tempdir().unwrap();
     let track = dir.path().join("broken.toml");
-    std::fs::write(&track, "name = \"b\"\n[[gate]]\nposition = [0.0, 0.0, 2.0]\nyaw_deg = 0.0\n[[gate]]\nposition = [30.0, 0.0, 2.0]\nyaw_deg = 0.0\n").unwrap();
+    std::fs::write(
+        &track,
+        "name = \"b\"\n[[gate]]\nposition = [0.0, 0.0, 2.0]\nyaw_deg = 0.0\n[[gate]]\nposition = [30.0, 0.0, 2.0]\nyaw_deg = 0.0\n",
+    )
+    .unwrap();
     let o = dronerace(&["tracks", "show", track.to_str().unwrap(), "--out", dir.path().join("x.png").to_str().unwrap()]);
     assert!(!o.status.success());
     let e = stderr(&o);
@@ -103,7 +124,13 @@ fn bad_inputs_are_refused_naming_the_file_and_the_field_or_line() {
     let actions = dir.path().join("bad_actions.csv");
     std::fs::write(&actions, "0,0,0,0\n0,0,0\n").unwrap();
     let o = dronerace(&[
-        "sim", "replay", "--track", &library_file("figure8.toml"), "--actions", actions.to_str().unwrap(), "--out",
+        "sim",
+        "replay",
+        "--track",
+        &library_file("figure8.toml"),
+        "--actions",
+        actions.to_str().unwrap(),
+        "--out",
         dir.path().join("r.csv").to_str().unwrap(),
     ]);
     assert!(!o.status.success());
@@ -112,8 +139,16 @@ fn bad_inputs_are_refused_naming_the_file_and_the_field_or_line() {
 
     std::fs::write(&actions, "0,0,0,0\n0,zero,0,0\n").unwrap();
     let o = dronerace(&[
-        "sim", "replay", "--track", &library_file("figure8.toml"), "--actions", actions.to_str().unwrap(), "--out",
-        dir.path().join("r.csv").to_str().unwrap(), "--start", "1,2,3",
+        "sim",
+        "replay",
+        "--track",
+        &library_file("figure8.toml"),
+        "--actions",
+        actions.to_str().unwrap(),
+        "--out",
+        dir.path().join("r.csv").to_str().unwrap(),
+        "--start",
+        "1,2,3",
     ]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("--start"), "{}", stderr(&o));
@@ -121,8 +156,7 @@ fn bad_inputs_are_refused_naming_the_file_and_the_field_or_line() {
 
 #[test]
 fn tracks_fit_prints_scipys_layout_and_values() {
-    let reference: serde_json::Value =
-        serde_json::from_str(include_str!("../taskctl/tests/data/splprep_periodic.json")).unwrap();
+    let reference: serde_json::Value = serde_json::from_str(include_str!("../taskctl/tests/data/splprep_periodic.json")).unwrap();
     let case = &reference["cases"][2];
     let dir = tempfile::tempdir().unwrap();
     let csv = dir.path().join("points.csv");
@@ -171,7 +205,18 @@ fn generate_is_reproducible_and_testset_has_forty_valid_tracks() {
         assert_eq!(std::fs::read(a.join(&name)).unwrap(), std::fs::read(b.join(&name)).unwrap());
         taskctl::read_track(&a.join(&name)).unwrap();
     }
-    let o = dronerace(&["tracks", "generate", "--seed", "77", "--count", "3", "--generator", "uniform", "--out", dir.path().join("u").to_str().unwrap()]);
+    let o = dronerace(&[
+        "tracks",
+        "generate",
+        "--seed",
+        "77",
+        "--count",
+        "3",
+        "--generator",
+        "uniform",
+        "--out",
+        dir.path().join("u").to_str().unwrap(),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert_eq!(names(&dir.path().join("u")).len(), 3);
 

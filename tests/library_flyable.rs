@@ -12,8 +12,7 @@ fn reference_pilot_laps_at_least_seven_library_tracks_in_every_deployment() {
     let config = EvalConfig { runs: 5, ..EvalConfig::default() };
     let make = || Box::new(ReferencePilot::default()) as Box<dyn Controller>;
     let report = evaluate("pilot", &tracks, &make, &config);
-    let flyable: Vec<&str> =
-        report.tracks.iter().filter(|t| t.success_rate == 1.0).map(|t| t.track.as_str()).collect();
+    let flyable: Vec<&str> = report.tracks.iter().filter(|t| t.success_rate == 1.0).map(|t| t.track.as_str()).collect();
     assert!(flyable.len() >= 7, "only {flyable:?} flyable:\n{}", report.to_markdown());
     for t in &report.tracks {
         for d in t.deployments.iter().filter(|d| d.success) {

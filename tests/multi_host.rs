@@ -62,9 +62,54 @@ fn certificates(dir: &Path) {
         assert!(out.status.success(), "openssl {}: {}", args.join(" "), String::from_utf8_lossy(&out.stderr));
     };
     std::fs::write(dir.join("san.ext"), "subjectAltName=IP:10.77.1.1,IP:10.77.2.1,IP:127.0.0.1\nbasicConstraints=CA:FALSE\n").unwrap();
-    run(&["req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes", "-subj", "/CN=dronerace test CA", "-days", "2", "-keyout", "ca.key", "-out", "ca.pem"]);
-    run(&["req", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes", "-subj", "/CN=dronerace hub", "-keyout", "server.key", "-out", "server.csr"]);
-    run(&["x509", "-req", "-in", "server.csr", "-CA", "ca.pem", "-CAkey", "ca.key", "-CAcreateserial", "-days", "2", "-extfile", "san.ext", "-out", "server.pem"]);
+    run(&[
+        "req",
+        "-x509",
+        "-newkey",
+        "ec",
+        "-pkeyopt",
+        "ec_paramgen_curve:prime256v1",
+        "-nodes",
+        "-subj",
+        "/CN=dronerace test CA",
+        "-days",
+        "2",
+        "-keyout",
+        "ca.key",
+        "-out",
+        "ca.pem",
+    ]);
+    run(&[
+        "req",
+        "-newkey",
+        "ec",
+        "-pkeyopt",
+        "ec_paramgen_curve:prime256v1",
+        "-nodes",
+        "-subj",
+        "/CN=dronerace hub",
+        "-keyout",
+        "server.key",
+        "-out",
+        "server.csr",
+    ]);
+    run(&[
+        "x509",
+        "-req",
+        "-in",
+        "server.csr",
+        "-CA",
+        "ca.pem",
+        "-CAkey",
+        "ca.key",
+        "-CAcreateserial",
+        "-days",
+        "2",
+        "-extfile",
+        "san.ext",
+        "-out",
+        "server.pem",
+    ]);
 }
 
 #[test]
@@ -89,12 +134,33 @@ fn actors_in_two_namespaces_train_with_a_learner_in_a_third_over_tls() {
     let in_hub = ["ip", "netns", "exec", hub.as_str()];
     let snapshot = p("taskctl.snapshot");
     let out = p("run");
-    let taskctl = Proc::start_wrapped(dir, "taskctl", &in_hub, &args(&["taskctl", "--config", &config, "--listen", "0.0.0.0:7051", "--snapshot", &snapshot]));
+    let taskctl = Proc::start_wrapped(
+        dir,
+        "taskctl",
+        &in_hub,
+        &args(&["taskctl", "--config", &config, "--listen", "0.0.0.0:7051", "--snapshot", &snapshot]),
+    );
     let learner = Proc::start_wrapped(
         dir,
         "learner",
         &in_hub,
-        &args(&["learner", "--config", &config, "--out", &out, "--listen", "0.0.0.0:7052", "--transport", "grpc", "--actors", "2", "--iterations", "3", "--taskctl", "https://127.0.0.1:7051"]),
+        &args(&[
+            "learner",
+            "--config",
+            &config,
+            "--out",
+            &out,
+            "--listen",
+            "0.0.0.0:7052",
+            "--transport",
+            "grpc",
+            "--actors",
+            "2",
+            "--iterations",
+            "3",
+            "--taskctl",
+            "https://127.0.0.1:7051",
+        ]),
     );
     let mut actors = Vec::new();
     for (side, net) in [("a", 1), ("b", 2)] {
@@ -105,13 +171,26 @@ fn actors_in_two_namespaces_train_with_a_learner_in_a_third_over_tls() {
             &format!("actor-{side}"),
             &wrapper,
             &args(&[
-                "actor", "--config", &config, "--name", &format!("actor-{side}"), "--envs", "4", "--transport", "grpc",
-                "--taskctl", &format!("https://10.77.{net}.1:7051"), "--learner", &format!("https://10.77.{net}.1:7052"),
+                "actor",
+                "--config",
+                &config,
+                "--name",
+                &format!("actor-{side}"),
+                "--envs",
+                "4",
+                "--transport",
+                "grpc",
+                "--taskctl",
+                &format!("https://10.77.{net}.1:7051"),
+                "--learner",
+                &format!("https://10.77.{net}.1:7052"),
             ]),
         ));
     }
     let mut learner = learner;
-    let all = |l: &Proc| -> Vec<String> { [&taskctl, l, &actors[0], &actors[1]].iter().map(|p| format!("--- {} ---\n{}", p.name, p.output())).collect() };
+    let all = |l: &Proc| -> Vec<String> {
+        [&taskctl, l, &actors[0], &actors[1]].iter().map(|p| format!("--- {} ---\n{}", p.name, p.output())).collect()
+    };
     let status = learner.wait_exit(Duration::from_secs(180));
     assert!(status.success(), "{}", all(&learner).join("\n"));
     let rows = metrics_rows(&dir.join("run"));

@@ -132,15 +132,28 @@ fn train_resume_and_evaluate_from_the_command_line() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let o = dronerace(&["train", "--resume", run.to_str().unwrap(), "--iterations", "1"]);
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success() && err.contains("resuming the run") && err.contains("at iteration 2") && err.contains("iter     3"), "{err}");
+    assert!(
+        o.status.success() && err.contains("resuming the run") && err.contains("at iteration 2") && err.contains("iter     3"),
+        "{err}"
+    );
     for file in ["config.toml", "metrics.csv", "train.log", "checkpoints/ckpt-000000003.bin"] {
         assert!(run.join(file).exists(), "{file}");
     }
     let out = dir.path().join("eval");
     let o = dronerace(&[
-        "eval", "--controller", "policy", "--policy", run.join("checkpoints/ckpt-000000003.bin").to_str().unwrap(),
-        "--tracks", Path::new(env!("CARGO_MANIFEST_DIR")).join("tracks/figure8.toml").to_str().unwrap(),
-        "--runs", "2", "--steps", "100", "--out", out.to_str().unwrap(),
+        "eval",
+        "--controller",
+        "policy",
+        "--policy",
+        run.join("checkpoints/ckpt-000000003.bin").to_str().unwrap(),
+        "--tracks",
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tracks/figure8.toml").to_str().unwrap(),
+        "--runs",
+        "2",
+        "--steps",
+        "100",
+        "--out",
+        out.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(String::from_utf8_lossy(&o.stdout).contains("policy v3"));
@@ -155,9 +168,19 @@ fn train_resume_and_evaluate_from_the_command_line() {
     let o = dronerace(&["export-policy", run.join("checkpoints/ckpt-000000003.bin").to_str().unwrap(), "--out", blob.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let o = dronerace(&[
-        "eval", "--controller", "policy", "--policy", blob.to_str().unwrap(),
-        "--tracks", Path::new(env!("CARGO_MANIFEST_DIR")).join("tracks/figure8.toml").to_str().unwrap(),
-        "--runs", "2", "--steps", "100", "--out", out.to_str().unwrap(),
+        "eval",
+        "--controller",
+        "policy",
+        "--policy",
+        blob.to_str().unwrap(),
+        "--tracks",
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tracks/figure8.toml").to_str().unwrap(),
+        "--runs",
+        "2",
+        "--steps",
+        "100",
+        "--out",
+        out.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert_eq!(table(&out.join("eval.json")), from_checkpoint);

@@ -164,8 +164,7 @@ impl Actor {
             let truncated: Vec<usize> = (0..n).filter(|&e| self.env.truncated[e]).collect();
             let mut bootstrap = vec![0.0; n];
             if !truncated.is_empty() {
-                let rows: Vec<f32> =
-                    truncated.iter().flat_map(|&e| self.env.final_observations[e * dim..(e + 1) * dim].to_vec()).collect();
+                let rows: Vec<f32> = truncated.iter().flat_map(|&e| self.env.final_observations[e * dim..(e + 1) * dim].to_vec()).collect();
                 let (_, values) = policy.means_and_values(&rows);
                 for (&e, v) in truncated.iter().zip(values) {
                     bootstrap[e] = v;

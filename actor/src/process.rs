@@ -53,7 +53,12 @@ fn retry<T>(what: &str, stop: &AtomicBool, mut f: impl FnMut() -> Result<T, Clie
         }
         match f() {
             Ok(v) => return Some(Ok(v)),
-            Err(e) if matches!(e.code, tonic::Code::Unavailable | tonic::Code::DeadlineExceeded | tonic::Code::Unknown | tonic::Code::Cancelled) => {
+            Err(e)
+                if matches!(
+                    e.code,
+                    tonic::Code::Unavailable | tonic::Code::DeadlineExceeded | tonic::Code::Unknown | tonic::Code::Cancelled
+                ) =>
+            {
                 eprintln!("actor: {what}: {e}; retrying in {delay:?}");
                 std::thread::sleep(delay);
                 delay = (delay * 2).min(Duration::from_secs(2));
@@ -70,7 +75,12 @@ fn actor_seed(seed: u64, first_env: usize, next_rollout: u64) -> u64 {
 }
 
 /// Runs the actor until `stop` is raised (or `max_rollouts` are sent).
-pub fn run_actor(settings: &ActorSettings, link: &mut dyn ActorLink, tasks: &TaskClient, stop: &AtomicBool) -> Result<(), ActorProcessError> {
+pub fn run_actor(
+    settings: &ActorSettings,
+    link: &mut dyn ActorLink,
+    tasks: &TaskClient,
+    stop: &AtomicBool,
+) -> Result<(), ActorProcessError> {
     let name = settings.name.as_str();
     let Some(registration) = retry("register", stop, || tasks.register(name, settings.envs)) else { return Ok(()) };
     let mut registration = registration.map_err(ActorProcessError::Registration)?;

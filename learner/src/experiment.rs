@@ -217,7 +217,8 @@ pub fn run_experiment(
             }
             let config = experiment.config(variant, seed).map_err(ExperimentError::Invalid)?;
             let failed = |source: TrainError| ExperimentError::Run { run: dir.display().to_string(), source };
-            let has_checkpoint = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints).map_err(|e| failed(e.into()))?.latest().is_some();
+            let has_checkpoint =
+                CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints).map_err(|e| failed(e.into()))?.latest().is_some();
             let mut trainer = if has_checkpoint {
                 log.resumed.push(dir.clone());
                 Trainer::resume(&dir).map_err(failed)?
@@ -238,7 +239,8 @@ pub fn run_experiment(
             trainer.checkpoint().map_err(failed)?;
             let result = test_run(&trainer, &variant.name, seed, &experiment.test).map_err(failed)?;
             let json = serde_json::to_vec_pretty(&result).map_err(|e| ExperimentError::Io(e.to_string()))?;
-            taskctl::files::write_atomic(&dir.join("test.json"), &json).map_err(|e| ExperimentError::Io(format!("{}: {e}", dir.display())))?;
+            taskctl::files::write_atomic(&dir.join("test.json"), &json)
+                .map_err(|e| ExperimentError::Io(format!("{}: {e}", dir.display())))?;
             log.finished.push(dir);
         }
     }
@@ -308,9 +310,9 @@ pub fn summarise(experiment: &Experiment, out: &Path) -> Result<Vec<VariantSumma
             }
             let path = dir.join("test.json");
             match std::fs::read(&path) {
-                Ok(bytes) => summary.results.push(
-                    serde_json::from_slice(&bytes).map_err(|e| ExperimentError::Io(format!("{}: {e}", path.display())))?,
-                ),
+                Ok(bytes) => summary
+                    .results
+                    .push(serde_json::from_slice(&bytes).map_err(|e| ExperimentError::Io(format!("{}: {e}", path.display())))?),
                 Err(_) => summary.unfinished.push(seed),
             }
         }
@@ -365,8 +367,7 @@ pub fn markdown_report(experiment: &Experiment, summaries: &[VariantSummary]) ->
         }
         let scale = if percent { 100.0 } else { 1.0 };
         let (m, s) = mean_std(&values);
-        let each: Vec<String> =
-            values.iter().map(|v| if percent { format!("{:.0}", v * scale) } else { format!("{v:.4}") }).collect();
+        let each: Vec<String> = values.iter().map(|v| if percent { format!("{:.0}", v * scale) } else { format!("{v:.4}") }).collect();
         if percent {
             format!("{:.0} ± {:.0} % ({})", m * scale, s * scale, each.join(", "))
         } else {

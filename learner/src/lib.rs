@@ -16,5 +16,5 @@ pub mod validation;
 pub use config::{PpoConfig, Profile};
 pub use learner::{IterationReport, Learner, LearnerError};
 pub use run::{IterationSummary, Run, TrackSource, TrainConfig, TrainError};
-pub use validation::{EvalSettings, Validation, Validator};
 pub use trainer::Trainer;
+pub use validation::{EvalSettings, Validation, Validator};

@@ -64,8 +64,7 @@ impl MetricsWriter {
         writeln!(self.csv, "{iteration},{env_steps},{wall_seconds:.3},{}", cells.join(","))?;
         self.csv.flush()?;
         let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default().as_secs_f64();
-        let scalars: Vec<(&str, f32)> =
-            METRICS.iter().zip(values).filter(|(_, v)| v.is_finite()).map(|(n, v)| (*n, *v as f32)).collect();
+        let scalars: Vec<(&str, f32)> = METRICS.iter().zip(values).filter(|(_, v)| v.is_finite()).map(|(n, v)| (*n, *v as f32)).collect();
         write_record(&mut self.events, &event(now, env_steps as i64, EventBody::Scalars(&scalars)))?;
         self.events.flush()
     }
@@ -160,7 +159,8 @@ mod tests {
         let lines: Vec<&str> = csv.lines().collect();
         assert_eq!(lines[0].split(',').count(), lines[1].split(',').count());
         assert!(lines[1].starts_with("3,72000,9.500,12.5,"));
-        let event_file = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().path()).find(|p| p.to_string_lossy().contains("tfevents")).unwrap();
+        let event_file =
+            std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().path()).find(|p| p.to_string_lossy().contains("tfevents")).unwrap();
         let bytes = std::fs::read(event_file).unwrap();
         // Walk the records: each length must be followed by its masked CRC and the data's.
         let mut at = 0;

@@ -67,7 +67,11 @@ impl Validator {
     }
 
     /// [`Validator::evaluate`] when `iteration` is due, with weights taken only then.
-    pub fn evaluate_if_due(validator: Option<&Self>, iteration: u64, weights: impl FnOnce() -> WeightsBlob) -> Result<Option<Validation>, BlobError> {
+    pub fn evaluate_if_due(
+        validator: Option<&Self>,
+        iteration: u64,
+        weights: impl FnOnce() -> WeightsBlob,
+    ) -> Result<Option<Validation>, BlobError> {
         match validator {
             Some(v) if v.due(iteration) => v.evaluate(&weights()).map(Some),
             _ => Ok(None),

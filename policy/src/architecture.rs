@@ -23,7 +23,13 @@ pub struct Architecture {
 impl Architecture {
     /// The thesis' network: two hidden layers of 512 (the `paper` profile).
     pub fn paper() -> Self {
-        Self { observation_dim: sim::STATE_OBS_DIM, action_dim: sim::ACTION_DIM, hidden: vec![512, 512], negative_slope: 0.01, observation_frame: sim::ObservationFrame::World }
+        Self {
+            observation_dim: sim::STATE_OBS_DIM,
+            action_dim: sim::ACTION_DIM,
+            hidden: vec![512, 512],
+            negative_slope: 0.01,
+            observation_frame: sim::ObservationFrame::World,
+        }
     }
 
     /// Two hidden layers of 128: the `cpu` profile, about 14× fewer multiply-adds.

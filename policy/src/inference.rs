@@ -96,11 +96,7 @@ impl Policy {
             let eps: f32 = rng.sample(StandardNormal);
             *a += self.log_std[i % dim].exp() * eps;
         }
-        let log_probs = actions
-            .chunks(dim)
-            .zip(means.chunks(dim))
-            .map(|(a, m)| gaussian_log_prob(a, m, &self.log_std))
-            .collect();
+        let log_probs = actions.chunks(dim).zip(means.chunks(dim)).map(|(a, m)| gaussian_log_prob(a, m, &self.log_std)).collect();
         Acting { actions, log_probs, values }
     }
 }

@@ -268,7 +268,18 @@ mod tests {
     fn same_seed_same_network() {
         let arch = Architecture { hidden: vec![8], ..Architecture::paper() };
         let a = ActorCritic::new(&arch, -0.5, 9, &Device::flex()).export();
-        assert_eq!(a, ActorCritic::new(&arch, -0.5, 9, &Device::flex()).export().into_iter().zip(&a).map(|(mut p, q)| { p.id = q.id; p }).collect::<Vec<_>>());
+        assert_eq!(
+            a,
+            ActorCritic::new(&arch, -0.5, 9, &Device::flex())
+                .export()
+                .into_iter()
+                .zip(&a)
+                .map(|(mut p, q)| {
+                    p.id = q.id;
+                    p
+                })
+                .collect::<Vec<_>>()
+        );
         assert_ne!(a[0].values, ActorCritic::new(&arch, -0.5, 10, &Device::flex()).export()[0].values);
     }
 }

@@ -234,7 +234,9 @@ impl RolloutChunk {
         let log_probs = r.f32s(t)?;
         let values = r.f32s(t)?;
         let rewards = r.f32s(t)?;
-        let flags = |v: Option<Vec<bool>>, name: &str| v.ok_or_else(|| RolloutWireError::Malformed(format!("{name}: a flag byte is neither 0 nor 1")));
+        let flags = |v: Option<Vec<bool>>, name: &str| {
+            v.ok_or_else(|| RolloutWireError::Malformed(format!("{name}: a flag byte is neither 0 nor 1")))
+        };
         let terminated = flags(r.bools(t)?, "terminated")?;
         let truncated = flags(r.bools(t)?, "truncated")?;
         let truncation_values = r.f32s(t)?;
@@ -251,7 +253,14 @@ impl RolloutChunk {
             let (length, laps) = (r.u32()?, r.u32()?);
             let fastest = r.f64()?;
             let crashed = flags(r.bools(1)?, "episode.crashed")?[0];
-            episodes.push(EpisodeRecord { env, episode_return, length, laps, fastest_lap: (!fastest.is_nan()).then_some(fastest), crashed });
+            episodes.push(EpisodeRecord {
+                env,
+                episode_return,
+                length,
+                laps,
+                fastest_lap: (!fastest.is_nan()).then_some(fastest),
+                crashed,
+            });
         }
         if r.remaining() != 0 {
             return Err(RolloutWireError::Malformed(format!("{} bytes after the episodes", r.remaining())));

@@ -37,10 +37,8 @@ pub fn track_from_proto(track: &v1::Track) -> Result<Track, String> {
         .map(|(i, g)| Ok(Gate::new(vector(g.position.as_ref(), &format!("track.gates[{i}].position"))?, g.yaw)))
         .collect::<Result<Vec<_>, String>>()?;
     let start = Pose { position: vector(track.start_position.as_ref(), "track.start_position")?, yaw: track.start_yaw };
-    let arena = Arena {
-        min: vector(track.arena_min.as_ref(), "track.arena_min")?,
-        max: vector(track.arena_max.as_ref(), "track.arena_max")?,
-    };
+    let arena =
+        Arena { min: vector(track.arena_min.as_ref(), "track.arena_min")?, max: vector(track.arena_max.as_ref(), "track.arena_max")? };
     Track::new(track.name.clone(), gates, Some(start), arena).map_err(|e| format!("track {:?}: {e}", track.name))
 }
 

@@ -174,10 +174,8 @@ impl ShmLearnerLink {
     /// Opens (or creates) the run's services.
     pub fn open(config: &ShmConfig) -> Result<Self, LinkError> {
         let node = node()?;
-        let rollouts = rollout_service(&node, config)?
-            .subscriber_builder()
-            .create()
-            .map_err(|e| LinkError::new("rollout subscriber", e))?;
+        let rollouts =
+            rollout_service(&node, config)?.subscriber_builder().create().map_err(|e| LinkError::new("rollout subscriber", e))?;
         let weights = weights_service(&node, config)?
             .publisher_builder()
             .initial_max_slice_len(1 << 20)

@@ -335,8 +335,7 @@ mod tests {
     #[test]
     fn s_pw_is_the_mean_of_success_over_fastest_lap() {
         let ok = |t: &[f64]| Deployment { success: true, lap_times: t.to_vec(), crash: None, gates_passed: 9, steps: 1000 };
-        let crashed =
-            Deployment { success: false, lap_times: vec![2.0], crash: Some(CrashCause::Ground), gates_passed: 5, steps: 300 };
+        let crashed = Deployment { success: false, lap_times: vec![2.0], crash: Some(CrashCause::Ground), gates_passed: 5, steps: 300 };
         let r = summarise("t", vec![ok(&[5.0, 4.0]), ok(&[8.0]), crashed]);
         assert_eq!((r.outcomes.success, r.outcomes.ground, r.outcomes.deployments), (2, 1, 3));
         assert!((r.s_pw - (0.25 + 0.125 + 0.0) / 3.0).abs() < 1e-12);
@@ -396,7 +395,12 @@ mod tests {
     /// Real flights into the floor and the ceiling end with those causes.
     #[test]
     fn flights_into_the_floor_ceiling_wall_and_a_frame_are_told_apart() {
-        let config = EvalConfig { runs: 1, steps: 200, env: EnvConfig { randomization: crate::RandomizationParams::none(), ..EnvConfig::evaluation() }, ..EvalConfig::default() };
+        let config = EvalConfig {
+            runs: 1,
+            steps: 200,
+            env: EnvConfig { randomization: crate::RandomizationParams::none(), ..EnvConfig::evaluation() },
+            ..EvalConfig::default()
+        };
         // Constant actions from the start pose of the oval (gate 0 at (0, -6, 2.5), facing +x).
         struct Constant([f32; 4]);
         impl Controller for Constant {

@@ -91,10 +91,7 @@ mod tests {
 
     #[test]
     fn layout_follows_the_spec_order() {
-        let gates = vec![
-            Gate::new(Vector3::new(4.0, 0.0, 2.0), 0.0),
-            Gate::new(Vector3::new(8.0, 3.0, 3.0), std::f64::consts::FRAC_PI_2),
-        ];
+        let gates = vec![Gate::new(Vector3::new(4.0, 0.0, 2.0), 0.0), Gate::new(Vector3::new(8.0, 3.0, 3.0), std::f64::consts::FRAC_PI_2)];
         let track = Track::new("t", gates, None, Arena::default()).unwrap();
         let mut body = BodyState::at_rest(Vector3::new(1.0, 0.0, 2.0), std::f64::consts::FRAC_PI_2);
         body.velocity = Vector3::new(0.1, 0.2, 0.3);

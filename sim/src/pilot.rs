@@ -212,20 +212,14 @@ fn hermite_samples(
         .map(|k| {
             let u = k as f64 / samples as f64;
             let (u2, u3) = (u * u, u * u * u);
-            let position = p0 * (2.0 * u3 - 3.0 * u2 + 1.0)
-                + m0 * (u3 - 2.0 * u2 + u)
-                + p1 * (-2.0 * u3 + 3.0 * u2)
-                + m1 * (u3 - u2);
-            let first = p0 * (6.0 * u2 - 6.0 * u)
-                + m0 * (3.0 * u2 - 4.0 * u + 1.0)
-                + p1 * (-6.0 * u2 + 6.0 * u)
-                + m1 * (3.0 * u2 - 2.0 * u);
+            let position = p0 * (2.0 * u3 - 3.0 * u2 + 1.0) + m0 * (u3 - 2.0 * u2 + u) + p1 * (-2.0 * u3 + 3.0 * u2) + m1 * (u3 - u2);
+            let first =
+                p0 * (6.0 * u2 - 6.0 * u) + m0 * (3.0 * u2 - 4.0 * u + 1.0) + p1 * (-6.0 * u2 + 6.0 * u) + m1 * (3.0 * u2 - 2.0 * u);
             let second = p0 * (12.0 * u - 6.0) + m0 * (6.0 * u - 4.0) + p1 * (-12.0 * u + 6.0) + m1 * (6.0 * u - 2.0);
             // A zero-length curve (a gate to itself) still needs a direction.
             let speed = first.norm();
             let tangent = if speed > 1e-12 { first / speed } else { *d0 };
-            let curvature =
-                if speed > 1e-12 { (second - tangent * second.dot(&tangent)) / (speed * speed) } else { Vector3::zeros() };
+            let curvature = if speed > 1e-12 { (second - tangent * second.dot(&tangent)) / (speed * speed) } else { Vector3::zeros() };
             PathPoint { position, tangent, curvature, speed: 0.0 }
         })
         .collect()
@@ -244,9 +238,8 @@ fn clear_segment(
     let chord = (to.0 - from.0).norm().max(min_tangent);
     let margin = Vector3::repeat(FRAME_CLEARANCE);
     let inside = Arena { min: track.arena.min + margin, max: track.arena.max - margin };
-    let too_close = |q: &PathPoint| {
-        !inside.contains(&q.position) || track.gates.iter().any(|g| g.frame_touches_sphere(&q.position, FRAME_CLEARANCE))
-    };
+    let too_close =
+        |q: &PathPoint| !inside.contains(&q.position) || track.gates.iter().any(|g| g.frame_touches_sphere(&q.position, FRAME_CLEARANCE));
     // A turn so tight that the drone must nearly stop in it.
     let cusp = |q: &PathPoint| p.max_lateral_accel / q.curvature.norm().max(1e-9) < MIN_TURN_SPEED.powi(2);
     TANGENT_SCALES
@@ -289,13 +282,7 @@ impl Controller for ReferencePilot {
         let racing_line = PilotPath::through_gates(track, &self.params);
         let yaw = track.start.yaw;
         let heading = Vector3::new(yaw.cos(), yaw.sin(), 0.0);
-        self.lead_in = Some(PilotPath::lead_in(
-            track,
-            &env.body().position,
-            &heading,
-            racing_line.points[0].speed,
-            &self.params,
-        ));
+        self.lead_in = Some(PilotPath::lead_in(track, &env.body().position, &heading, racing_line.points[0].speed, &self.params));
         self.racing_line = Some(racing_line);
         self.progress = 0;
     }
@@ -343,11 +330,7 @@ impl Controller for ReferencePilot {
         let yaw_error = wrap_angle(heading - body.yaw());
         let command = Command {
             collective_thrust: collective,
-            body_rates: Vector3::new(
-                p.attitude_gain * tilt_error_body.x,
-                p.attitude_gain * tilt_error_body.y,
-                p.yaw_gain * yaw_error,
-            ),
+            body_rates: Vector3::new(p.attitude_gain * tilt_error_body.x, p.attitude_gain * tilt_error_body.y, p.yaw_gain * yaw_error),
         };
         command.to_action(&env.config().quadrotor).map(|a| a.clamp(-1.0, 1.0) as f32)
     }
@@ -375,13 +358,8 @@ mod tests {
     fn oval() -> Arc<Track> {
         let g = |x, y, yaw_deg: f64| Gate::new(Vector3::new(x, y, 2.5), yaw_deg.to_radians());
         Arc::new(
-            Track::new(
-                "oval",
-                vec![g(0.0, -6.0, 0.0), g(9.0, 0.0, 90.0), g(0.0, 6.0, 180.0), g(-9.0, 0.0, -90.0)],
-                None,
-                Arena::default(),
-            )
-            .unwrap(),
+            Track::new("oval", vec![g(0.0, -6.0, 0.0), g(9.0, 0.0, 90.0), g(0.0, 6.0, 180.0), g(-9.0, 0.0, -90.0)], None, Arena::default())
+                .unwrap(),
         )
     }
 

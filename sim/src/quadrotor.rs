@@ -91,11 +91,7 @@ impl Command {
         let a = action.map(|x| x.clamp(-1.0, 1.0));
         Self {
             collective_thrust: (a[0] + 1.0) / 2.0 * model.collective_thrust_max(),
-            body_rates: Vector3::new(
-                a[1] * model.rate_limits[0],
-                a[2] * model.rate_limits[1],
-                a[3] * model.rate_limits[2],
-            ),
+            body_rates: Vector3::new(a[1] * model.rate_limits[0], a[2] * model.rate_limits[1], a[3] * model.rate_limits[2]),
         }
     }
 
@@ -178,15 +174,11 @@ impl Quadrotor {
         let inertia = m.inertia_vec();
         let gains = Vector3::from(m.rate_gains);
         let rate_error = command.body_rates - w;
-        let torque = inertia.component_mul(&gains.component_mul(&rate_error))
-            + w.cross(&inertia.component_mul(&w));
+        let torque = inertia.component_mul(&gains.component_mul(&rate_error)) + w.cross(&inertia.component_mul(&w));
         let wrench = Vector4::new(m.mass * command.collective_thrust, torque.x, torque.y, torque.z);
         let (t_min, t_max) = (m.motor_thrust_min(), m.motor_thrust_max);
-        (self.model_allocation_inverse * wrench).map(|t| {
-            (t.clamp(t_min, t_max) / m.thrust_coefficient)
-                .sqrt()
-                .clamp(m.motor_speed_min, m.motor_speed_max)
-        })
+        (self.model_allocation_inverse * wrench)
+            .map(|t| (t.clamp(t_min, t_max) / m.thrust_coefficient).sqrt().clamp(m.motor_speed_min, m.motor_speed_max))
     }
 
     /// Rigid-body equations of motion with constant total thrust and torque.
@@ -202,12 +194,7 @@ impl Quadrotor {
         let inertia = p.inertia_vec();
         let w = s.body_rates;
         let body_rates = (torque - w.cross(&inertia.component_mul(&w))).component_div(&inertia);
-        BodyDerivative {
-            position: s.velocity,
-            attitude: s.attitude * Quaternion::from_imag(w) * 0.5,
-            velocity,
-            body_rates,
-        }
+        BodyDerivative { position: s.velocity, attitude: s.attitude * Quaternion::from_imag(w) * 0.5, velocity, body_rates }
     }
 }
 

@@ -573,7 +573,10 @@ mod tests {
             // mass ×m the vehicle accelerates by g (k/m − 1), and climbs or sinks accordingly.
             let excess = thrust / mass - 1.0;
             if excess.abs() > 0.03 {
-                assert!(dz_nominal.signum() == excess.signum() && dz_nominal.abs() > 0.1, "seed {seed}: {dz_nominal} m with k/m − 1 = {excess}");
+                assert!(
+                    dz_nominal.signum() == excess.signum() && dz_nominal.abs() > 0.1,
+                    "seed {seed}: {dz_nominal} m with k/m − 1 = {excess}"
+                );
             }
         }
     }

@@ -117,13 +117,7 @@ impl RandomizationParams {
     ///
     /// Factors are drawn in a fixed order (so a seed fixes the episode); a zero range draws
     /// nothing and leaves the nominal value exactly.
-    pub fn sample(
-        &self,
-        nominal: &QuadrotorParams,
-        start: &Pose,
-        substep: f64,
-        rng: &mut impl Rng,
-    ) -> EpisodeDraw {
+    pub fn sample(&self, nominal: &QuadrotorParams, start: &Pose, substep: f64, rng: &mut impl Rng) -> EpisodeDraw {
         let mut scale = |r: f64| 1.0 + symmetric(rng, r);
         let mut plant = *nominal;
         plant.mass *= scale(self.mass);
@@ -136,26 +130,14 @@ impl RandomizationParams {
         let delay = if self.command_delay > 0.0 { rng.random_range(0.0..=self.command_delay) } else { 0.0 };
         let delay_substeps = (delay / substep).round() as u32;
 
-        let position = start.position
-            + Vector3::new(
-                symmetric(rng, self.start_xy),
-                symmetric(rng, self.start_xy),
-                symmetric(rng, self.start_z),
-            );
+        let position =
+            start.position + Vector3::new(symmetric(rng, self.start_xy), symmetric(rng, self.start_xy), symmetric(rng, self.start_z));
         let velocity = Vector3::from_fn(|_, _| symmetric(rng, self.start_velocity));
-        let (roll, pitch, yaw) = (
-            symmetric(rng, self.start_attitude),
-            symmetric(rng, self.start_attitude),
-            symmetric(rng, self.start_attitude),
-        );
+        let (roll, pitch, yaw) =
+            (symmetric(rng, self.start_attitude), symmetric(rng, self.start_attitude), symmetric(rng, self.start_attitude));
         let body_rates = Vector3::from_fn(|_, _| symmetric(rng, self.start_body_rates));
-        let attitude = UnitQuaternion::from_euler_angles(0.0, 0.0, start.yaw)
-            * UnitQuaternion::from_euler_angles(roll, pitch, yaw);
-        EpisodeDraw {
-            plant,
-            delay_substeps,
-            start: BodyState { position, attitude: *attitude.quaternion(), velocity, body_rates },
-        }
+        let attitude = UnitQuaternion::from_euler_angles(0.0, 0.0, start.yaw) * UnitQuaternion::from_euler_angles(roll, pitch, yaw);
+        EpisodeDraw { plant, delay_substeps, start: BodyState { position, attitude: *attitude.quaternion(), velocity, body_rates } }
     }
 }
 
@@ -196,8 +178,7 @@ mod tests {
             let off = d.start.position - start.position;
             assert!(within(off.x, -0.8, 0.8) && within(off.y, -0.8, 0.8) && within(off.z, -0.6, 0.6));
             // Attitude: the relative rotation to the start yaw has each Euler angle within 20°.
-            let rel = UnitQuaternion::from_euler_angles(0.0, 0.0, -start.yaw)
-                * UnitQuaternion::new_unchecked(d.start.attitude);
+            let rel = UnitQuaternion::from_euler_angles(0.0, 0.0, -start.yaw) * UnitQuaternion::new_unchecked(d.start.attitude);
             let (roll, pitch, yaw) = rel.euler_angles();
             for a in [roll, pitch, yaw] {
                 assert!(within(a, -20f64.to_radians(), 20f64.to_radians()), "{a}");

@@ -9,8 +9,7 @@ use crate::randomization::RandomizationParams;
 use crate::track::{Pose, Track};
 
 /// Column names of the replay CSV, in order.
-pub const CSV_HEADER: &str =
-    "t,px,py,pz,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz,m1,m2,m3,m4,reward,terminated,target_gate,laps,event";
+pub const CSV_HEADER: &str = "t,px,py,pz,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz,m1,m2,m3,m4,reward,terminated,target_gate,laps,event";
 
 /// The post-step state of one policy step.
 #[derive(Clone, Debug, PartialEq)]

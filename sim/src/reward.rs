@@ -166,11 +166,7 @@ impl RewardParams {
         let [lx, ly] = f.rate_limits_xy;
         let rate = self.rate * ((wx / lx).powi(2) + (wy / ly).powi(2));
         let weights = [self.command_thrust, self.command_xy, self.command_xy, self.command_z];
-        let command = weights
-            .iter()
-            .zip(f.action_change)
-            .map(|(w, d)| w * (self.command_linear * d.abs() + d * d))
-            .sum();
+        let command = weights.iter().zip(f.action_change).map(|(w, d)| w * (self.command_linear * d.abs() + d * d)).sum();
         RewardTerms { progress, pass, crash, rate, command }
     }
 }
@@ -217,10 +213,8 @@ mod tests {
 
         let da = [0.5, -0.2, 0.1, 0.4];
         let t = p.terms(&StepFacts { action_change: da, ..facts() });
-        let expected = -0.0001 * (0.01 * 0.5 + 0.25)
-            - 0.0002 * (0.01 * 0.2 + 0.04)
-            - 0.0002 * (0.01 * 0.1 + 0.01)
-            - 0.0002 * (0.01 * 0.4 + 0.16);
+        let expected =
+            -0.0001 * (0.01 * 0.5 + 0.25) - 0.0002 * (0.01 * 0.2 + 0.04) - 0.0002 * (0.01 * 0.1 + 0.01) - 0.0002 * (0.01 * 0.4 + 0.16);
         assert!(close(t.command, expected), "{} vs {expected}", t.command);
         assert!(close(t.total(), t.progress + t.command));
     }

@@ -112,17 +112,12 @@ impl Gate {
     /// World point → gate-local (x along the flight direction, y left, z up).
     pub fn to_local(&self, p: &Vector3<f64>) -> Vector3<f64> {
         let d = p - self.position;
-        Vector3::new(
-            self.cos_yaw * d.x + self.sin_yaw * d.y,
-            -self.sin_yaw * d.x + self.cos_yaw * d.y,
-            d.z,
-        )
+        Vector3::new(self.cos_yaw * d.x + self.sin_yaw * d.y, -self.sin_yaw * d.x + self.cos_yaw * d.y, d.z)
     }
 
     /// Gate-local point → world.
     pub fn to_world(&self, l: &Vector3<f64>) -> Vector3<f64> {
-        self.position
-            + Vector3::new(self.cos_yaw * l.x - self.sin_yaw * l.y, self.sin_yaw * l.x + self.cos_yaw * l.y, l.z)
+        self.position + Vector3::new(self.cos_yaw * l.x - self.sin_yaw * l.y, self.sin_yaw * l.x + self.cos_yaw * l.y, l.z)
     }
 
     /// Unit normal: the flight direction through the gate.
@@ -146,18 +141,14 @@ impl Gate {
         let t = -a.x / (b.x - a.x);
         let y = a.y + t * (b.y - a.y);
         let z = a.z + t * (b.z - a.z);
-        (y.abs() < GATE_HALF_OPENING && z.abs() < GATE_HALF_OPENING)
-            .then(|| GateCrossing { error: y.hypot(z) })
+        (y.abs() < GATE_HALF_OPENING && z.abs() < GATE_HALF_OPENING).then(|| GateCrossing { error: y.hypot(z) })
     }
 
     /// Whether a sphere of `radius` at `p` touches the gate frame (SPEC §12.2).
     pub fn frame_touches_sphere(&self, p: &Vector3<f64>, radius: f64) -> bool {
         let l = self.to_local(p);
         // Cheap rejection first: most substeps are far from most gates.
-        if l.x.abs() > GATE_HALF_DEPTH + radius
-            || l.y.abs() > GATE_HALF_OUTER + radius
-            || l.z.abs() > GATE_HALF_OUTER + radius
-        {
+        if l.x.abs() > GATE_HALF_DEPTH + radius || l.y.abs() > GATE_HALF_OUTER + radius || l.z.abs() > GATE_HALF_OUTER + radius {
             return false;
         }
         FRAME_BARS.iter().any(|(lo, hi)| {
@@ -181,9 +172,7 @@ impl Gate {
         let axes = |g: &Gate| [Vector2::new(g.cos_yaw, g.sin_yaw), Vector2::new(-g.sin_yaw, g.cos_yaw)];
         let (a_axes, b_axes) = (axes(self), axes(other));
         let d = (other.position - self.position).xy();
-        let radius = |axes: &[Vector2<f64>; 2], n: &Vector2<f64>| {
-            half.x * axes[0].dot(n).abs() + half.y * axes[1].dot(n).abs()
-        };
+        let radius = |axes: &[Vector2<f64>; 2], n: &Vector2<f64>| half.x * axes[0].dot(n).abs() + half.y * axes[1].dot(n).abs();
         a_axes.iter().chain(b_axes.iter()).all(|n| d.dot(n).abs() < radius(&a_axes, n) + radius(&b_axes, n))
     }
 }
@@ -213,12 +202,7 @@ pub struct TrackGeometryError {
 
 impl Track {
     /// Builds a track, placing the start 2 m behind gate 0 when `start` is `None`, and checks it.
-    pub fn new(
-        name: impl Into<String>,
-        gates: Vec<Gate>,
-        start: Option<Pose>,
-        arena: Arena,
-    ) -> Result<Self, TrackGeometryError> {
+    pub fn new(name: impl Into<String>, gates: Vec<Gate>, start: Option<Pose>, arena: Arena) -> Result<Self, TrackGeometryError> {
         let start = start.unwrap_or_else(|| match gates.first() {
             Some(g0) => Pose { position: g0.position - g0.normal() * START_BEHIND_FIRST_GATE, yaw: g0.yaw },
             None => Pose { position: arena.centre(), yaw: 0.0 },
@@ -346,10 +330,7 @@ mod tests {
 
     #[test]
     fn default_start_is_two_metres_behind_gate_zero() {
-        let gates = vec![
-            Gate::new(Vector3::new(0.0, 0.0, 2.0), std::f64::consts::FRAC_PI_2),
-            Gate::new(Vector3::new(5.0, 5.0, 2.0), 0.0),
-        ];
+        let gates = vec![Gate::new(Vector3::new(0.0, 0.0, 2.0), std::f64::consts::FRAC_PI_2), Gate::new(Vector3::new(5.0, 5.0, 2.0), 0.0)];
         let t = Track::new("t", gates, None, Arena::default()).unwrap();
         assert!((t.start.position - Vector3::new(0.0, -2.0, 2.0)).norm() < 1e-12);
         assert_eq!(t.start.yaw, std::f64::consts::FRAC_PI_2);

@@ -44,8 +44,7 @@ pub struct VecEnv {
 impl VecEnv {
     /// One environment per track, environment `i` on random stream `i` of `seed`.
     pub fn new(tracks: Vec<Arc<Track>>, config: EnvConfig, seed: u64) -> Self {
-        let envs: Vec<RaceEnv> =
-            tracks.into_iter().enumerate().map(|(i, t)| RaceEnv::new(t, config, seed, i as u64)).collect();
+        let envs: Vec<RaceEnv> = tracks.into_iter().enumerate().map(|(i, t)| RaceEnv::new(t, config, seed, i as u64)).collect();
         Self::from_envs(envs)
     }
 

@@ -4,11 +4,11 @@ use std::path::PathBuf;
 
 use std::sync::Arc;
 
+use ::sim::eval::{EvalConfig, evaluate};
+use ::sim::{Controller, ReferencePilot};
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use policy::{Policy, PolicyController};
-use ::sim::eval::{EvalConfig, evaluate};
-use ::sim::{Controller, ReferencePilot};
 
 use super::{load_tracks, write_atomic};
 
@@ -67,11 +67,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let report = evaluate(&name, &tracks, make.as_ref(), &config);
     let markdown = report.to_markdown();
     println!("{markdown}");
-    tracing::info!(
-        deployments = tracks.len() * args.runs,
-        seconds = started.elapsed().as_secs_f64(),
-        "evaluation finished"
-    );
+    tracing::info!(deployments = tracks.len() * args.runs, seconds = started.elapsed().as_secs_f64(), "evaluation finished");
     write_atomic(&args.out.join("eval.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
     write_atomic(&args.out.join("eval.md"), markdown.as_bytes())?;
     println!("wrote {} and {}", args.out.join("eval.json").display(), args.out.join("eval.md").display());

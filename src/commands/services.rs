@@ -191,10 +191,17 @@ fn finish_server(rt: &tokio::runtime::Runtime, server: ServerTask, stop: &Atomic
     let _ = rt.block_on(async { tokio::time::timeout(Duration::from_secs(5), server).await });
 }
 
-fn drive<L: LearnerLink>(mut process: LearnerProcess<L>, resumed: bool, args: &LearnerArgs, stop: &AtomicBool, mut tasks: RemoteTasks) -> anyhow::Result<()> {
+fn drive<L: LearnerLink>(
+    mut process: LearnerProcess<L>,
+    resumed: bool,
+    args: &LearnerArgs,
+    stop: &AtomicBool,
+    mut tasks: RemoteTasks,
+) -> anyhow::Result<()> {
     let dir = process.run().dir().to_path_buf();
     let log_path = dir.join("train.log");
-    let mut log = std::fs::OpenOptions::new().create(true).append(true).open(&log_path).with_context(|| format!("opening {}", log_path.display()))?;
+    let mut log =
+        std::fs::OpenOptions::new().create(true).append(true).open(&log_path).with_context(|| format!("opening {}", log_path.display()))?;
     eprintln!(
         "learner: {} run in {} at iteration {} ({} transport)",
         if resumed { "resuming the" } else { "starting a new" },

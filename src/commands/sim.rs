@@ -3,11 +3,11 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use ::sim::nalgebra::Vector3;
+use ::sim::{EnvConfig, Pose, VecEnv};
 use anyhow::{Context, bail};
 use clap::Subcommand;
 use rand::{Rng, SeedableRng};
-use ::sim::nalgebra::Vector3;
-use ::sim::{EnvConfig, Pose, VecEnv};
 
 use super::{load_tracks, write_atomic};
 

@@ -31,16 +31,7 @@ fn opt(x: Option<f64>) -> String {
 
 fn row(t: &v1::Task) -> String {
     let track = t.track.as_ref().map_or("?", |t| t.name.as_str());
-    format!(
-        "{:>4}  {:<12} {:<32} {:>6} {:>8} {:>8} {:>8}",
-        t.env,
-        t.actor,
-        track,
-        t.window_length,
-        opt(t.rho),
-        opt(t.q),
-        t.switches
-    )
+    format!("{:>4}  {:<12} {:<32} {:>6} {:>8} {:>8} {:>8}", t.env, t.actor, track, t.window_length, opt(t.rho), opt(t.q), t.switches)
 }
 
 /// Prints the tasks (or one, or the history).

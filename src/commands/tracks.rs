@@ -4,9 +4,9 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
+use ::sim::nalgebra::Vector3;
 use anyhow::{Context, bail};
 use clap::{Subcommand, ValueEnum};
-use ::sim::nalgebra::Vector3;
 use taskctl::{GeneratorKind, SwitchParams, TaskController, TrackGenParams, TrackGenerator};
 
 use super::load_tracks;

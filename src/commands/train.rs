@@ -120,8 +120,8 @@ fn run_in_process(args: &TrainArgs, dir: PathBuf, config: TrainConfig, resume: b
     };
     let stop = stop_flag()?;
     let log_path = trainer.dir().join("train.log");
-    let mut log = std::fs::OpenOptions::new().create(true).append(true).open(&log_path)
-        .with_context(|| format!("opening {}", log_path.display()))?;
+    let mut log =
+        std::fs::OpenOptions::new().create(true).append(true).open(&log_path).with_context(|| format!("opening {}", log_path.display()))?;
     let first = trainer.iteration();
     eprintln!("training in {} (from iteration {first}, in one process)", trainer.dir().display());
     while !trainer.finished() && !stop.load(Ordering::SeqCst) && args.iterations.is_none_or(|n| trainer.iteration() - first < n) {
@@ -138,9 +138,8 @@ fn run_in_process(args: &TrainArgs, dir: PathBuf, config: TrainConfig, resume: b
 
 /// The live progress line of one iteration.
 pub fn progress_line(s: &IterationSummary, eta_seconds: f64) -> String {
-    let validation = s.validation.map_or(String::new(), |(s_pw, success)| {
-        format!(" | validation S_pw {s_pw:.4}, success {:.0} %", 100.0 * success)
-    });
+    let validation =
+        s.validation.map_or(String::new(), |(s_pw, success)| format!(" | validation S_pw {s_pw:.4}, success {:.0} %", 100.0 * success));
     format!(
         "iter {:>5} | {:>11} steps | {:>6.0} SPS (collect {:.1} s, update {:.1} s) | return {:>8.2} | laps/ep {:>5.2} | switches {:>5} | kl {:.4} | ETA {}{validation}",
         s.iteration,

@@ -64,7 +64,9 @@ fn measure<L: LearnerLink>(
         for _ in 0..broadcasts {
             let (version, sent) = weights_rx.recv().context("weights schedule")?;
             loop {
-                if let Some(w) = link.newest_weights()? && w.version == version {
+                if let Some(w) = link.newest_weights()?
+                    && w.version == version
+                {
                     latency_tx.send(sent.elapsed()).ok();
                     break;
                 }

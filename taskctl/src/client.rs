@@ -61,7 +61,11 @@ impl TaskClient {
         Ok(Self { runtime, client })
     }
 
-    fn call<T>(&self, timeout: Duration, f: impl std::future::Future<Output = Result<tonic::Response<T>, tonic::Status>>) -> Result<T, ClientError> {
+    fn call<T>(
+        &self,
+        timeout: Duration,
+        f: impl std::future::Future<Output = Result<tonic::Response<T>, tonic::Status>>,
+    ) -> Result<T, ClientError> {
         match self.runtime.block_on(async move { tokio::time::timeout(timeout, f).await }) {
             Ok(r) => Ok(r?.into_inner()),
             Err(_) => Err(ClientError { code: tonic::Code::DeadlineExceeded, message: format!("no answer within {timeout:?}") }),

@@ -155,8 +155,7 @@ impl TrackGenerator {
         let [z0, z1] = self.gate_z_range();
         (0..self.params.gates)
             .map(|_| {
-                let position =
-                    Vector3::new(rng.random_range(x0..=x1), rng.random_range(y0..=y1), rng.random_range(z0..=z1));
+                let position = Vector3::new(rng.random_range(x0..=x1), rng.random_range(y0..=y1), rng.random_range(z0..=z1));
                 Gate::new(position, rng.random_range(-std::f64::consts::PI..std::f64::consts::PI))
             })
             .collect()

@@ -17,5 +17,5 @@ pub use controller::{ActorRange, EnvSlot, SnapshotError, SwitchEvent, TaskContro
 pub use generator::{GenerateError, GeneratorKind, TrackGenParams, TrackGenerator};
 pub use library::{library, library_track};
 pub use switching::{SwitchParams, SwitchPolicy};
-pub use track_sets::{TrackSetError, test_set, validation_set};
 pub use track_file::{TrackFileError, parse_track, read_track, read_track_dir, track_to_toml, write_track};
+pub use track_sets::{TrackSetError, test_set, validation_set};

@@ -79,34 +79,29 @@ impl PoseToml {
 pub fn parse_track(text: &str, file: &Path) -> Result<Track, TrackFileError> {
     let raw: TrackToml = toml::from_str(text)
         .map_err(|e| TrackFileError::Syntax { file: file.to_path_buf(), message: e.to_string().trim_end().to_owned() })?;
-    let name = raw
-        .name
-        .unwrap_or_else(|| file.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default());
+    let name = raw.name.unwrap_or_else(|| file.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default());
     let gates = raw.gates.iter().map(|g| {
         let p = g.to_pose();
         Gate::new(p.position, p.yaw)
     });
     let arena = raw.arena.map_or_else(Arena::default, |a| Arena { min: a.min.into(), max: a.max.into() });
-    Track::new(name, gates.collect(), raw.start.as_ref().map(PoseToml::to_pose), arena).map_err(|e| {
-        TrackFileError::Invalid { file: file.to_path_buf(), field: e.field, message: e.message }
+    Track::new(name, gates.collect(), raw.start.as_ref().map(PoseToml::to_pose), arena).map_err(|e| TrackFileError::Invalid {
+        file: file.to_path_buf(),
+        field: e.field,
+        message: e.message,
     })
 }
 
 /// Reads and validates a track file.
 pub fn read_track(path: &Path) -> Result<Track, TrackFileError> {
-    let text =
-        std::fs::read_to_string(path).map_err(|source| TrackFileError::Io { file: path.to_path_buf(), source })?;
+    let text = std::fs::read_to_string(path).map_err(|source| TrackFileError::Io { file: path.to_path_buf(), source })?;
     parse_track(&text, path)
 }
 
 /// Reads every `*.toml` in `dir`, sorted by file name.
 pub fn read_track_dir(dir: &Path) -> Result<Vec<Track>, TrackFileError> {
     let io = |source| TrackFileError::Io { file: dir.to_path_buf(), source };
-    let mut paths: Vec<PathBuf> = std::fs::read_dir(dir)
-        .map_err(io)?
-        .map(|e| e.map(|e| e.path()))
-        .collect::<Result<_, _>>()
-        .map_err(io)?;
+    let mut paths: Vec<PathBuf> = std::fs::read_dir(dir).map_err(io)?.map(|e| e.map(|e| e.path())).collect::<Result<_, _>>().map_err(io)?;
     paths.retain(|p| p.extension().is_some_and(|e| e == "toml"));
     paths.sort();
     paths.iter().map(|p| read_track(p)).collect()

@@ -56,9 +56,7 @@ pub fn test_set(seed: u64) -> Result<Vec<Track>, TrackSetError> {
 
 fn generated(first_seed: u64, count: usize, prefix: &str) -> Result<Vec<Track>, TrackSetError> {
     let generator = TrackGenerator::default();
-    (0..count as u64)
-        .map(|i| Ok(generator.generate(first_seed + i, &format!("{prefix}-{}", first_seed + i))?.track))
-        .collect()
+    (0..count as u64).map(|i| Ok(generator.generate(first_seed + i, &format!("{prefix}-{}", first_seed + i))?.track)).collect()
 }
 
 #[cfg(test)]

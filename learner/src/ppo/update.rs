@@ -118,8 +118,7 @@ pub fn update(
             let ratios = ratio.into_data().try_into_vec::<f32>().expect("float ratios");
             let log_ratios = log_ratio.into_data().try_into_vec::<f32>().expect("float log ratios");
             stats.approx_kl += ratios.iter().zip(&log_ratios).map(|(r, l)| f64::from((r - 1.0) - l)).sum::<f64>() / b as f64;
-            stats.clip_fraction +=
-                ratios.iter().filter(|r| (f64::from(**r) - 1.0).abs() > config.clip_range).count() as f64 / b as f64;
+            stats.clip_fraction += ratios.iter().filter(|r| (f64::from(**r) - 1.0).abs() > config.clip_range).count() as f64 / b as f64;
             stats.policy_loss += f64::from(scalar(policy_loss));
             stats.value_loss += f64::from(scalar(value_loss));
             let critic_square: f64 = squares[critic.clone()].iter().sum();

@@ -285,10 +285,7 @@ impl Fitter<'_> {
         let mut rhs = DMatrix::zeros(m1 + n8, 3);
         rhs.rows_mut(0, m1).copy_from(self.data);
         let qr = stacked.qr();
-        let coefficients = qr
-            .r()
-            .solve_upper_triangular(&(qr.q().transpose() * rhs))
-            .expect("the data rows alone have full rank");
+        let coefficients = qr.r().solve_upper_triangular(&(qr.q().transpose() * rhs)).expect("the data rows alone have full rank");
         let fp = (&a * &coefficients - self.data).norm_squared();
         Solution { coefficients, fp }
     }
@@ -358,10 +355,7 @@ impl Fitter<'_> {
         let k = DEGREE;
         let (first, last) = (self.u[0], self.u[self.u.len() - 1]);
         let period = last - first;
-        let knots = (0..=k)
-            .map(|i| first - (k - i) as f64 * period)
-            .chain((0..=k).map(|i| last + i as f64 * period))
-            .collect();
+        let knots = (0..=k).map(|i| first - (k - i) as f64 * period).chain((0..=k).map(|i| last + i as f64 * period)).collect();
         BSplineCurve { knots, coefficients: std::array::from_fn(|d| vec![mean[(0, d)]; k + 1]), degree: k }
     }
 }
