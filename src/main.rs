@@ -1,5 +1,8 @@
 //! The `dronerace` command: parses arguments and dispatches to the library crates.
 
+// The command line talks to its user on stdout and stderr; the libraries log through `tracing`.
+#![allow(clippy::print_stdout, clippy::print_stderr)]
+
 mod commands;
 mod plot;
 
@@ -67,6 +70,8 @@ fn main() -> std::process::ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
         .with_writer(std::io::stderr)
+        // Colour codes only for a person at a terminal: logs in files stay greppable.
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     let result = match Cli::parse().command {
         Command::Tracks(c) => commands::tracks::run(c),

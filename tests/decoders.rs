@@ -8,6 +8,9 @@
 //!
 //! `cargo test --test decoders -- --nocapture` prints the counts (BENCHMARKS.md).
 
+// Test code: a panic is how a failure is reported.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::print_stdout, clippy::print_stderr)]
+
 use std::cell::Cell;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::Path;

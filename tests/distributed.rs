@@ -1,6 +1,9 @@
 //! The distributed runtime end to end: real taskctl, learner and actor processes over
 //! iceoryx2 and gRPC, killed with -9 and restarted, and refusing bad input.
 
+// Test code: a panic is how a failure is reported.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::print_stdout, clippy::print_stderr)]
+
 mod support;
 
 use std::path::Path;

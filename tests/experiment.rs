@@ -1,6 +1,9 @@
 //! Experiments as files: two variants × two seeds of a tiny run, interrupted part-way, then run
 //! again (finished runs skipped, the interrupted one resumed), then reported (Markdown and plot).
 
+// Test code: a panic is how a failure is reported.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::print_stdout, clippy::print_stderr)]
+
 use std::path::Path;
 use std::process::Command;
 use std::sync::atomic::{AtomicBool, Ordering};

@@ -2,6 +2,9 @@
 //! namespace, an actor in each of two others, joined by veth pairs; everything over gRPC with
 //! TLS and a bearer token. Needs root and iproute2 (CI runs as root).
 
+// Test code: a panic is how a failure is reported.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::print_stdout, clippy::print_stderr)]
+
 mod support;
 
 use std::path::Path;

@@ -59,7 +59,7 @@ fn retry<T>(what: &str, stop: &AtomicBool, mut f: impl FnMut() -> Result<T, Clie
                     tonic::Code::Unavailable | tonic::Code::DeadlineExceeded | tonic::Code::Unknown | tonic::Code::Cancelled
                 ) =>
             {
-                eprintln!("actor: {what}: {e}; retrying in {delay:?}");
+                tracing::info!("actor: {what}: {e}; retrying in {delay:?}");
                 std::thread::sleep(delay);
                 delay = (delay * 2).min(Duration::from_secs(2));
             }
@@ -86,7 +86,7 @@ pub fn run_actor(
     let mut registration = registration.map_err(ActorProcessError::Registration)?;
     let seed = actor_seed(settings.seed, registration.first_env, registration.next_rollout);
     let mut actor = Actor::new(registration.tracks.clone(), settings.env, seed, registration.first_env);
-    eprintln!("actor {name}: environments {}..{}", registration.first_env, registration.first_env + settings.envs);
+    tracing::info!("actor {name}: environments {}..{}", registration.first_env, registration.first_env + settings.envs);
     let mut current: Option<(u64, u64, u32)> = None; // (epoch, version, max_policy_lag)
     let mut used: Option<(u64, u64)> = None;
     let mut rollout = registration.next_rollout;
@@ -100,7 +100,7 @@ pub fn run_actor(
                 current = Some((update.learner_epoch, update.version, update.max_policy_lag));
             }
             Ok(None) => {}
-            Err(e) => eprintln!("actor {name}: weights: {e}"),
+            Err(e) => tracing::warn!("actor {name}: weights: {e}"),
         }
         let Some((epoch, version, lag)) = current else {
             std::thread::sleep(Duration::from_millis(2));
@@ -117,7 +117,7 @@ pub fn run_actor(
         used = Some((epoch, version));
         waiting_since = Instant::now();
         if let Err(e) = link.send_rollout(name, epoch, &chunk) {
-            eprintln!("actor {name}: rollout of version {version} not delivered: {e}");
+            tracing::warn!("actor {name}: rollout of version {version} not delivered: {e}");
         }
         sent += 1;
         let rewards = chunk.cumulative_rewards();
@@ -132,7 +132,7 @@ pub fn run_actor(
             Err(e) => {
                 // The controller may have applied the report and died before answering, or
                 // restarted from a snapshot: take its view of our environments and go on.
-                eprintln!("actor {name}: report {rollout}: {e}; resyncing with the task controller");
+                tracing::warn!("actor {name}: report {rollout}: {e}; resyncing with the task controller");
                 let Some(r) = retry("register", stop, || tasks.register(name, settings.envs)) else { break };
                 registration = r.map_err(ActorProcessError::Registration)?;
                 for (i, track) in registration.tracks.iter().enumerate() {

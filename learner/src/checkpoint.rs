@@ -92,12 +92,12 @@ impl Checkpoint {
             at = end;
             Ok(slice)
         };
-        let count = u32::from_le_bytes(take(4)?.try_into().expect("4 bytes"));
+        let count = le_u32(take(4)?);
         let mut sections = BTreeMap::new();
         for _ in 0..count {
-            let len = u32::from_le_bytes(take(4)?.try_into().expect("4 bytes")) as usize;
+            let len = le_u32(take(4)?) as usize;
             let name = String::from_utf8(take(len)?.to_vec()).map_err(|_| corrupt("section name is not UTF-8"))?;
-            let len = u64::from_le_bytes(take(8)?.try_into().expect("8 bytes")) as usize;
+            let len = le_u64(take(8)?) as usize;
             sections.insert(name, take(len)?.to_vec());
         }
         Ok(Self { sections, origin: origin.to_path_buf() })
@@ -159,6 +159,28 @@ impl CheckpointDir {
     }
 }
 
+/// A little-endian u32 from exactly 4 bytes.
+fn le_u32(b: &[u8]) -> u32 {
+    u32::from_le_bytes([b[0], b[1], b[2], b[3]])
+}
+
+/// A little-endian u64 from exactly 8 bytes.
+fn le_u64(b: &[u8]) -> u64 {
+    u64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]])
+}
+
+/// The policy in a checkpoint file or a bare weights blob file.
+pub fn read_policy(path: &Path) -> Result<policy::WeightsBlob, CheckpointError> {
+    let bytes = std::fs::read(path).map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })?;
+    let corrupt = |reason: String| CheckpointError::Corrupt { file: path.to_path_buf(), reason };
+    if bytes.starts_with(MAGIC) {
+        let checkpoint = Checkpoint::from_bytes(&bytes, path)?;
+        policy::WeightsBlob::from_bytes(checkpoint.get("weights")?).map_err(|e| corrupt(e.to_string()))
+    } else {
+        policy::WeightsBlob::from_bytes(&bytes).map_err(|e| corrupt(e.to_string()))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -189,17 +211,5 @@ mod tests {
         let names: Vec<String> = d.periodic().iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect();
         assert_eq!(names, ["ckpt-000000015.bin", "ckpt-000000020.bin"]);
         assert!(d.latest().unwrap().ends_with("ckpt-000000020.bin"));
-    }
-}
-
-/// The policy in a checkpoint file or a bare weights blob file.
-pub fn read_policy(path: &Path) -> Result<policy::WeightsBlob, CheckpointError> {
-    let bytes = std::fs::read(path).map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })?;
-    let corrupt = |reason: String| CheckpointError::Corrupt { file: path.to_path_buf(), reason };
-    if bytes.starts_with(MAGIC) {
-        let checkpoint = Checkpoint::from_bytes(&bytes, path)?;
-        policy::WeightsBlob::from_bytes(checkpoint.get("weights")?).map_err(|e| corrupt(e.to_string()))
-    } else {
-        policy::WeightsBlob::from_bytes(&bytes).map_err(|e| corrupt(e.to_string()))
     }
 }

@@ -110,6 +110,7 @@ impl Learner {
         &self.counters.profile
     }
 
+    #[allow(clippy::expect_used, reason = "the model is present between calls")]
     fn model(&self) -> &ActorCritic {
         self.model.as_ref().expect("the model is present between calls")
     }
@@ -127,6 +128,7 @@ impl Learner {
 
     /// One PPO iteration on chunks produced at most `max_policy_lag` versions ago (asynchronous
     /// running; the stored log-probabilities make the importance ratios right for older data).
+    #[allow(clippy::expect_used, reason = "the model is present between calls")]
     pub fn train_with_lag(&mut self, chunks: &[RolloutChunk], max_policy_lag: u64) -> Result<IterationReport, LearnerError> {
         if chunks.is_empty() {
             return Err(LearnerError::Empty);
@@ -198,6 +200,7 @@ impl Learner {
     }
 
     /// Everything needed to continue training exactly: weights, optimiser moments, counters.
+    #[allow(clippy::expect_used, reason = "optimiser state serialises; counters serialise")]
     pub fn save_state(&self) -> (Vec<u8>, Vec<u8>, Vec<u8>) {
         let weights = self.weights().to_bytes();
         let optimizer = self.optimizer.into_bytes().expect("optimiser state serialises").to_vec();

@@ -184,14 +184,13 @@ impl<L: LearnerLink> LearnerProcess<L> {
             }
             if first_arrival.is_some_and(|t| t.elapsed() >= timeout) {
                 for actor in &missing {
-                    tracing::warn!(%actor, "dropping an actor: no rollout of version {} within {timeout:?}", admission.version);
-                    eprintln!("learner: dropping actor {actor}: no rollout of version {} within {timeout:?}", admission.version);
+                    tracing::warn!("dropping actor {actor}: no rollout of version {} within {timeout:?}", admission.version);
                     self.members.remove(actor);
                 }
                 return Ok(Some(batch));
             }
             if batch.is_empty() && waiting_logged.elapsed() > Duration::from_secs(30) {
-                eprintln!("learner: waiting for rollouts of version {}", admission.version);
+                tracing::info!("waiting for rollouts of version {}", admission.version);
                 waiting_logged = Instant::now();
             }
         }

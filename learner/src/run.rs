@@ -403,16 +403,18 @@ impl Run {
 
     /// True when a periodic checkpoint is due after the iteration just recorded.
     pub fn checkpoint_due(&self) -> bool {
-        self.progress.iteration % self.config.checkpoint_every.max(1) == 0
+        self.progress.iteration.is_multiple_of(self.config.checkpoint_every.max(1))
     }
 
     /// Adds the run's bookkeeping to `ckpt` and writes it as the periodic checkpoint.
+    #[allow(clippy::expect_used, reason = "progress serialises")]
     pub fn save(&self, mut ckpt: Checkpoint) -> Result<PathBuf, TrainError> {
         ckpt.put("progress", serde_json::to_vec(&self.progress).expect("progress serialises"));
         Ok(self.checkpoints.save(&ckpt, self.progress.iteration)?)
     }
 
     /// Adds the run's bookkeeping to `ckpt` and writes it as `best.bin`.
+    #[allow(clippy::expect_used, reason = "progress serialises")]
     pub fn save_best(&self, mut ckpt: Checkpoint) -> Result<(), TrainError> {
         ckpt.put("progress", serde_json::to_vec(&self.progress).expect("progress serialises"));
         Ok(ckpt.write(&self.checkpoints.best())?)

@@ -119,6 +119,7 @@ impl Trainer {
         self.run.save(self.snapshot())
     }
 
+    #[allow(clippy::expect_used, reason = "actor state serialises")]
     fn snapshot(&self) -> Checkpoint {
         let mut c = self.learner.checkpoint();
         c.put("actor", serde_json::to_vec(&self.actor.state()).expect("actor state serialises"));

@@ -54,7 +54,7 @@ impl Validator {
 
     /// True when the iteration just finished (1-based) is one to evaluate.
     pub fn due(&self, iteration: u64) -> bool {
-        iteration % self.every == 0
+        iteration.is_multiple_of(self.every)
     }
 
     /// Flies `blob`'s deterministic policy on every validation track.

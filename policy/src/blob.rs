@@ -73,6 +73,7 @@ impl WeightsBlob {
     }
 
     /// Refuses a blob whose architecture is not `expected`.
+    #[allow(clippy::expect_used, reason = "architectures serialise")]
     pub fn check_architecture(&self, expected: &Architecture) -> Result<(), BlobError> {
         if &self.architecture == expected {
             return Ok(());
@@ -82,6 +83,7 @@ impl WeightsBlob {
     }
 
     /// Encodes the blob.
+    #[allow(clippy::expect_used, reason = "architectures serialise")]
     pub fn to_bytes(&self) -> Vec<u8> {
         let mut out = Vec::with_capacity(64 + 4 * self.params.iter().map(|p| p.values.len()).sum::<usize>());
         out.extend_from_slice(MAGIC);
@@ -156,6 +158,12 @@ impl WeightsBlob {
     }
 }
 
+impl From<Truncated> for BlobError {
+    fn from(t: Truncated) -> Self {
+        Self::Truncated { needed: t.needed, at: t.at }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -193,11 +201,5 @@ mod tests {
         assert!(matches!(WeightsBlob::from_bytes(&bytes[..12]), Err(BlobError::Truncated { .. })));
         let e = b.check_architecture(&Architecture::paper()).unwrap_err().to_string();
         assert!(e.contains("[8,8]") && e.contains("[512,512]"), "{e}");
-    }
-}
-
-impl From<Truncated> for BlobError {
-    fn from(t: Truncated) -> Self {
-        Self::Truncated { needed: t.needed, at: t.at }
     }
 }

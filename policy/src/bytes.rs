@@ -37,26 +37,33 @@ impl<'a> Reader<'a> {
         count.min(self.remaining() / min_bytes.max(1))
     }
 
+    /// The next `N` bytes as an array.
+    pub fn array<const N: usize>(&mut self) -> Result<[u8; N], Truncated> {
+        let mut out = [0u8; N];
+        out.copy_from_slice(self.take(N)?);
+        Ok(out)
+    }
+
     pub fn u8(&mut self) -> Result<u8, Truncated> {
         Ok(self.take(1)?[0])
     }
 
     pub fn u32(&mut self) -> Result<u32, Truncated> {
-        Ok(u32::from_le_bytes(self.take(4)?.try_into().expect("4 bytes")))
+        Ok(u32::from_le_bytes(self.array()?))
     }
 
     pub fn u64(&mut self) -> Result<u64, Truncated> {
-        Ok(u64::from_le_bytes(self.take(8)?.try_into().expect("8 bytes")))
+        Ok(u64::from_le_bytes(self.array()?))
     }
 
     pub fn f64(&mut self) -> Result<f64, Truncated> {
-        Ok(f64::from_le_bytes(self.take(8)?.try_into().expect("8 bytes")))
+        Ok(f64::from_le_bytes(self.array()?))
     }
 
     /// `n` f32 values; a count whose byte length overflows is reported as truncation.
     pub fn f32s(&mut self, n: usize) -> Result<Vec<f32>, Truncated> {
         let len = n.checked_mul(4).ok_or(Truncated { needed: usize::MAX, at: self.at })?;
-        Ok(self.take(len)?.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes"))).collect())
+        Ok(self.take(len)?.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
     }
 
     /// `n` booleans stored one byte each; anything but 0 or 1 is refused as `None`.

@@ -76,6 +76,7 @@ impl Policy {
     }
 
     /// Action means and values of raw observations (`n × obs_dim`).
+    #[allow(clippy::expect_used, reason = "float outputs")]
     pub fn means_and_values(&self, raw: &[f32]) -> (Vec<f32>, Vec<f32>) {
         let dim = self.normalizer.dim();
         let n = raw.len() / dim;

@@ -151,6 +151,7 @@ impl ActorCritic {
 
     /// Every parameter with its id, in the fixed order: actor layers (weight, bias), critic
     /// layers, log std. Tensors are shared handles, not copies.
+    #[allow(clippy::expect_used, reason = "layers have biases")]
     fn ordered(&self) -> Vec<(ParamId, AnyTensor)> {
         let mut out = Vec::new();
         for layer in self.actor.layers.iter().chain(&self.critic.layers) {
@@ -169,6 +170,7 @@ impl ActorCritic {
 
     /// Every parameter's values, in a fixed order: actor layers (weight, bias), critic layers,
     /// log std.
+    #[allow(clippy::expect_used, reason = "float parameters")]
     pub fn export(&self) -> Vec<ExportedParam> {
         self.ordered()
             .into_iter()

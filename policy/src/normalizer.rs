@@ -80,7 +80,7 @@ mod tests {
             assert!((n.mean[d] - mean).abs() < 1e-12 && (n.var[d] - var).abs() < 1e-12);
         }
         let mut out = vec![0.0; 2];
-        n.normalize(&[1e6, f32::from(n.mean[1] as f32)], &mut out);
+        n.normalize(&[1e6, n.mean[1] as f32], &mut out);
         assert_eq!(out[0], 10.0, "clipped");
         assert!(out[1].abs() < 1e-6);
     }

@@ -22,6 +22,7 @@ pub use security::{NetworkConfig, Security, SecurityError};
 pub use transport::{ActorLink, Admission, Delivery, LearnerLink, LinkError, Refusal, WeightsUpdate};
 
 /// gRPC health and reflection services for a server whose own services are `serving`.
+#[allow(clippy::expect_used, reason = "the compiled-in descriptor set is valid")]
 pub async fn health_and_reflection(
     serving: &[&str],
 ) -> (

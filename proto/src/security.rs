@@ -146,6 +146,7 @@ impl Security {
     }
 
     /// The interceptor clients wrap their channel in (adds the bearer token).
+    #[allow(clippy::expect_used, reason = "Security::load admits only printable ASCII tokens")]
     pub fn token_header(&self) -> AddToken {
         AddToken { header: self.token.as_ref().map(|t| format!("Bearer {t}").parse().expect("printable ASCII token")) }
     }

@@ -34,7 +34,7 @@ pub enum ObservationFrame {
 
 impl ObservationFrame {
     /// The rotation that takes world vectors into this frame for a drone with attitude `body`.
-    fn from_world(self, body: &BodyState) -> Matrix3<f64> {
+    fn rotation_from_world(self, body: &BodyState) -> Matrix3<f64> {
         match self {
             ObservationFrame::World => Matrix3::identity(),
             ObservationFrame::Heading => heading_from_world(body),
@@ -59,7 +59,7 @@ pub fn write_state_observation(
     out: &mut [f32],
 ) {
     assert_eq!(out.len(), STATE_OBS_DIM, "state observation row has the wrong length");
-    let to_frame = frame.from_world(body);
+    let to_frame = frame.rotation_from_world(body);
     let attitude = match frame {
         ObservationFrame::World => body.rotation(),
         ObservationFrame::Heading | ObservationFrame::Body => heading_from_world(body) * body.rotation(),

@@ -76,6 +76,7 @@ impl QuadrotorParams {
     }
 
     /// Inverse of the allocation matrix; panics only for a degenerate rotor layout.
+    #[allow(clippy::expect_used, reason = "rotor layout gives a singular allocation matrix")]
     pub fn allocation_inverse(&self) -> Matrix4<f64> {
         self.allocation().try_inverse().expect("rotor layout gives a singular allocation matrix")
     }

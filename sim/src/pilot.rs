@@ -228,6 +228,7 @@ fn hermite_samples(
 /// The Hermite segment with the first tangent length (in [`TANGENT_SCALES`] order) that stays
 /// clear of every gate frame and inside the arena without a near-cusp turn; failing that, the
 /// one with the fewest samples too close, then without a cusp.
+#[allow(clippy::expect_used, reason = "TANGENT_SCALES is a non-empty constant")]
 fn clear_segment(
     track: &Track,
     from: (&Vector3<f64>, &Vector3<f64>),
@@ -287,6 +288,7 @@ impl Controller for ReferencePilot {
         self.progress = 0;
     }
 
+    #[allow(clippy::expect_used, reason = "the Controller contract: reset before act")]
     fn act(&mut self, env: &RaceEnv) -> [f32; 4] {
         let p = self.params;
         if self.lead_in.is_some() && env.stats().gates_passed > 0 {

@@ -241,8 +241,7 @@ mod tests {
 
     #[test]
     fn zero_thrust_without_drag_falls_with_gravity_less_idle_thrust() {
-        let mut p = QuadrotorParams::default();
-        p.drag = [0.0; 3];
+        let p = QuadrotorParams { drag: [0.0; 3], ..QuadrotorParams::default() };
         let mut quad = Quadrotor::new(p, p, BodyState::at_rest(Vector3::new(0.0, 0.0, 10.0), 0.3));
         quad.motor_speeds = Vector4::repeat(p.motor_speed_min);
         let command = Command::from_action(&[-1.0, 0.0, 0.0, 0.0], &p);

@@ -145,7 +145,7 @@ mod tests {
                 "square",
                 vec![
                     Gate::new(Vector3::new(5.0, 0.0, 2.0), 1.57),
-                    Gate::new(Vector3::new(0.0, 5.0, 3.0), 3.14),
+                    Gate::new(Vector3::new(0.0, 5.0, 3.0), std::f64::consts::PI),
                     Gate::new(Vector3::new(-5.0, 0.0, 2.0), -1.57),
                     Gate::new(Vector3::new(0.0, -5.0, 2.5), 0.0),
                 ],

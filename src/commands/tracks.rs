@@ -198,7 +198,7 @@ fn bench(count: usize, envs: usize, window: usize) -> anyhow::Result<()> {
     }
     // Rewards of a flat curve with noise keep every window full and score it every time.
     let switching = SwitchParams { window, ..SwitchParams::default() };
-    let tracks = vec![Arc::new(taskctl::library()?[0].clone()); envs];
+    let tracks = std::iter::repeat_n(Arc::new(taskctl::library()?[0].clone()), envs).collect();
     let mut controller = TaskController::with_tracks(tracks, TrackGenerator::default(), switching, 0)?;
     let iterations = window as u64 + 200;
     let mut timed = std::time::Duration::ZERO;

@@ -288,6 +288,7 @@ impl TaskController {
 
     /// Takes one rollout's cumulative rewards of all of an actor's environments (refused
     /// whole if anything is wrong); returns the environments that switched and their tracks.
+    #[allow(clippy::expect_used, reason = "the actor was found above; the borrow checker needs a second lookup to mutate")]
     pub fn report_rollout(&mut self, actor: &str, rollout: u64, rewards: &[f64]) -> Result<Vec<(usize, Arc<Track>)>, TaskError> {
         let range = self.state.actors.iter().find(|a| a.actor == actor).ok_or_else(|| TaskError::UnknownActor(actor.into()))?;
         if rewards.len() != range.envs {
@@ -354,6 +355,7 @@ impl TaskController {
 
     /// The whole state as snapshot bytes: a header line (format, version, length, CRC-32)
     /// followed by the JSON body.
+    #[allow(clippy::expect_used, reason = "controller state always serialises")]
     pub fn to_snapshot_bytes(&self) -> Vec<u8> {
         let body = serde_json::to_vec(&self.state).expect("controller state always serialises");
         let header = format!("{SNAPSHOT_MAGIC} {SNAPSHOT_VERSION} {} {:08x}\n", body.len(), crc32fast::hash(&body));
@@ -407,6 +409,7 @@ impl EnvSlot {
 
 impl State {
     /// Track number `generation` of environment `env`, from a seed that depends only on them.
+    #[allow(clippy::expect_used, reason = "at least one seed tried")]
     fn new_track(&self, env: usize, generation: u64) -> Result<(Arc<Track>, u64), GenerateError> {
         let mut last_error = None;
         for attempt in 0..SEED_TRIES {

@@ -108,6 +108,7 @@ pub fn read_track_dir(dir: &Path) -> Result<Vec<Track>, TrackFileError> {
 }
 
 /// Serialises a track to TOML that [`parse_track`] reads back to the same track.
+#[allow(clippy::expect_used, reason = "a track always serialises")]
 pub fn track_to_toml(track: &Track) -> String {
     let raw = TrackToml {
         name: Some(track.name.clone()),

@@ -2,6 +2,9 @@
 //! on every case of the reference vectors (`tests/data/splprep_periodic.json`, generated with
 //! scipy 1.17.1; a copy of the project's shared reference file).
 
+// Test code: a panic is how a failure is reported.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::print_stdout, clippy::print_stderr)]
+
 use serde_json::Value;
 use sim::nalgebra::Vector3;
 use taskctl::spline::fit_closed_curve;

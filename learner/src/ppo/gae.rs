@@ -30,6 +30,8 @@ pub struct GaeInput<'a> {
 /// GAE as Stable-Baselines3 computes it: a truncated step is bootstrapped by adding
 /// γ·V(final observation) to its reward, then — like a termination — cuts the recursion,
 /// because the next stored observation belongs to a new episode.
+// `e` indexes the per-environment carry and, with `t`, the flat rollout arrays.
+#[allow(clippy::needless_range_loop)]
 pub fn gae(input: &GaeInput<'_>, gamma: f32, lambda: f32) -> Advantages {
     let n = input.envs;
     let steps = input.rewards.len() / n;

@@ -67,6 +67,7 @@ pub struct UpdateStats {
 }
 
 /// One PPO update of `model` on `batch`; returns the updated model and its statistics.
+#[allow(clippy::expect_used, reason = "float ratios; float log ratios")]
 pub fn update(
     mut model: ActorCritic,
     optimizer: &mut ModuleOptimizer,
@@ -202,6 +203,7 @@ pub fn explained_variance(values: &[f32], returns: &[f32]) -> f64 {
     1.0 - var_residual / var_returns
 }
 
+#[allow(clippy::expect_used, reason = "float scalar")]
 fn scalar(t: Tensor<1>) -> f32 {
     t.into_data().try_into_vec::<f32>().expect("float scalar")[0]
 }

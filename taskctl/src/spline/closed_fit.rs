@@ -262,6 +262,7 @@ impl Fitter<'_> {
     }
 
     /// Least-squares closed spline with these knots, and the trace of its triangular factor.
+    #[allow(clippy::expect_used, reason = "the knots interlace the data, so the observation matrix has full rank")]
     fn least_squares(&self, knots: &[f64]) -> (Solution, f64) {
         let a = self.observation_matrix(knots);
         let qr = a.clone().qr();
@@ -276,6 +277,7 @@ impl Fitter<'_> {
     }
 
     /// The smoothing spline for weight p: least squares on the data rows plus the jump rows / p.
+    #[allow(clippy::expect_used, reason = "the data rows alone have full rank")]
     fn smoothed(&self, knots: &[f64], jumps: &DMatrix<f64>, p: f64) -> Solution {
         let a = self.observation_matrix(knots);
         let (m1, n8, n7) = (a.nrows(), jumps.nrows(), a.ncols());
@@ -362,6 +364,7 @@ impl Fitter<'_> {
 
 /// FITPACK's fpknot: splits the interval with the largest residual share (among those holding
 /// data) at its middle data point; shares and data counts are divided in proportion.
+#[allow(clippy::expect_used, reason = "an interval with data and a positive residual")]
 fn add_knot(u: &[f64], interior: &mut Vec<f64>, inside: &mut Vec<usize>, shares: &mut Vec<f64>) {
     let mut best: Option<(usize, usize, usize, f64)> = None;
     let mut start = 1; // 1-based index of the data point on the interval's left knot
