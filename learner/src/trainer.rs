@@ -100,7 +100,7 @@ impl Trainer {
             seconds: started.elapsed().as_secs_f64(),
             update_seconds: collected.elapsed().as_secs_f64(),
             switches: self.tasks.history().len(),
-            mean_q: mean_q(&self.tasks),
+            mean_q: self.tasks.mean_q().unwrap_or(f64::NAN),
             version_lag: 0,
         };
         let validation = Validator::evaluate_if_due(self.validator.as_ref(), self.run.next_iteration(), || self.learner.weights())?;
@@ -136,10 +136,4 @@ impl Trainer {
     pub fn dir(&self) -> &Path {
         self.run.dir()
     }
-}
-
-/// Mean flatness score q over the environments that have one (NaN if none).
-pub fn mean_q(tasks: &TaskController) -> f64 {
-    let qs: Vec<f64> = tasks.slots().iter().filter_map(|s| s.q).collect();
-    if qs.is_empty() { f64::NAN } else { qs.iter().sum::<f64>() / qs.len() as f64 }
 }

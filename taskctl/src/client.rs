@@ -104,6 +104,12 @@ impl TaskClient {
         Ok(self.call(Duration::from_secs(5), c.list_tasks(v1::ListTasksRequest {}))?.tasks)
     }
 
+    /// Counts over all environments (no tracks travel).
+    pub fn summary(&self) -> Result<v1::Summary, ClientError> {
+        let mut c = self.client.clone();
+        self.call(Duration::from_secs(5), c.get_summary(v1::SummaryRequest {}))
+    }
+
     /// One environment's task.
     pub fn get_task(&self, env: usize) -> Result<v1::Task, ClientError> {
         let mut c = self.client.clone();

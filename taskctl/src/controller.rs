@@ -338,6 +338,12 @@ impl TaskController {
         &self.state.slots
     }
 
+    /// Mean flatness score q over the environments that have one (`None` while none has).
+    pub fn mean_q(&self) -> Option<f64> {
+        let qs: Vec<f64> = self.state.slots.iter().filter_map(|s| s.q).collect();
+        (!qs.is_empty()).then(|| qs.iter().sum::<f64>() / qs.len() as f64)
+    }
+
     /// Current track of every environment.
     pub fn tracks(&self) -> Vec<Arc<Track>> {
         self.state.slots.iter().map(|s| s.track.clone()).collect()

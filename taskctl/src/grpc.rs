@@ -139,6 +139,12 @@ impl TaskControllerRpc for TaskControllerService {
         Ok(Response::new(v1::ListTasksResponse { tasks }))
     }
 
+    async fn get_summary(&self, _: Request<v1::SummaryRequest>) -> Result<Response<v1::Summary>, Status> {
+        let c = self.controller.lock().await;
+        let switches = c.slots().iter().map(|s| s.switches as u64).sum();
+        Ok(Response::new(v1::Summary { envs: c.len() as u32, switches, mean_q: c.mean_q() }))
+    }
+
     async fn get_switch_history(&self, request: Request<v1::SwitchHistoryRequest>) -> Result<Response<v1::SwitchHistoryResponse>, Status> {
         let from = request.into_inner().from;
         let c = self.controller.lock().await;
@@ -224,6 +230,8 @@ mod tests {
             assert_eq!(registered.tracks.len(), 4);
             let listed = service.list_tasks(Request::new(v1::ListTasksRequest {})).await.unwrap().into_inner();
             assert_eq!(listed.tasks.len(), 4);
+            let summary = service.get_summary(Request::new(v1::SummaryRequest {})).await.unwrap().into_inner();
+            assert_eq!((summary.envs, summary.switches, summary.mean_q), (4, 0, None));
         });
         let restored = TaskController::restore(&dir.path().join("snapshot")).unwrap();
         assert_eq!(restored.slots().len(), 4, "the change after the panic was persisted");
