@@ -391,7 +391,7 @@ fn bad_messages_are_refused_with_a_clear_status() {
         let e = clients.rt.block_on(learner_client.status(v1::StatusRequest {})).unwrap_err();
         assert_eq!(e.code(), tonic::Code::Unauthenticated, "{e:?}");
         let e = clients.tasks(&c.taskctl_url()).list_tasks().unwrap_err();
-        assert_eq!(e.code, tonic::Code::Unauthenticated, "{e:?}");
+        assert!(!e.transient && e.message.starts_with("Unauthenticated"), "{e:?}");
     }
 
     let status = authed.status(&c.learner_url()).unwrap();
@@ -437,13 +437,13 @@ fn bad_messages_are_refused_with_a_clear_status() {
     let tasks = authed.tasks(&c.taskctl_url());
     tasks.register("probe", 2).unwrap();
     let refused = |r: Result<Vec<_>, taskctl::client::ClientError>| r.unwrap_err();
-    assert_eq!(refused(tasks.report("nobody", 0, &[1.0])).code, tonic::Code::NotFound);
+    assert!(refused(tasks.report("nobody", 0, &[1.0])).message.starts_with("NotFound"));
     let e = refused(tasks.report("probe", 0, &[1.0]));
-    assert_eq!(e.code, tonic::Code::InvalidArgument);
+    assert!(!e.transient && e.message.starts_with("InvalidArgument"), "{e}");
     assert!(e.message.contains("2 environments but reported 1 rewards"), "{}", e.message);
-    assert_eq!(refused(tasks.report("probe", 0, &[1.0, f64::INFINITY])).code, tonic::Code::InvalidArgument);
-    assert_eq!(tasks.register("bad name!", 1).unwrap_err().code, tonic::Code::InvalidArgument);
-    assert_eq!(tasks.register("greedy", 100).unwrap_err().code, tonic::Code::ResourceExhausted);
+    assert!(refused(tasks.report("probe", 0, &[1.0, f64::INFINITY])).message.starts_with("InvalidArgument"));
+    assert!(tasks.register("bad name!", 1).unwrap_err().message.starts_with("InvalidArgument"));
+    assert!(tasks.register("greedy", 100).unwrap_err().message.starts_with("ResourceExhausted"));
     tasks.report("probe", 0, &[1.0, 2.0]).unwrap();
-    assert_eq!(refused(tasks.report("probe", 0, &[1.0, 2.0])).code, tonic::Code::AlreadyExists, "a repeated rollout");
+    assert!(refused(tasks.report("probe", 0, &[1.0, 2.0])).message.starts_with("AlreadyExists"), "a repeated rollout");
 }

@@ -53,12 +53,7 @@ fn retry<T>(what: &str, stop: &AtomicBool, mut f: impl FnMut() -> Result<T, Clie
         }
         match f() {
             Ok(v) => return Some(Ok(v)),
-            Err(e)
-                if matches!(
-                    e.code,
-                    tonic::Code::Unavailable | tonic::Code::DeadlineExceeded | tonic::Code::Unknown | tonic::Code::Cancelled
-                ) =>
-            {
+            Err(e) if e.transient => {
                 tracing::info!("actor: {what}: {e}; retrying in {delay:?}");
                 std::thread::sleep(delay);
                 delay = (delay * 2).min(Duration::from_secs(2));

@@ -24,19 +24,23 @@ pub struct Registration {
     pub next_rollout: u64,
 }
 
-/// A call that failed: the status code says whether retrying can help.
+/// A call that failed, and whether trying again can help.
 #[derive(Debug, thiserror::Error)]
-#[error("task controller: {code:?}: {message}")]
+#[error("task controller: {message}{}", if *.transient { " (transient)" } else { "" })]
 pub struct ClientError {
-    /// gRPC status code.
-    pub code: tonic::Code,
+    /// The controller is unreachable, restarting or timed out: the same call may succeed
+    /// later. Otherwise it refused the request itself and will refuse it again.
+    pub transient: bool,
     /// What the server (or the connection) said.
     pub message: String,
 }
 
 impl From<tonic::Status> for ClientError {
+    /// The one place gRPC status codes are read on the client side.
     fn from(s: tonic::Status) -> Self {
-        Self { code: s.code(), message: s.message().to_string() }
+        use tonic::Code::{Cancelled, DeadlineExceeded, Unavailable, Unknown};
+        let transient = matches!(s.code(), Unavailable | DeadlineExceeded | Unknown | Cancelled);
+        Self { transient, message: format!("{:?}: {}", s.code(), s.message()) }
     }
 }
 
@@ -68,7 +72,7 @@ impl TaskClient {
     ) -> Result<T, ClientError> {
         match self.runtime.block_on(async move { tokio::time::timeout(timeout, f).await }) {
             Ok(r) => Ok(r?.into_inner()),
-            Err(_) => Err(ClientError { code: tonic::Code::DeadlineExceeded, message: format!("no answer within {timeout:?}") }),
+            Err(_) => Err(ClientError { transient: true, message: format!("no answer within {timeout:?}") }),
         }
     }
 
@@ -77,9 +81,9 @@ impl TaskClient {
         let mut c = self.client.clone();
         let r = self.call(Duration::from_secs(30), c.register(v1::RegisterRequest { actor: actor.into(), envs: envs as u32 }))?;
         let tracks = r.tracks.iter().map(|t| track_from_proto(t).map(Arc::new)).collect::<Result<Vec<_>, _>>();
-        let tracks = tracks.map_err(|message| ClientError { code: tonic::Code::Internal, message })?;
+        let tracks = tracks.map_err(|message| ClientError { transient: false, message })?;
         if tracks.len() != envs {
-            return Err(ClientError { code: tonic::Code::Internal, message: format!("{} tracks for {envs} environments", tracks.len()) });
+            return Err(ClientError { transient: false, message: format!("{} tracks for {envs} environments", tracks.len()) });
         }
         Ok(Registration { first_env: r.first_env as usize, tracks, next_rollout: r.next_rollout })
     }
@@ -93,7 +97,7 @@ impl TaskClient {
             .iter()
             .map(|a| {
                 let track = a.track.as_ref().ok_or_else(|| "switch without a track".to_string()).and_then(track_from_proto);
-                track.map(|t| (a.env as usize, Arc::new(t))).map_err(|message| ClientError { code: tonic::Code::Internal, message })
+                track.map(|t| (a.env as usize, Arc::new(t))).map_err(|message| ClientError { transient: false, message })
             })
             .collect()
     }
@@ -120,5 +124,19 @@ impl TaskClient {
     pub fn switch_history(&self, from: u64) -> Result<Vec<v1::SwitchEvent>, ClientError> {
         let mut c = self.client.clone();
         Ok(self.call(Duration::from_secs(5), c.get_switch_history(v1::SwitchHistoryRequest { from }))?.events)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_unreachable_controller_is_transient_and_a_refusal_is_not() {
+        assert!(ClientError::from(tonic::Status::unavailable("connection refused")).transient);
+        assert!(ClientError::from(tonic::Status::deadline_exceeded("slow")).transient);
+        let refused = ClientError::from(tonic::Status::invalid_argument("2 environments but reported 1 rewards"));
+        assert!(!refused.transient);
+        assert_eq!(refused.to_string(), "task controller: InvalidArgument: 2 environments but reported 1 rewards");
     }
 }
