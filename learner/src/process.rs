@@ -132,7 +132,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
             blob: self.learner.weights().to_bytes(),
         };
         self.shared.set_admission(self.admission());
-        self.link.publish(&update).map_err(|e| TrainError::Io(e.to_string()))?;
+        self.link.publish(&update)?;
         Ok(())
     }
 
@@ -163,7 +163,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
             if stop.load(Ordering::SeqCst) {
                 return Ok(None);
             }
-            if let Some(d) = self.link.receive(Duration::from_millis(50)).map_err(|e| TrainError::Io(e.to_string()))? {
+            if let Some(d) = self.link.receive(Duration::from_millis(50))? {
                 match admission.check(&d.actor, d.learner_epoch, &d.chunk) {
                     Ok(()) => {
                         first_arrival.get_or_insert_with(Instant::now);

@@ -97,7 +97,7 @@ impl Default for TrainConfig {
 impl TrainConfig {
     /// Reads a config file; errors name the file and the field.
     pub fn read(path: &Path) -> Result<Self, TrainError> {
-        let text = std::fs::read_to_string(path).map_err(|e| TrainError::Io(format!("{}: {e}", path.display())))?;
+        let text = std::fs::read_to_string(path).map_err(|source| TrainError::Io { file: path.to_path_buf(), source })?;
         toml::from_str(&text).map_err(|e| TrainError::Config(format!("{}: {e}", path.display())))
     }
 
@@ -183,9 +183,29 @@ pub enum TrainError {
     /// A weights blob could not be used.
     #[error(transparent)]
     Blob(#[from] policy::BlobError),
-    /// Other I/O.
-    #[error("{0}")]
-    Io(String),
+    /// A file or directory of the run could not be read or written.
+    #[error("{}: {source}", file.display())]
+    Io {
+        /// The file or directory.
+        file: PathBuf,
+        /// What the system said.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A section of a checkpoint or a config could not be encoded or decoded.
+    #[error("{what}: {reason}")]
+    Encoding {
+        /// Which file and section.
+        what: String,
+        /// Why.
+        reason: String,
+    },
+    /// The rollout transport failed.
+    #[error(transparent)]
+    Link(#[from] proto::LinkError),
+    /// The task-controller snapshot inside a checkpoint is unusable.
+    #[error(transparent)]
+    Snapshot(#[from] taskctl::SnapshotError),
 }
 
 /// What one iteration produced, for the progress line.
@@ -251,7 +271,7 @@ impl Run {
     /// resolved config into it.
     pub fn create(config: TrainConfig, dir: &Path) -> Result<Self, TrainError> {
         config.resolved_profile()?;
-        std::fs::create_dir_all(dir).map_err(|e| TrainError::Io(format!("{}: {e}", dir.display())))?;
+        std::fs::create_dir_all(dir).map_err(|source| TrainError::Io { file: dir.to_path_buf(), source })?;
         let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
         if checkpoints.latest().is_some() {
             return Err(TrainError::Config(format!(
@@ -259,10 +279,10 @@ impl Run {
                 dir.display()
             )));
         }
-        let text = toml::to_string(&config).map_err(|e| TrainError::Io(e.to_string()))?;
+        let text = toml::to_string(&config).map_err(|e| TrainError::Encoding { what: "config".into(), reason: e.to_string() })?;
         taskctl::files::write_atomic(&dir.join("config.toml"), text.as_bytes())
-            .map_err(|e| TrainError::Io(format!("{}: {e}", dir.join("config.toml").display())))?;
-        let metrics = MetricsWriter::open(dir).map_err(|e| TrainError::Io(format!("{}: {e}", dir.display())))?;
+            .map_err(|source| TrainError::Io { file: dir.join("config.toml"), source })?;
+        let metrics = MetricsWriter::open(dir).map_err(|source| TrainError::Io { file: dir.to_path_buf(), source })?;
         let progress = Progress { iteration: 0, wall_seconds: 0.0, best_return: None, best_validation: None };
         Ok(Self { config, dir: dir.to_path_buf(), checkpoints, metrics, progress })
     }
@@ -273,9 +293,9 @@ impl Run {
         let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
         let path = checkpoints.latest().ok_or_else(|| TrainError::Config(format!("{} has no checkpoint to resume from", dir.display())))?;
         let ckpt = Checkpoint::read(&path)?;
-        let progress: Progress =
-            serde_json::from_slice(ckpt.get("progress")?).map_err(|e| TrainError::Io(format!("{}: progress: {e}", path.display())))?;
-        let metrics = MetricsWriter::open(dir).map_err(|e| TrainError::Io(format!("{}: {e}", dir.display())))?;
+        let progress: Progress = serde_json::from_slice(ckpt.get("progress")?)
+            .map_err(|e| TrainError::Encoding { what: format!("{}: progress", path.display()), reason: e.to_string() })?;
+        let metrics = MetricsWriter::open(dir).map_err(|source| TrainError::Io { file: dir.to_path_buf(), source })?;
         Ok((Self { config, dir: dir.to_path_buf(), checkpoints, metrics, progress }, ckpt))
     }
 
@@ -384,7 +404,7 @@ impl Run {
         ];
         self.metrics
             .write(self.progress.iteration, summary.report.env_steps, self.progress.wall_seconds, &values)
-            .map_err(|e| TrainError::Io(format!("{}: metrics: {e}", self.dir.display())))?;
+            .map_err(|source| TrainError::Io { file: self.dir.join("metrics.csv"), source })?;
         let best = if self.config.eval.every > 0 {
             let best = eval.is_some_and(|r| self.progress.best_validation.is_none_or(|b| r.s_pw > b));
             if best {

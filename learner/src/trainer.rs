@@ -44,9 +44,9 @@ impl Trainer {
         let (run, ckpt) = Run::open(dir)?;
         let learner = Learner::restore_state(ckpt.get("weights")?, ckpt.get("optimizer")?, ckpt.get("learner")?)?;
         let origin = dir.join("checkpoints");
-        let state: ActorState =
-            serde_json::from_slice(ckpt.get("actor")?).map_err(|e| TrainError::Io(format!("{}: actor: {e}", origin.display())))?;
-        let tasks = TaskController::from_snapshot_bytes(ckpt.get("taskctl")?, &origin).map_err(|e| TrainError::Io(e.to_string()))?;
+        let state: ActorState = serde_json::from_slice(ckpt.get("actor")?)
+            .map_err(|e| TrainError::Encoding { what: format!("{}: actor", origin.display()), reason: e.to_string() })?;
+        let tasks = TaskController::from_snapshot_bytes(ckpt.get("taskctl")?, &origin)?;
         let validator = Validator::new(&run.config().eval)?;
         Ok(Self { run, learner, actor: Actor::restore(state), tasks, validator })
     }
