@@ -15,8 +15,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use proto::grpc_link::LearnerShared;
-use proto::v1;
-use proto::{Admission, Delivery, LearnerLink, WeightsUpdate};
+use proto::{Admission, Delivery, LearnerLink, LearnerStatus, WeightsUpdate};
 use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::Checkpoint;
@@ -101,14 +100,13 @@ impl<L: LearnerLink> LearnerProcess<L> {
     }
 
     fn set_status(&self, sps: f64, policy_lag: u64) {
-        self.shared.set_status(v1::StatusResponse {
+        self.shared.set_status(LearnerStatus {
             learner_epoch: self.epoch,
             iteration: self.learner.version(),
             env_steps: self.learner.env_steps(),
             sps,
             connected_actors: self.members.iter().cloned().collect(),
             policy_lag,
-            refused_chunks: 0,
         });
     }
 

@@ -22,7 +22,7 @@ use tonic::{Request, Response, Status, Streaming};
 
 use crate::chunking::{Reassembler, split};
 use crate::security::{AddToken, MAX_MESSAGE_BYTES, Security, SecurityError};
-use crate::transport::{ActorLink, Admission, Delivery, LearnerLink, LinkError, Refusal, WeightsUpdate};
+use crate::transport::{ActorLink, Admission, Delivery, LearnerLink, LearnerStatus, LinkError, Refusal, WeightsUpdate};
 use crate::v1;
 use crate::v1::learner_client::LearnerClient;
 use crate::v1::learner_server::{Learner, LearnerServer};
@@ -131,7 +131,7 @@ impl ActorLink for GrpcActorLink {
 /// What the learner's gRPC service shares with the training loop.
 pub struct LearnerShared {
     admission: Mutex<Option<Admission>>,
-    status: Mutex<v1::StatusResponse>,
+    status: Mutex<LearnerStatus>,
     weights: watch::Sender<Option<Arc<WeightsUpdate>>>,
     refused: std::sync::atomic::AtomicU64,
 }
@@ -143,7 +143,7 @@ impl LearnerShared {
     }
 
     /// Replaces the status `Status` answers with (the refused-chunk count is added on answering).
-    pub fn set_status(&self, status: v1::StatusResponse) {
+    pub fn set_status(&self, status: LearnerStatus) {
         *self.status.lock() = status;
     }
 
@@ -188,7 +188,7 @@ impl LearnerService {
     fn shared() -> Arc<LearnerShared> {
         Arc::new(LearnerShared {
             admission: Mutex::new(None),
-            status: Mutex::new(v1::StatusResponse::default()),
+            status: Mutex::new(LearnerStatus::default()),
             weights: watch::channel(None).0,
             refused: Default::default(),
         })
@@ -304,9 +304,16 @@ impl Learner for LearnerService {
     }
 
     async fn status(&self, _: Request<v1::StatusRequest>) -> Result<Response<v1::StatusResponse>, Status> {
-        let mut status = self.shared.status.lock().clone();
-        status.refused_chunks += self.shared.refused.load(std::sync::atomic::Ordering::Relaxed);
-        Ok(Response::new(status))
+        let s = self.shared.status.lock().clone();
+        Ok(Response::new(v1::StatusResponse {
+            learner_epoch: s.learner_epoch,
+            iteration: s.iteration,
+            env_steps: s.env_steps,
+            sps: s.sps,
+            connected_actors: s.connected_actors,
+            policy_lag: s.policy_lag,
+            refused_chunks: self.shared.refused.load(std::sync::atomic::Ordering::Relaxed),
+        }))
     }
 }
 
@@ -325,7 +332,7 @@ mod tests {
         })
         .join();
         assert!(crashed.is_err());
-        shared.set_status(v1::StatusResponse { iteration: 3, ..Default::default() });
+        shared.set_status(LearnerStatus { iteration: 3, ..Default::default() });
         let rt = tokio::runtime::Builder::new_current_thread().build().unwrap();
         let status = rt.block_on(service.status(Request::new(v1::StatusRequest {}))).unwrap().into_inner();
         assert_eq!(status.iteration, 3);

@@ -30,6 +30,23 @@ pub struct Delivery {
     pub chunk: RolloutChunk,
 }
 
+/// What the learner reports about itself (the gRPC `Status` answer is made from it).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LearnerStatus {
+    /// Identifies this learner lifetime (changes on every restart).
+    pub learner_epoch: u64,
+    /// Iterations done (= current policy version).
+    pub iteration: u64,
+    /// Environment steps trained on.
+    pub env_steps: u64,
+    /// Training env-steps/s of the last iteration.
+    pub sps: f64,
+    /// Actors that delivered a rollout within the actor timeout.
+    pub connected_actors: Vec<String>,
+    /// Largest version lag among the rollouts of the last update.
+    pub policy_lag: u64,
+}
+
 /// A transport failure (the peer is gone, a resource could not be opened, …).
 #[derive(Debug, thiserror::Error)]
 #[error("{0}")]
