@@ -66,7 +66,7 @@ fn retry<T>(what: &str, stop: &AtomicBool, mut f: impl FnMut() -> Result<T, Clie
 /// Seed of this actor's environments and noise: distinct per range and per registration, so
 /// actors (and a restarted actor) do not replay each other's randomness.
 fn actor_seed(seed: u64, first_env: usize, next_rollout: u64) -> u64 {
-    taskctl::switching::mix(seed ^ taskctl::switching::mix(first_env as u64 ^ (next_rollout << 32)))
+    sim::seed::mix(seed ^ sim::seed::mix(first_env as u64 ^ (next_rollout << 32)))
 }
 
 /// Runs the actor until `stop` is raised (or `max_rollouts` are sent).

@@ -80,7 +80,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
         };
         // A fresh epoch per process lifetime: versions repeat after a restart, epochs do not.
         let clock = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default().as_nanos() as u64;
-        let epoch = taskctl::switching::mix(clock ^ u64::from(std::process::id()));
+        let epoch = sim::seed::mix(clock ^ u64::from(std::process::id()));
         let validator = Validator::new(&run.config().eval)?;
         let mut process = Self {
             run,

@@ -10,6 +10,7 @@ pub mod race;
 pub mod randomization;
 pub mod replay;
 pub mod reward;
+pub mod seed;
 pub mod track;
 pub mod vec_env;
 

@@ -12,7 +12,8 @@ use serde::{Deserialize, Serialize};
 use sim::Track;
 
 use crate::generator::{GenerateError, TrackGenerator};
-use crate::switching::{SwitchParams, SwitchPolicy, flatness_score, mix, spearman_over_time, uniform};
+use crate::switching::{SwitchParams, SwitchPolicy, flatness_score, spearman_over_time, uniform};
+use sim::seed::mix;
 
 /// Seeds tried for a new track before a switch gives up.
 const SEED_TRIES: u64 = 10;

@@ -2,6 +2,7 @@
 //! environment's recent cumulative rollout rewards and time, scored `q = 1 / (1 + α ρ²)`.
 
 use serde::{Deserialize, Serialize};
+use sim::seed::mix;
 
 /// When an environment gets a new track.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -79,15 +80,6 @@ pub fn spearman_over_time(values: &[f64]) -> f64 {
 /// The flatness score `q = 1 / (1 + α ρ²)`: 1 for a flat curve, towards 0 for a trend.
 pub fn flatness_score(rho: f64, alpha: f64) -> f64 {
     1.0 / (1.0 + alpha * rho * rho)
-}
-
-/// SplitMix64: a well-mixed 64-bit hash, for draws that depend only on their inputs.
-pub fn mix(mut x: u64) -> u64 {
-    x = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    let mut z = x;
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
 }
 
 /// A uniform number in [0, 1) determined by `(seed, a, b)` alone.
