@@ -206,3 +206,38 @@ pub fn draw_validation_curves(variants: &[learner::experiment::VariantSummary], 
     root.present().with_context(|| format!("writing {}", out.display()))?;
     Ok(())
 }
+
+/// Success per track against environment steps for a sequential curriculum, with a dashed line
+/// where each later stage began (thesis Fig. 3.5).
+pub fn draw_track_curves(curves: &[learner::experiment::TrackCurve], boundaries: &[u64], title: &str, out: &Path) -> anyhow::Result<()> {
+    register_font();
+    let root = BitMapBackend::new(out, (960, 600)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let max_steps = curves.iter().flat_map(|c| c.points.iter()).map(|p| p.0 as f64 / 1e6).fold(1.0, f64::max);
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..max_steps * 1.02, 0.0..1.05)?;
+    chart.configure_mesh().x_desc("environment steps since the first stage (millions)").y_desc("validation success").draw()?;
+    for &b in boundaries {
+        let x = b as f64 / 1e6;
+        chart.draw_series(DashedLineSeries::new(vec![(x, 0.0), (x, 1.05)], 6, 4, BLACK.mix(0.5).stroke_width(1)))?;
+    }
+    for (i, curve) in curves.iter().enumerate() {
+        let colour = Palette99::pick(i).to_rgba();
+        chart
+            .draw_series(LineSeries::new(curve.points.iter().map(|p| (p.0 as f64 / 1e6, p.1)), colour.stroke_width(2)))?
+            .label(curve.track.clone())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()?;
+    root.present().with_context(|| format!("writing {}", out.display()))?;
+    Ok(())
+}

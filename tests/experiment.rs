@@ -120,3 +120,62 @@ fn every_shipped_experiment_file_resolves_for_every_variant() {
     }
     assert!(count >= 6, "found {count} experiment files");
 }
+
+const SEQUENTIAL: &str = r#"
+description = "tiny sequential curriculum"
+seeds = [0]
+sequential = true
+
+[base]
+total_env_steps = 256          # 2 iterations of 4 environments × 32 steps per stage
+envs = 4
+checkpoint_every = 1
+switching = { policy = "none" }
+ppo = { n_steps = 32, batch_size = 64, n_epochs = 1 }
+eval = { every = 1, runs = 1, steps = 50, library = ["Figure8", "BigS"] }
+
+[test]
+runs = 1
+steps = 20
+
+[[variant]]
+name = "first"
+set = { tracks = { kind = "library", names = ["Figure8"] } }
+
+[[variant]]
+name = "second"
+set = { tracks = { kind = "library", names = ["BigS"] } }
+"#;
+
+#[test]
+fn a_sequential_experiment_starts_each_stage_from_the_last_and_tracks_every_validation_track() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("sequential.toml");
+    std::fs::write(&file, SEQUENTIAL).unwrap();
+    let out = dir.path().join("out");
+    let experiment = Experiment::read(&file).unwrap();
+    let log = run(&experiment, &out, None);
+    assert_eq!(log.finished.len(), 2);
+    let second: learner::TrainConfig =
+        toml::from_str(&std::fs::read_to_string(Experiment::run_dir(&out, "second", 0).join("config.toml")).unwrap()).unwrap();
+    let first_end = Experiment::run_dir(&out, "first", 0).join("checkpoints").join("ckpt-000000002.bin");
+    assert_eq!(second.init_from, Some(first_end), "stage 2 starts from stage 1's last checkpoint");
+    let first: learner::TrainConfig =
+        toml::from_str(&std::fs::read_to_string(Experiment::run_dir(&out, "first", 0).join("config.toml")).unwrap()).unwrap();
+    assert_eq!(first.init_from, None, "stage 1 starts fresh");
+
+    let (curves, boundaries) = learner::experiment::sequential_track_curves(&experiment, &out, 0).unwrap();
+    assert_eq!(boundaries, vec![256]);
+    let names: Vec<&str> = curves.iter().map(|c| c.track.as_str()).collect();
+    assert_eq!(names, vec!["BigS", "Figure8"]);
+    for c in &curves {
+        let steps: Vec<u64> = c.points.iter().map(|p| p.0).collect();
+        assert_eq!(steps, vec![128, 256, 384, 512], "{}: both stages, laid end to end", c.track);
+    }
+    let o = Command::new(env!("CARGO_BIN_EXE_dronerace"))
+        .args(["experiment", "report", file.to_str().unwrap(), out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(&std::fs::read(out.join("tracks-seed-0.png")).unwrap()[1..4], b"PNG");
+}

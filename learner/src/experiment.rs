@@ -75,6 +75,10 @@ pub struct Experiment {
     /// Test-set evaluation of the finished runs.
     #[serde(default)]
     pub test: TestSettings,
+    /// Run the variants one after another for each seed, each starting from the policy the
+    /// previous one ended with: a sequential curriculum (thesis §3.4.1). Default false.
+    #[serde(default)]
+    pub sequential: bool,
 }
 
 /// Why an experiment cannot run or be reported.
@@ -205,7 +209,7 @@ pub fn run_experiment(
 ) -> Result<RunLog, ExperimentError> {
     let mut log = RunLog::default();
     for &seed in &experiment.seeds {
-        for variant in &experiment.variants {
+        for (stage, variant) in experiment.variants.iter().enumerate() {
             let dir = Experiment::run_dir(out, &variant.name, seed);
             if dir.join("test.json").exists() {
                 log.skipped.push(dir);
@@ -215,7 +219,14 @@ pub fn run_experiment(
                 log.interrupted = true;
                 return Ok(log);
             }
-            let config = experiment.config(variant, seed).map_err(ExperimentError::Invalid)?;
+            let mut config = experiment.config(variant, seed).map_err(ExperimentError::Invalid)?;
+            if experiment.sequential && stage > 0 {
+                // The previous stage is done (stages run in order): start from where it ended.
+                let previous = Experiment::run_dir(out, &experiment.variants[stage - 1].name, seed);
+                let checkpoints = CheckpointDir::new(previous.join("checkpoints"), config.keep_checkpoints)
+                    .map_err(|e| ExperimentError::Run { run: previous.display().to_string(), source: e.into() })?;
+                config.init_from = checkpoints.latest();
+            }
             let failed = |source: TrainError| ExperimentError::Run { run: dir.display().to_string(), source };
             let has_checkpoint =
                 CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints).map_err(|e| failed(e.into()))?.latest().is_some();
@@ -273,6 +284,54 @@ fn test_run(trainer: &Trainer, variant: &str, seed: u64, test: &TestSettings) ->
         final_policy: fly(&final_blob, "final")?,
         best_policy: fly(&best_blob, "best")?,
     })
+}
+
+/// Success on one validation track against environment steps since the first stage.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrackCurve {
+    /// Track name.
+    pub track: String,
+    /// `(env steps since the first stage, success rate)`, in order.
+    pub points: Vec<(u64, f64)>,
+}
+
+/// Per-track validation success of a sequential experiment's stages for `seed`, the stages laid
+/// end to end; also the env steps at which each later stage began.
+pub fn sequential_track_curves(experiment: &Experiment, out: &Path, seed: u64) -> Result<(Vec<TrackCurve>, Vec<u64>), ExperimentError> {
+    let mut curves: Vec<TrackCurve> = Vec::new();
+    let mut boundaries = Vec::new();
+    let mut offset = 0u64;
+    for (stage, variant) in experiment.variants.iter().enumerate() {
+        let path = Experiment::run_dir(out, &variant.name, seed).join("validation.csv");
+        let Ok(text) = std::fs::read_to_string(&path) else { break };
+        if stage > 0 {
+            boundaries.push(offset);
+        }
+        // A resumed run repeats rows after its last checkpoint: the later row wins.
+        let mut rows: std::collections::BTreeMap<(String, u64), f64> = Default::default();
+        let mut last_steps = 0;
+        for line in text.lines().skip(1) {
+            let f: Vec<&str> = line.split(',').collect();
+            let (Some(steps), Some(track), Some(success)) = (f.get(1), f.get(2), f.get(3)) else { continue };
+            let (Ok(steps), Ok(success)) = (steps.parse::<u64>(), success.parse::<f64>()) else {
+                return Err(ExperimentError::Io(format!("{}: malformed row {line:?}", path.display())));
+            };
+            last_steps = last_steps.max(steps);
+            rows.insert((track.to_string(), steps), success);
+        }
+        for ((track, steps), success) in rows {
+            let at = offset + steps;
+            match curves.iter_mut().find(|c| c.track == track) {
+                Some(c) => c.points.push((at, success)),
+                None => curves.push(TrackCurve { track, points: vec![(at, success)] }),
+            }
+        }
+        offset += last_steps;
+    }
+    for c in &mut curves {
+        c.points.sort_by_key(|p| p.0);
+    }
+    Ok((curves, boundaries))
 }
 
 /// One point of a validation curve.

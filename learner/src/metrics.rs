@@ -37,6 +37,37 @@ pub const METRICS: [&str; 28] = [
     "eval/seconds",
 ];
 
+/// Columns of `validation.csv`: one row per validation track per evaluation.
+pub const VALIDATION_COLUMNS: &str = "iteration,env_steps,track,success,s_pw,mean_lap,crash_gate,crash_other,no_lap";
+
+/// Appends one evaluation's per-track results to `<dir>/validation.csv` (a resumed run may
+/// repeat iterations after its last checkpoint; readers keep the later rows).
+pub fn append_validation(dir: &Path, iteration: u64, env_steps: u64, report: &sim::eval::EvalReport) -> std::io::Result<()> {
+    let path = dir.join("validation.csv");
+    let fresh = !path.exists();
+    let mut file = OpenOptions::new().create(true).append(true).open(&path)?;
+    let mut text = String::new();
+    if fresh {
+        text.push_str(VALIDATION_COLUMNS);
+        text.push('\n');
+    }
+    for t in &report.tracks {
+        let o = &t.outcomes;
+        let other = o.ground + o.ceiling + o.wall;
+        text.push_str(&format!(
+            "{iteration},{env_steps},{},{},{},{},{},{},{}\n",
+            t.track,
+            t.success_rate,
+            t.s_pw,
+            t.mean_lap.unwrap_or(f64::NAN),
+            o.fraction(o.gate_total()),
+            o.fraction(other),
+            o.fraction(o.no_lap)
+        ));
+    }
+    file.write_all(text.as_bytes())
+}
+
 /// Appends metric rows to the CSV and the TensorBoard file of a run directory.
 pub struct MetricsWriter {
     csv: File,

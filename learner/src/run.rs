@@ -179,7 +179,10 @@ pub enum TrainError {
     Actor(#[from] actor::ActorError),
     /// The validation set could not be built.
     #[error("validation set: {0}")]
-    ValidationSet(#[from] taskctl::TrackSetError),
+    ValidationSet(#[from] crate::validation::ValidationSetError),
+    /// The test set could not be built.
+    #[error("test set: {0}")]
+    TestSet(#[from] taskctl::TrackSetError),
     /// A weights blob could not be used.
     #[error(transparent)]
     Blob(#[from] policy::BlobError),
@@ -405,6 +408,10 @@ impl Run {
         self.metrics
             .write(self.progress.iteration, summary.report.env_steps, self.progress.wall_seconds, &values)
             .map_err(|source| TrainError::Io { file: self.dir.join("metrics.csv"), source })?;
+        if let Some(v) = validation {
+            crate::metrics::append_validation(&self.dir, self.progress.iteration, summary.report.env_steps, &v.report)
+                .map_err(|source| TrainError::Io { file: self.dir.join("validation.csv"), source })?;
+        }
         let best = if self.config.eval.every > 0 {
             let best = eval.is_some_and(|r| self.progress.best_validation.is_none_or(|b| r.s_pw > b));
             if best {

@@ -12,7 +12,7 @@ use sim::Track;
 use sim::eval::{EvalConfig, EvalReport, evaluate};
 
 /// `[eval]` of the run config.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct EvalSettings {
     /// Iterations between evaluations; 0 turns evaluation off (then `best.bin` is the
@@ -26,11 +26,14 @@ pub struct EvalSettings {
     pub steps: u32,
     /// Seed of the start perturbations. Default 0.
     pub seed: u64,
+    /// Library tracks to fly instead of generated validation tracks (e.g. the four core
+    /// tracks, to watch a sequential curriculum forget them). Default none.
+    pub library: Vec<String>,
 }
 
 impl Default for EvalSettings {
     fn default() -> Self {
-        Self { every: 50, tracks: 20, runs: 10, steps: 1000, seed: 0 }
+        Self { every: 50, tracks: 20, runs: 10, steps: 1000, seed: 0, library: Vec::new() }
     }
 }
 
@@ -43,11 +46,20 @@ pub struct Validator {
 
 impl Validator {
     /// The validator `settings` describe; `None` when evaluation is off.
-    pub fn new(settings: &EvalSettings) -> Result<Option<Self>, taskctl::TrackSetError> {
-        if settings.every == 0 || settings.tracks == 0 || settings.runs == 0 {
+    pub fn new(settings: &EvalSettings) -> Result<Option<Self>, ValidationSetError> {
+        if settings.every == 0 || settings.runs == 0 || (settings.tracks == 0 && settings.library.is_empty()) {
             return Ok(None);
         }
-        let tracks = taskctl::validation_set(settings.tracks)?.into_iter().map(Arc::new).collect();
+        let tracks = if settings.library.is_empty() {
+            taskctl::validation_set(settings.tracks)?
+        } else {
+            let mut tracks = Vec::new();
+            for name in &settings.library {
+                tracks.push(taskctl::library_track(name)?.ok_or_else(|| ValidationSetError::UnknownTrack(name.clone()))?);
+            }
+            tracks
+        };
+        let tracks = tracks.into_iter().map(Arc::new).collect();
         let config = EvalConfig { runs: settings.runs, steps: settings.steps, seed: settings.seed, ..EvalConfig::default() };
         Ok(Some(Self { every: settings.every, tracks, config }))
     }
@@ -77,6 +89,20 @@ impl Validator {
             _ => Ok(None),
         }
     }
+}
+
+/// Why the validation tracks cannot be built.
+#[derive(Debug, thiserror::Error)]
+pub enum ValidationSetError {
+    /// Generating the validation set failed.
+    #[error(transparent)]
+    Generated(#[from] taskctl::TrackSetError),
+    /// The built-in library could not be read.
+    #[error(transparent)]
+    Library(#[from] taskctl::TrackFileError),
+    /// `eval.library` names a track the library does not have.
+    #[error("eval.library: no library track {0:?}")]
+    UnknownTrack(String),
 }
 
 /// One evaluation on the validation set, with its wall time.

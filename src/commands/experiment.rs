@@ -5,7 +5,7 @@ use std::sync::atomic::Ordering;
 
 use anyhow::Context;
 use clap::Subcommand;
-use learner::experiment::{Experiment, markdown_report, run_experiment, summarise};
+use learner::experiment::{Experiment, markdown_report, run_experiment, sequential_track_curves, summarise};
 
 use super::services::stop_flag;
 use super::write_atomic;
@@ -62,5 +62,22 @@ fn report(experiment: &Experiment, dir: &std::path::Path) -> anyhow::Result<()> 
     write_atomic(&dir.join("report.md"), markdown_report(experiment, &summaries).as_bytes())?;
     crate::plot::draw_validation_curves(&summaries, &dir.join("curves.png"))?;
     println!("wrote {} and {}", dir.join("report.md").display(), dir.join("curves.png").display());
+    if experiment.sequential {
+        for &seed in &experiment.seeds {
+            let (curves, boundaries) = sequential_track_curves(experiment, dir, seed)?;
+            if curves.is_empty() {
+                continue;
+            }
+            let path = dir.join(format!("tracks-seed-{seed}.png"));
+            let stages: Vec<&str> = experiment.variants.iter().map(|v| v.name.as_str()).collect();
+            crate::plot::draw_track_curves(
+                &curves,
+                &boundaries,
+                &format!("validation success per track; stages {}", stages.join(" → ")),
+                &path,
+            )?;
+            println!("wrote {}", path.display());
+        }
+    }
     Ok(())
 }
