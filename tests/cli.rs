@@ -159,7 +159,7 @@ fn bad_inputs_are_refused_naming_the_file_and_the_field_or_line() {
 
 #[test]
 fn tracks_fit_prints_scipys_layout_and_values() {
-    let reference: serde_json::Value = serde_json::from_str(include_str!("../taskctl/tests/data/splprep_periodic.json")).unwrap();
+    let reference: serde_json::Value = serde_json::from_str(include_str!("../racetracks/tests/data/splprep_periodic.json")).unwrap();
     let case = &reference["cases"][2];
     let dir = tempfile::tempdir().unwrap();
     let csv = dir.path().join("points.csv");
@@ -206,7 +206,7 @@ fn generate_is_reproducible_and_testset_has_forty_valid_tracks() {
     assert_eq!(names(&a).len(), 5);
     for name in names(&a) {
         assert_eq!(std::fs::read(a.join(&name)).unwrap(), std::fs::read(b.join(&name)).unwrap());
-        taskctl::read_track(&a.join(&name)).unwrap();
+        racetracks::read_track(&a.join(&name)).unwrap();
     }
     let o = dronerace(&[
         "tracks",
@@ -226,9 +226,9 @@ fn generate_is_reproducible_and_testset_has_forty_valid_tracks() {
     let set = dir.path().join("testset");
     let o = dronerace(&["tracks", "testset", "--seed", "5", "--out", set.to_str().unwrap()]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let tracks = taskctl::read_track_dir(&set).unwrap();
+    let tracks = racetracks::read_track_dir(&set).unwrap();
     assert_eq!(tracks.len(), 40);
-    let library = taskctl::library().unwrap();
+    let library = racetracks::library().unwrap();
     for (t, l) in tracks.iter().zip(&library) {
         assert_eq!(t.name, l.name, "the library comes first, in library order");
     }

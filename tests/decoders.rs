@@ -20,9 +20,10 @@ use learner::checkpoint::Checkpoint;
 use learner::{Learner, TrainConfig};
 use policy::{EpisodeRecord, RolloutChunk, WeightsBlob};
 use prost::Message;
+use racetracks::TrackGenerator;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use taskctl::{TaskController, TrackGenerator};
+use taskctl::TaskController;
 
 /// Mutated inputs per decoder and mode.
 const CASES: usize = 100_000;
@@ -202,10 +203,10 @@ fn every_mutated_task_controller_snapshot_is_refused_and_none_panics_the_parser(
 
 #[test]
 fn no_mutated_track_file_panics_the_parser() {
-    let track = taskctl::library_track("BigS").unwrap().unwrap();
-    let valid = taskctl::track_to_toml(&track).into_bytes();
+    let track = racetracks::library_track("BigS").unwrap().unwrap();
+    let valid = racetracks::track_to_toml(&track).into_bytes();
     let file = Path::new("fuzzed.toml");
-    fuzz("track file", 9, &valid, |b| b, |b| std::str::from_utf8(b).is_ok_and(|text| taskctl::parse_track(text, file).is_ok()));
+    fuzz("track file", 9, &valid, |b| b, |b| std::str::from_utf8(b).is_ok_and(|text| racetracks::parse_track(text, file).is_ok()));
 }
 
 #[test]

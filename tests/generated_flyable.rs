@@ -6,9 +6,9 @@
 
 use std::sync::Arc;
 
+use racetracks::TrackGenerator;
 use sim::eval::{EvalConfig, evaluate};
 use sim::{Controller, ReferencePilot};
-use taskctl::TrackGenerator;
 
 #[test]
 fn reference_pilot_laps_most_generated_tracks() {

@@ -11,7 +11,7 @@ use sim::{Controller, ReferencePilot};
 
 #[test]
 fn reference_pilot_laps_at_least_seven_library_tracks_in_every_deployment() {
-    let tracks: Vec<_> = taskctl::library().unwrap().into_iter().map(Arc::new).collect();
+    let tracks: Vec<_> = racetracks::library().unwrap().into_iter().map(Arc::new).collect();
     let config = EvalConfig { runs: 5, ..EvalConfig::default() };
     let make = || Box::new(ReferencePilot::default()) as Box<dyn Controller>;
     let report = evaluate("pilot", &tracks, &make, &config);

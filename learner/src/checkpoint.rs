@@ -105,7 +105,7 @@ impl Checkpoint {
 
     /// Writes atomically (a crash leaves the previous file intact).
     pub fn write(&self, path: &Path) -> Result<(), CheckpointError> {
-        taskctl::files::write_atomic(path, &self.to_bytes()).map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })
+        racetracks::files::write_atomic(path, &self.to_bytes()).map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })
     }
 
     /// Reads and verifies a checkpoint file.

@@ -53,7 +53,7 @@ pub struct TestSettings {
 
 impl Default for TestSettings {
     fn default() -> Self {
-        Self { track_seed: taskctl::track_sets::TEST_SEED, runs: 25, steps: 1000 }
+        Self { track_seed: racetracks::track_sets::TEST_SEED, runs: 25, steps: 1000 }
     }
 }
 
@@ -250,7 +250,7 @@ pub fn run_experiment(
             trainer.checkpoint().map_err(failed)?;
             let result = test_run(&trainer, &variant.name, seed, &experiment.test).map_err(failed)?;
             let json = serde_json::to_vec_pretty(&result).map_err(|e| ExperimentError::Io(e.to_string()))?;
-            taskctl::files::write_atomic(&dir.join("test.json"), &json)
+            racetracks::files::write_atomic(&dir.join("test.json"), &json)
                 .map_err(|e| ExperimentError::Io(format!("{}: {e}", dir.display())))?;
             log.finished.push(dir);
         }
@@ -260,7 +260,7 @@ pub fn run_experiment(
 
 /// Flies the final policy and `best.bin` of a finished run on the test set.
 fn test_run(trainer: &Trainer, variant: &str, seed: u64, test: &TestSettings) -> Result<RunResult, TrainError> {
-    let tracks: Vec<Arc<sim::Track>> = taskctl::test_set(test.track_seed)?.into_iter().map(Arc::new).collect();
+    let tracks: Vec<Arc<sim::Track>> = racetracks::test_set(test.track_seed)?.into_iter().map(Arc::new).collect();
     let config = EvalConfig { runs: test.runs, steps: test.steps, ..EvalConfig::default() };
     let fly = |blob: &policy::WeightsBlob, name: &str| -> Result<EvalReport, TrainError> {
         let policy = Arc::new(Policy::from_blob(blob)?);

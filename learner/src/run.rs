@@ -6,9 +6,10 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use policy::RolloutChunk;
+use racetracks::TrackGenerator;
 use serde::{Deserialize, Serialize};
 use sim::EnvConfig;
-use taskctl::{SwitchParams, TaskController, TrackGenerator};
+use taskctl::{SwitchParams, TaskController};
 
 use crate::checkpoint::{Checkpoint, CheckpointDir, CheckpointError};
 use crate::config::{PpoConfig, Profile};
@@ -106,7 +107,7 @@ impl TrainConfig {
         Ok(match &self.tracks {
             TrackSource::Generated => TaskController::new(envs, self.generator, self.switching, self.seed)?,
             TrackSource::Library { names } => {
-                let library = taskctl::library().map_err(|e| TrainError::Config(e.to_string()))?;
+                let library = racetracks::library().map_err(|e| TrainError::Config(e.to_string()))?;
                 let mut chosen = Vec::new();
                 for name in names {
                     let track = library
@@ -182,7 +183,7 @@ pub enum TrainError {
     ValidationSet(#[from] crate::validation::ValidationSetError),
     /// The test set could not be built.
     #[error("test set: {0}")]
-    TestSet(#[from] taskctl::TrackSetError),
+    TestSet(#[from] racetracks::TrackSetError),
     /// A weights blob could not be used.
     #[error(transparent)]
     Blob(#[from] policy::BlobError),
@@ -283,7 +284,7 @@ impl Run {
             )));
         }
         let text = toml::to_string(&config).map_err(|e| TrainError::Encoding { what: "config".into(), reason: e.to_string() })?;
-        taskctl::files::write_atomic(&dir.join("config.toml"), text.as_bytes())
+        racetracks::files::write_atomic(&dir.join("config.toml"), text.as_bytes())
             .map_err(|source| TrainError::Io { file: dir.join("config.toml"), source })?;
         let metrics = MetricsWriter::open(dir).map_err(|source| TrainError::Io { file: dir.to_path_buf(), source })?;
         let progress = Progress { iteration: 0, wall_seconds: 0.0, best_return: None, best_validation: None };

@@ -51,11 +51,11 @@ impl Validator {
             return Ok(None);
         }
         let tracks = if settings.library.is_empty() {
-            taskctl::validation_set(settings.tracks)?
+            racetracks::validation_set(settings.tracks)?
         } else {
             let mut tracks = Vec::new();
             for name in &settings.library {
-                tracks.push(taskctl::library_track(name)?.ok_or_else(|| ValidationSetError::UnknownTrack(name.clone()))?);
+                tracks.push(racetracks::library_track(name)?.ok_or_else(|| ValidationSetError::UnknownTrack(name.clone()))?);
             }
             tracks
         };
@@ -96,10 +96,10 @@ impl Validator {
 pub enum ValidationSetError {
     /// Generating the validation set failed.
     #[error(transparent)]
-    Generated(#[from] taskctl::TrackSetError),
+    Generated(#[from] racetracks::TrackSetError),
     /// The built-in library could not be read.
     #[error(transparent)]
-    Library(#[from] taskctl::TrackFileError),
+    Library(#[from] racetracks::TrackFileError),
     /// `eval.library` names a track the library does not have.
     #[error("eval.library: no library track {0:?}")]
     UnknownTrack(String),

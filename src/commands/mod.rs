@@ -21,15 +21,15 @@ use anyhow::Context;
 pub fn load_tracks(paths: &[PathBuf]) -> anyhow::Result<Vec<Arc<Track>>> {
     let mut tracks = Vec::new();
     if paths.is_empty() {
-        tracks = taskctl::library()?;
+        tracks = racetracks::library()?;
     }
     for path in paths {
         if path.is_dir() {
-            let found = taskctl::read_track_dir(path)?;
+            let found = racetracks::read_track_dir(path)?;
             anyhow::ensure!(!found.is_empty(), "{}: no *.toml track files in this directory", path.display());
             tracks.extend(found);
         } else {
-            tracks.push(taskctl::read_track(path)?);
+            tracks.push(racetracks::read_track(path)?);
         }
     }
     Ok(tracks.into_iter().map(Arc::new).collect())
@@ -40,5 +40,5 @@ pub fn write_atomic(path: &Path, contents: &[u8]) -> anyhow::Result<()> {
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
     }
-    taskctl::files::write_atomic(path, contents).with_context(|| format!("writing {}", path.display()))
+    racetracks::files::write_atomic(path, contents).with_context(|| format!("writing {}", path.display()))
 }

@@ -61,7 +61,7 @@ pub enum BenchActions {
 pub fn run(command: SimCommand) -> anyhow::Result<()> {
     match command {
         SimCommand::Replay { track, actions, out, start } => {
-            let track = Arc::new(taskctl::read_track(&track)?);
+            let track = Arc::new(racetracks::read_track(&track)?);
             let start = start.as_deref().map(parse_start).transpose()?;
             let actions = read_actions(&actions)?;
             let rows = ::sim::replay::replay(track, start, &actions);

@@ -7,7 +7,8 @@ use std::time::Instant;
 use ::sim::nalgebra::Vector3;
 use anyhow::{Context, bail};
 use clap::{Subcommand, ValueEnum};
-use taskctl::{GeneratorKind, SwitchParams, TaskController, TrackGenParams, TrackGenerator};
+use racetracks::{GeneratorKind, TrackGenParams, TrackGenerator};
+use taskctl::{SwitchParams, TaskController};
 
 use super::load_tracks;
 use crate::plot::Layout;
@@ -53,7 +54,7 @@ pub enum TracksCommand {
     /// Write the evaluation test set: the library topped up with generated tracks to 40.
     Testset {
         /// Seed of the generated part; keep it out of training.
-        #[arg(long, default_value_t = taskctl::track_sets::TEST_SEED)]
+        #[arg(long, default_value_t = racetracks::track_sets::TEST_SEED)]
         seed: u64,
         /// Directory to write into.
         #[arg(long)]
@@ -118,11 +119,11 @@ pub fn run(command: TracksCommand) -> anyhow::Result<()> {
             Ok(())
         }
         TracksCommand::Testset { seed, out } => {
-            let tracks = taskctl::test_set(seed)?;
+            let tracks = racetracks::test_set(seed)?;
             std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
             // Numbered so the directory lists in test-set order.
             for (i, track) in tracks.iter().enumerate() {
-                taskctl::write_track(track, &out.join(format!("{i:02}-{}.toml", track.name.to_lowercase())))?;
+                racetracks::write_track(track, &out.join(format!("{i:02}-{}.toml", track.name.to_lowercase())))?;
             }
             println!("wrote {} tracks (library, then generated from seed {seed}) to {}", tracks.len(), out.display());
             Ok(())
@@ -146,7 +147,7 @@ fn generate_into(
         let (name, file) = names(i);
         let g = generator.generate(seed + i as u64, &name)?;
         attempts += g.attempts;
-        taskctl::write_track(&g.track, &out.join(file))?;
+        racetracks::write_track(&g.track, &out.join(file))?;
     }
     Ok(attempts)
 }
@@ -169,7 +170,7 @@ fn fit(points: &Path, smoothing: f64) -> anyhow::Result<()> {
         };
         control.push(Vector3::new(x, y, z));
     }
-    let fit = taskctl::spline::fit_closed_curve(&control, smoothing).with_context(|| points.display().to_string())?;
+    let fit = racetracks::spline::fit_closed_curve(&control, smoothing).with_context(|| points.display().to_string())?;
     let json = serde_json::json!({
         "u": fit.u,
         "knots": fit.curve.knots,
@@ -198,7 +199,7 @@ fn bench(count: usize, envs: usize, window: usize) -> anyhow::Result<()> {
     }
     // Rewards of a flat curve with noise keep every window full and score it every time.
     let switching = SwitchParams { window, ..SwitchParams::default() };
-    let tracks = std::iter::repeat_n(Arc::new(taskctl::library()?[0].clone()), envs).collect();
+    let tracks = std::iter::repeat_n(Arc::new(racetracks::library()?[0].clone()), envs).collect();
     let mut controller = TaskController::with_tracks(tracks, TrackGenerator::default(), switching, 0)?;
     let iterations = window as u64 + 200;
     let mut timed = std::time::Duration::ZERO;

@@ -11,8 +11,8 @@ use std::sync::Arc;
 use serde::{Deserialize, Serialize};
 use sim::Track;
 
-use crate::generator::{GenerateError, TrackGenerator};
 use crate::switching::{SwitchParams, SwitchPolicy, flatness_score, spearman_over_time, uniform};
+use racetracks::{GenerateError, TrackGenerator};
 use sim::seed::mix;
 
 /// Seeds tried for a new track before a switch gives up.
@@ -371,7 +371,8 @@ impl TaskController {
 
     /// Writes [`TaskController::to_snapshot_bytes`] atomically: a temporary file, fsync, rename.
     pub fn snapshot(&self, path: &Path) -> Result<(), SnapshotError> {
-        crate::files::write_atomic(path, &self.to_snapshot_bytes()).map_err(|source| SnapshotError::Io { file: path.to_path_buf(), source })
+        racetracks::files::write_atomic(path, &self.to_snapshot_bytes())
+            .map_err(|source| SnapshotError::Io { file: path.to_path_buf(), source })
     }
 
     /// Reads a snapshot file, refusing anything truncated, altered or of another format.
@@ -421,7 +422,7 @@ impl State {
         let mut last_error = None;
         for attempt in 0..SEED_TRIES {
             let track_seed = mix(mix(mix(self.seed ^ 0x7472_6163_6b73) ^ env as u64) ^ (generation << 8 | attempt));
-            if crate::track_sets::is_held_out(track_seed) {
+            if racetracks::track_sets::is_held_out(track_seed) {
                 // Validation and test tracks are never trained on (a 2⁻⁴³ chance per draw).
                 continue;
             }

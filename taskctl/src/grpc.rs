@@ -83,7 +83,7 @@ impl TaskControllerService {
         let mut next = guard.clone();
         let out = change(&mut next).map_err(status)?;
         let (path, bytes) = (self.snapshot.clone(), next.to_snapshot_bytes());
-        tokio::task::spawn_blocking(move || crate::files::write_atomic(&path, &bytes))
+        tokio::task::spawn_blocking(move || racetracks::files::write_atomic(&path, &bytes))
             .await
             .map_err(|e| Status::internal(format!("snapshot writer: {e}")))?
             .map_err(|e| Status::internal(format!("{}: {e}", self.snapshot.display())))?;
@@ -209,8 +209,8 @@ pub async fn serve(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::generator::TrackGenerator;
     use crate::switching::SwitchParams;
+    use racetracks::generator::TrackGenerator;
 
     /// A request whose handler panics mid-change must leave the service usable: the lock is
     /// not poisoned, the state is the one before the failed change, later changes persist.

@@ -4,8 +4,8 @@
 // Test code: a panic is how a failure is reported.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::print_stdout, clippy::print_stderr)]
 
+use racetracks::generator::{GeneratorKind, TrackGenParams, TrackGenerator};
 use sim::nalgebra::Vector3;
-use taskctl::generator::{GeneratorKind, TrackGenParams, TrackGenerator};
 
 const SEEDS: u64 = 2000;
 

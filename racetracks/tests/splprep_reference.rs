@@ -5,9 +5,9 @@
 // Test code: a panic is how a failure is reported.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::print_stdout, clippy::print_stderr)]
 
+use racetracks::spline::fit_closed_curve;
 use serde_json::Value;
 use sim::nalgebra::Vector3;
-use taskctl::spline::fit_closed_curve;
 
 fn cases() -> Vec<Value> {
     let text = include_str!("data/splprep_periodic.json");
@@ -58,7 +58,7 @@ fn arc_length_and_equal_arc_gates_match_the_reference() {
         let length = fit.curve.arc_length(fit.curve.start(), fit.curve.end());
         // The reference integrated with a dense trapezoid rule; ours is piecewise Gauss–Legendre.
         assert!((length - want_length).abs() < 1e-6, "case {n}: arc length {length} vs {want_length}");
-        let gates = taskctl::generator::place_gates(&fit.curve, 6, [1.0, 5.0]);
+        let gates = racetracks::generator::place_gates(&fit.curve, 6, [1.0, 5.0]);
         for (i, (gate, want)) in gates.iter().zip(case["gates"].as_array().unwrap()).enumerate() {
             let position = Vector3::from_vec(floats(&want["position"]));
             assert!((gate.position - position).norm() < 1e-3, "case {n} gate {i}: {:?} vs {position:?}", gate.position);
