@@ -92,7 +92,7 @@ impl Profile {
         Self { name: "paper".into(), architecture: Architecture::paper(), ppo: PpoConfig::default(), envs: 96 }
     }
 
-    /// For a 2-core CPU: 128×128 networks and 4000-sample minibatches over 5 epochs (more,
+    /// For a 2-core CPU: 256×256 networks and 4000-sample minibatches over 5 epochs (more,
     /// cheaper gradient steps per collected sample); the rest as the paper.
     pub fn cpu() -> Self {
         Self {

@@ -44,7 +44,7 @@ pub struct TrainConfig {
     pub seed: u64,
     /// Parallel environments (default: the profile's).
     pub envs: Option<usize>,
-    /// Hidden layer widths of actor and critic (default: the profile's, e.g. `[128, 128]`).
+    /// Hidden layer widths of actor and critic (default: the profile's, e.g. `[256, 256]`).
     pub hidden: Option<Vec<usize>>,
     /// PPO settings replacing the profile's (missing fields take SPEC §10's values).
     pub ppo: Option<PpoConfig>,
@@ -76,7 +76,7 @@ impl Default for TrainConfig {
         Self {
             name: "generalist".into(),
             profile: "cpu".into(),
-            total_env_steps: 50_000_000,
+            total_env_steps: 60_000_000,
             seed: 0,
             envs: None,
             hidden: None,

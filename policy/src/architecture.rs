@@ -32,9 +32,10 @@ impl Architecture {
         }
     }
 
-    /// Two hidden layers of 128: the `cpu` profile, about 14× fewer multiply-adds.
+    /// Two hidden layers of 256: the `cpu` profile, about 4× fewer multiply-adds than the
+    /// paper's. Chosen on the validation set over 128×128 (BENCHMARKS.md, issue 10).
     pub fn cpu() -> Self {
-        Self { hidden: vec![128, 128], ..Self::paper() }
+        Self { hidden: vec![256, 256], ..Self::paper() }
     }
 
     /// Number of trainable scalars (actor, critic and the log std).
