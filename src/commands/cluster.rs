@@ -36,9 +36,16 @@ struct Supervised {
     args: Vec<String>,
     envs: Vec<(String, String)>,
     child: Child,
-    restarts: u32,
+    /// Failures in a row, each within `QUICK_FAILURE` of its start.
+    quick_failures: u32,
     started: Instant,
 }
+
+/// A process that dies sooner than this after starting is failing at start (a bad config, a
+/// taken port), not being killed at work.
+const QUICK_FAILURE: Duration = Duration::from_secs(10);
+/// Failures at start in a row before the supervisor gives up on a process.
+const MAX_QUICK_FAILURES: u32 = 5;
 
 fn spawn(args: &[String], envs: &[(String, String)]) -> anyhow::Result<Child> {
     let exe = std::env::current_exe().context("locating the dronerace executable")?;
@@ -70,15 +77,22 @@ fn spawn(args: &[String], envs: &[(String, String)]) -> anyhow::Result<Child> {
 impl Supervised {
     fn start(name: &str, args: Vec<String>, envs: Vec<(String, String)>) -> anyhow::Result<Self> {
         let child = spawn(&args, &envs)?;
-        Ok(Self { name: name.into(), args, envs, child, restarts: 0, started: Instant::now() })
+        Ok(Self { name: name.into(), args, envs, child, quick_failures: 0, started: Instant::now() })
     }
 
-    /// Starts the process again, at most once every 2 s (a process that fails at start must
-    /// not be restarted in a busy loop).
-    fn restart(&mut self) -> anyhow::Result<()> {
-        let wait = Duration::from_secs(2).saturating_sub(self.started.elapsed());
-        std::thread::sleep(wait);
-        self.restarts += 1;
+    /// Starts the process again after it exited with `status`, at most once every 2 s (a
+    /// process that fails at start must not be restarted in a busy loop). Gives up after
+    /// [`MAX_QUICK_FAILURES`] failures at start in a row; a process killed after working for a
+    /// while is restarted however often that happens.
+    fn restart(&mut self, status: ExitStatus) -> anyhow::Result<()> {
+        let lived = self.started.elapsed();
+        self.quick_failures = if lived < QUICK_FAILURE { self.quick_failures + 1 } else { 0 };
+        anyhow::ensure!(
+            self.quick_failures < MAX_QUICK_FAILURES,
+            "{} failed {MAX_QUICK_FAILURES} times in a row within {QUICK_FAILURE:?} of starting (last: {status}); see its messages above",
+            self.name
+        );
+        std::thread::sleep(Duration::from_secs(2).saturating_sub(lived));
         self.started = Instant::now();
         self.child = spawn(&self.args, &self.envs)?;
         Ok(())
@@ -228,22 +242,30 @@ pub fn run(plan: ClusterPlan) -> anyhow::Result<()> {
             if status.success() {
                 break;
             }
-            if learner.restarts >= 5 {
-                outcome = Err(anyhow::anyhow!("the learner failed 5 times (last: {status}); see its messages above"));
+            eprintln!("train: the learner exited ({status}); restarting it from its checkpoint");
+            if let Err(e) = learner.restart(status) {
+                outcome = Err(e);
                 break;
             }
-            eprintln!("train: the learner exited ({status}); restarting it from its checkpoint");
-            learner.restart()?;
         }
         if let Some(status) = taskctl.exited() {
             eprintln!("train: the task controller exited ({status}); restarting it from its snapshot");
-            taskctl.restart()?;
+            if let Err(e) = taskctl.restart(status) {
+                outcome = Err(e);
+                break;
+            }
         }
         for actor in &mut actors {
             if let Some(status) = actor.exited() {
                 eprintln!("train: {} exited ({status}); restarting it", actor.name);
-                actor.restart()?;
+                if let Err(e) = actor.restart(status) {
+                    outcome = Err(e);
+                    break;
+                }
             }
+        }
+        if outcome.is_err() {
+            break;
         }
     }
     for actor in &mut actors {
