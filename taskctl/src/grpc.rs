@@ -141,8 +141,8 @@ impl TaskControllerRpc for TaskControllerService {
 
     async fn get_summary(&self, _: Request<v1::SummaryRequest>) -> Result<Response<v1::Summary>, Status> {
         let c = self.controller.lock().await;
-        let switches = c.slots().iter().map(|s| s.switches as u64).sum();
-        Ok(Response::new(v1::Summary { envs: c.len() as u32, switches, mean_q: c.mean_q() }))
+        // Counted as the in-process trainer counts them, so both modes report the same number.
+        Ok(Response::new(v1::Summary { envs: c.len() as u32, switches: c.history().len() as u64, mean_q: c.mean_q() }))
     }
 
     async fn get_switch_history(&self, request: Request<v1::SwitchHistoryRequest>) -> Result<Response<v1::SwitchHistoryResponse>, Status> {
