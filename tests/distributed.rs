@@ -377,7 +377,9 @@ fn bad_messages_are_refused_with_a_clear_status() {
         proto::Security::load(&proto::NetworkConfig { token_file: Some(token.clone().into()), ..Default::default() }).unwrap(),
     );
     let anonymous = Clients::new(proto::Security::default());
-    wait_until(MINUTE, "the learner", &[&learner], || authed.status(&c.learner_url()).is_some());
+    // The server answers Status while the learner is still starting (with epoch 0); rollouts
+    // are admitted once it has published its first weights and set its epoch.
+    wait_until(MINUTE, "the learner", &[&learner], || authed.status(&c.learner_url()).is_some_and(|s| s.learner_epoch != 0));
 
     wait_until(MINUTE, "the task controller", &[&learner], || authed.tasks(&c.taskctl_url()).list_tasks().is_ok());
 
