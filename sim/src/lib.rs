@@ -18,7 +18,7 @@ pub use nalgebra;
 pub use observation::{ObservationFrame, STATE_OBS_DIM};
 pub use params::{GRAVITY, QuadrotorParams, RaceParams};
 pub use pilot::{Controller, PilotParams, ReferencePilot};
-pub use race::{ControllerModel, CrashCause, EnvConfig, EpisodeStats, RaceEnv, StepOutcome};
+pub use race::{ControllerModel, CrashCause, EnvConfig, EpisodeStats, RaceEnv, StartGate, StepOutcome};
 pub use randomization::RandomizationParams;
 pub use reward::{RewardParams, RewardTerms};
 pub use track::{Arena, Gate, Pose, Track};

@@ -6,7 +6,7 @@
 use std::sync::Arc;
 
 use nalgebra::Vector3;
-use rand::SeedableRng;
+use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
@@ -15,7 +15,7 @@ use crate::params::{QuadrotorParams, RaceParams};
 use crate::quadrotor::{BodyState, Command, Quadrotor};
 use crate::randomization::RandomizationParams;
 use crate::reward::{ActionFilter, RewardParams, RewardTerms, StepFacts};
-use crate::track::Track;
+use crate::track::{Pose, START_BEHIND_FIRST_GATE, Track};
 
 /// Camera tilt above the body x axis (rad): the forward camera of the vision profile (SPEC §5).
 pub const CAMERA_TILT: f64 = 30.0 * std::f64::consts::PI / 180.0;
@@ -34,6 +34,19 @@ pub enum ControllerModel {
     Compensating,
 }
 
+/// Which gate an episode starts behind.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StartGate {
+    /// The track's start pose, behind gate 0 (SPEC §7); evaluation always starts here.
+    #[default]
+    First,
+    /// 2 m behind a uniformly drawn gate, targeting it: a training choice beyond the thesis, so
+    /// that the last gates of a lap are practised as often as the first (episodes that crash
+    /// early never reach them).
+    Random,
+}
+
 /// Everything that configures an environment except its track.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -45,6 +58,8 @@ pub struct EnvConfig {
     /// Frame of the observation's vectors. Default heading: on the test set it beat SPEC §5's
     /// world frame fourfold (BENCHMARKS.md, "Generalisation").
     pub observation_frame: ObservationFrame,
+    /// Which gate episodes start behind. Default first (SPEC §7).
+    pub start_gate: StartGate,
     /// Per-episode randomisation around the nominal vehicle and start pose.
     pub randomization: RandomizationParams,
     /// Timing and episode length.
@@ -59,6 +74,7 @@ impl Default for EnvConfig {
             quadrotor: QuadrotorParams::default(),
             controller_model: ControllerModel::default(),
             observation_frame: ObservationFrame::Heading,
+            start_gate: StartGate::First,
             randomization: RandomizationParams::default(),
             race: RaceParams::default(),
             reward: RewardParams::default(),
@@ -70,6 +86,7 @@ impl EnvConfig {
     /// The evaluation setting of SPEC §9: nominal dynamics, 1000-step episodes.
     pub fn evaluation() -> Self {
         Self {
+            start_gate: StartGate::First,
             randomization: RandomizationParams::evaluation(),
             race: RaceParams { max_episode_steps: 1000, ..RaceParams::default() },
             ..Self::default()
@@ -191,8 +208,9 @@ impl RaceEnv {
 
     /// Starts a new episode with a fresh randomisation draw.
     pub fn reset(&mut self) {
+        let (start, target) = self.draw_start();
         let c = &self.config;
-        let draw = c.randomization.sample(&c.quadrotor, &self.track.start, c.race.substep(), &mut self.rng);
+        let draw = c.randomization.sample(&c.quadrotor, &start, c.race.substep(), &mut self.rng);
         let model = match c.controller_model {
             ControllerModel::Nominal => c.quadrotor,
             ControllerModel::Compensating => draw.plant,
@@ -201,13 +219,26 @@ impl RaceEnv {
         self.delay_substeps = draw.delay_substeps;
         // Before the first action arrives the flight controller holds a hover.
         self.previous_command = Command::hover();
-        self.target = 0;
+        self.target = target;
         self.steps = 0;
         self.time = 0.0;
         self.previous_action = [0.0; 4];
         self.filter = ActionFilter::default();
         self.last_gate0_pass = None;
         self.stats = EpisodeStats::default();
+    }
+
+    /// The nominal start pose of a new episode and its first target gate. `First` draws nothing
+    /// from the random stream, so SPEC episodes stay identical to the reference vectors.
+    fn draw_start(&mut self) -> (Pose, usize) {
+        if self.config.start_gate == StartGate::First {
+            return (self.track.start, 0);
+        }
+        let k = self.rng.random_range(0..self.track.gates.len());
+        let gate = &self.track.gates[k];
+        let behind = Pose { position: gate.position - gate.normal() * START_BEHIND_FIRST_GATE, yaw: gate.yaw };
+        // Gate 0 keeps the track's own start pose; a pose outside the arena falls back to it too.
+        if k == 0 || !self.track.arena.contains(&behind.position) { (self.track.start, 0) } else { (behind, k) }
     }
 
     /// Replaces the track and starts a new episode on it (task switching).
@@ -412,6 +443,27 @@ mod tests {
 
     fn hover_action(env: &RaceEnv) -> [f32; 4] {
         Command::hover().to_action(&env.config.quadrotor).map(|a| a as f32)
+    }
+
+    #[test]
+    fn random_start_gate_starts_behind_every_gate_and_first_keeps_the_track_start() {
+        let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
+        env.config.start_gate = StartGate::Random;
+        let mut seen = [0; 3];
+        for _ in 0..300 {
+            env.reset();
+            let k = env.target_gate();
+            seen[k] += 1;
+            let gate = env.track.gates[k];
+            let expected = if k == 0 { env.track.start.position } else { gate.position - gate.normal() * START_BEHIND_FIRST_GATE };
+            assert!((env.body().position - expected).norm() < 1e-12, "gate {k}: {:?}", env.body().position);
+        }
+        assert!(seen.iter().all(|&n| n > 60), "draws per gate {seen:?}");
+
+        env.config.start_gate = StartGate::First;
+        env.reset();
+        assert_eq!(env.target_gate(), 0);
+        assert_eq!(env.body().position, Vector3::new(-2.0, 0.0, 2.0));
     }
 
     #[test]
