@@ -10,6 +10,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use support::*;
+use taskctl::TaskService;
 
 const MINUTE: Duration = Duration::from_secs(60);
 
@@ -343,8 +344,8 @@ fn a_killed_task_controller_restores_its_snapshot_and_loses_no_report() {
     // What the dead controller had acknowledged is in its snapshot (written before each answer).
     let acknowledged = taskctl::TaskController::restore(&tmp.path().join("taskctl.snapshot")).unwrap();
     let taskctl = c.taskctl();
-    wait_until(MINUTE, "the restarted task controller", &[&taskctl], || tasks.list_tasks().is_ok());
-    let restored = tasks.list_tasks().unwrap();
+    wait_until(MINUTE, "the restarted task controller", &[&taskctl], || tasks.tasks().is_ok());
+    let restored = tasks.tasks().unwrap();
     assert_eq!(restored.len(), 8);
     for (slot, task) in acknowledged.slots().iter().zip(&restored) {
         assert!(task.last_rollout >= slot.last_iteration, "env {}: {:?} < {:?}", task.env, task.last_rollout, slot.last_iteration);
@@ -353,7 +354,7 @@ fn a_killed_task_controller_restores_its_snapshot_and_loses_no_report() {
     // Reporting goes on: every environment gets newer reports, and training continues.
     let at = iteration(&clients, &c);
     wait_until(MINUTE, "new reports and iterations", &[&taskctl, &learner, &a0, &a1], || {
-        let now = tasks.list_tasks().unwrap_or_default();
+        let now = tasks.tasks().unwrap_or_default();
         iteration(&clients, &c) >= at + 3 && now.iter().zip(acknowledged.slots()).all(|(t, s)| t.last_rollout > s.last_iteration)
     });
     // The command-line view of the same state: one row per environment, with its actor.
@@ -381,7 +382,7 @@ fn bad_messages_are_refused_with_a_clear_status() {
     // are admitted once it has published its first weights and set its epoch.
     wait_until(MINUTE, "the learner", &[&learner], || authed.status(&c.learner_url()).is_some_and(|s| s.learner_epoch != 0));
 
-    wait_until(MINUTE, "the task controller", &[&learner], || authed.tasks(&c.taskctl_url()).list_tasks().is_ok());
+    wait_until(MINUTE, "the task controller", &[&learner], || authed.tasks(&c.taskctl_url()).tasks().is_ok());
 
     // Missing and wrong tokens.
     std::fs::write(tmp.path().join("wrong"), "t0keN\n").unwrap();
@@ -392,8 +393,8 @@ fn bad_messages_are_refused_with_a_clear_status() {
         let mut learner_client = proto::grpc_link::learner_client(&c.learner_url(), &clients.security).unwrap();
         let e = clients.rt.block_on(learner_client.status(v1::StatusRequest {})).unwrap_err();
         assert_eq!(e.code(), tonic::Code::Unauthenticated, "{e:?}");
-        let e = clients.tasks(&c.taskctl_url()).list_tasks().unwrap_err();
-        assert!(!e.transient && e.message.starts_with("Unauthenticated"), "{e:?}");
+        let e = clients.tasks(&c.taskctl_url()).tasks().unwrap_err();
+        assert!(!e.is_transient() && e.to_string().contains("Unauthenticated"), "{e:?}");
     }
 
     let status = authed.status(&c.learner_url()).unwrap();
@@ -438,14 +439,18 @@ fn bad_messages_are_refused_with_a_clear_status() {
     // The task controller refuses bad reports with statuses naming the problem.
     let tasks = authed.tasks(&c.taskctl_url());
     tasks.register("probe", 2).unwrap();
-    let refused = |r: Result<Vec<_>, taskctl::client::ClientError>| r.unwrap_err();
-    assert!(refused(tasks.report("nobody", 0, &[1.0])).message.starts_with("NotFound"));
+    // Refusals come back permanent, with the status and the controller's reason.
+    let refused = |r: Result<Vec<_>, taskctl::TaskServiceError>| {
+        let e = r.unwrap_err();
+        assert!(!e.is_transient(), "{e}");
+        e.to_string()
+    };
+    assert!(refused(tasks.report("nobody", 0, &[1.0])).contains("NotFound"));
     let e = refused(tasks.report("probe", 0, &[1.0]));
-    assert!(!e.transient && e.message.starts_with("InvalidArgument"), "{e}");
-    assert!(e.message.contains("2 environments but reported 1 rewards"), "{}", e.message);
-    assert!(refused(tasks.report("probe", 0, &[1.0, f64::INFINITY])).message.starts_with("InvalidArgument"));
-    assert!(tasks.register("bad name!", 1).unwrap_err().message.starts_with("InvalidArgument"));
-    assert!(tasks.register("greedy", 100).unwrap_err().message.starts_with("ResourceExhausted"));
+    assert!(e.contains("InvalidArgument") && e.contains("2 environments but reported 1 rewards"), "{e}");
+    assert!(refused(tasks.report("probe", 0, &[1.0, f64::INFINITY])).contains("InvalidArgument"));
+    assert!(tasks.register("bad name!", 1).unwrap_err().to_string().contains("InvalidArgument"));
+    assert!(tasks.register("greedy", 100).unwrap_err().to_string().contains("ResourceExhausted"));
     tasks.report("probe", 0, &[1.0, 2.0]).unwrap();
-    assert!(refused(tasks.report("probe", 0, &[1.0, 2.0])).message.starts_with("AlreadyExists"), "a repeated rollout");
+    assert!(refused(tasks.report("probe", 0, &[1.0, 2.0])).contains("AlreadyExists"), "a repeated rollout");
 }

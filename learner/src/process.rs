@@ -4,7 +4,7 @@
 //! Synchronous by default: the update for version k waits for a version-k rollout from every
 //! member actor (one that delivered since it was last dropped). A member that has not delivered
 //! `actor_timeout` after the iteration's first rollout is dropped and training goes on with the
-//! others; it rejoins with its next rollout. Rollouts arrive whole or not at all, so a killed
+//! others; it rejoins with its next rollout (one too old to use counts as a sign of life). Rollouts arrive whole or not at all, so a killed
 //! actor's partial rollout never reaches the update. With
 //! `max_policy_lag > 0` rollouts up to that many versions old are also used.
 
@@ -17,6 +17,7 @@ use std::time::{Duration, Instant};
 use proto::grpc_link::LearnerShared;
 use proto::{Admission, Delivery, LearnerLink, LearnerStatus, WeightsUpdate};
 use serde::{Deserialize, Serialize};
+use taskctl::TaskService;
 
 use crate::checkpoint::Checkpoint;
 use crate::learner::Learner;
@@ -43,11 +44,12 @@ impl Default for LearnerSettings {
     }
 }
 
-/// Curriculum figures the learner shows but does not own (read from the task controller).
-pub trait TaskView {
-    /// Task switches so far and the mean flatness score q; `None` when unreachable.
-    fn switches_and_mean_q(&mut self) -> Option<(usize, f64)>;
-}
+/// State saved beside the learner's in every checkpoint by whoever owns it: training in one
+/// process adds the actor and the curriculum (so it resumes exactly); processes keep their own.
+pub type CheckpointSections<'a> = &'a dyn Fn(&mut Checkpoint);
+
+/// No sections beside the learner's.
+pub fn learner_only(_: &mut Checkpoint) {}
 
 /// The learner process: run directory, PPO learner, transport and status.
 pub struct LearnerProcess<L: LearnerLink> {
@@ -61,6 +63,9 @@ pub struct LearnerProcess<L: LearnerLink> {
     members: BTreeSet<String>,
     iterations_here: u64,
     validator: Option<Validator>,
+    /// When the previous iteration published its weights: an iteration's wall time runs from
+    /// there, so it covers the collection whether actors run beside the learner or before it.
+    previous_publish: Instant,
 }
 
 impl<L: LearnerLink> LearnerProcess<L> {
@@ -93,6 +98,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
             members: BTreeSet::new(),
             iterations_here: 0,
             validator,
+            previous_publish: Instant::now(),
         };
         process.publish()?;
         process.set_status(0.0, 0);
@@ -149,6 +155,26 @@ impl<L: LearnerLink> LearnerProcess<L> {
         self.learner.env_steps() >= self.run.config().total_env_steps
     }
 
+    /// Takes one delivery into `batch` when it is admitted. A refused rollout that was merely
+    /// too old still shows its actor is alive: the actor is a member again, so the next
+    /// iteration waits for it (a dropped actor slower than the others would otherwise never
+    /// get back in).
+    fn take(&mut self, d: Delivery, admission: &Admission, batch: &mut Vec<Delivery>) {
+        match admission.check(&d.actor, d.learner_epoch, &d.chunk) {
+            Ok(()) => {
+                self.members.insert(d.actor.clone());
+                batch.push(d);
+            }
+            Err(refusal) => {
+                self.shared.count_refused();
+                tracing::info!(actor = %d.actor, reason = refusal.kind(), "rollout not used: {refusal}");
+                if refusal.kind() == "too_old" && self.members.insert(d.actor.clone()) {
+                    tracing::info!("actor {} rejoins", d.actor);
+                }
+            }
+        }
+    }
+
     /// Rollouts of the current version from every live actor (see the module docs); `None`
     /// when `stop` was raised while waiting.
     fn gather(&mut self, stop: &AtomicBool) -> Result<Option<Vec<Delivery>>, TrainError> {
@@ -162,22 +188,20 @@ impl<L: LearnerLink> LearnerProcess<L> {
                 return Ok(None);
             }
             if let Some(d) = self.link.receive(Duration::from_millis(50))? {
-                match admission.check(&d.actor, d.learner_epoch, &d.chunk) {
-                    Ok(()) => {
-                        first_arrival.get_or_insert_with(Instant::now);
-                        self.members.insert(d.actor.clone());
-                        batch.push(d);
-                    }
-                    Err(refusal) => {
-                        self.shared.count_refused();
-                        tracing::info!(actor = %d.actor, reason = refusal.kind(), "rollout not used: {refusal}");
-                    }
+                self.take(d, &admission, &mut batch);
+                if !batch.is_empty() {
+                    first_arrival.get_or_insert_with(Instant::now);
                 }
             }
             let delivered: BTreeSet<&String> = batch.iter().map(|d| &d.actor).collect();
             let missing: Vec<String> = self.members.iter().filter(|a| !delivered.contains(a)).cloned().collect();
             let enough = self.iterations_here > 0 || delivered.len() >= self.settings.expected_actors;
             if !batch.is_empty() && missing.is_empty() && enough {
+                // Rollouts already waiting (e.g. from a dropped actor coming back) join this
+                // update rather than arriving one version too old at the next.
+                while let Some(d) = self.link.receive(Duration::ZERO)? {
+                    self.take(d, &admission, &mut batch);
+                }
                 return Ok(Some(batch));
             }
             if first_arrival.is_some_and(|t| t.elapsed() >= timeout) {
@@ -194,9 +218,14 @@ impl<L: LearnerLink> LearnerProcess<L> {
         }
     }
 
-    /// One iteration; `None` when stopped while waiting for rollouts.
-    pub fn iteration_step(&mut self, stop: &AtomicBool, tasks: &mut dyn TaskView) -> Result<Option<IterationSummary>, TrainError> {
-        let started = Instant::now();
+    /// One iteration; `None` when stopped while waiting for rollouts. `tasks` (when reachable)
+    /// gives the progress line its switch count and mean q; `sections` go into checkpoints.
+    pub fn iteration_step(
+        &mut self,
+        stop: &AtomicBool,
+        tasks: Option<&dyn TaskService>,
+        sections: CheckpointSections,
+    ) -> Result<Option<IterationSummary>, TrainError> {
         let Some(batch) = self.gather(stop)? else { return Ok(None) };
         let version = self.learner.version();
         let version_lag = batch.iter().map(|d| version - d.chunk.policy_version).max().unwrap_or(0);
@@ -205,8 +234,11 @@ impl<L: LearnerLink> LearnerProcess<L> {
         let report = self.learner.train_with_lag(&chunks, u64::from(self.settings.max_policy_lag))?;
         let update_seconds = updating.elapsed().as_secs_f64();
         self.publish()?;
-        let (switches, mean_q) = tasks.switches_and_mean_q().unwrap_or((0, f64::NAN));
-        let timing = IterationTiming { seconds: started.elapsed().as_secs_f64(), update_seconds, switches, mean_q, version_lag };
+        let seconds = std::mem::replace(&mut self.previous_publish, Instant::now()).elapsed().as_secs_f64();
+        // Two numbers, not every environment's track: a summary is a small message.
+        let summary = tasks.and_then(|t| t.summary().ok());
+        let (switches, mean_q) = summary.map_or((0, f64::NAN), |s| (s.switches as usize, s.mean_q.unwrap_or(f64::NAN)));
+        let timing = IterationTiming { seconds, update_seconds, switches, mean_q, version_lag };
         // After publishing: the actors collect the next rollout while this runs.
         let validation = Validator::evaluate_if_due(self.validator.as_ref(), self.run.next_iteration(), || self.learner.weights())?;
         let (summary, best) = self.run.record(&chunks, report, timing, validation.as_ref())?;
@@ -214,7 +246,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
             self.run.save_best(self.learner.checkpoint())?;
         }
         if self.run.checkpoint_due() {
-            self.checkpoint()?;
+            self.checkpoint(sections)?;
         }
         self.iterations_here += 1;
         self.set_status(summary.sps, version_lag);
@@ -222,9 +254,16 @@ impl<L: LearnerLink> LearnerProcess<L> {
         Ok(Some(summary))
     }
 
-    /// Writes a periodic checkpoint (learner state and run bookkeeping).
-    pub fn checkpoint(&self) -> Result<PathBuf, TrainError> {
-        self.run.save(self.learner.checkpoint())
+    /// Writes a periodic checkpoint (learner state, run bookkeeping and `sections`).
+    pub fn checkpoint(&self, sections: CheckpointSections) -> Result<PathBuf, TrainError> {
+        let mut checkpoint = self.learner.checkpoint();
+        sections(&mut checkpoint);
+        self.run.save(checkpoint)
+    }
+
+    /// Iterations done in the run (over every sitting).
+    pub fn iteration(&self) -> u64 {
+        self.run.iteration()
     }
 
     /// Estimated seconds to the end of the run at the given rate.

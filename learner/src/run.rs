@@ -175,9 +175,18 @@ pub enum TrainError {
     /// Task controller error.
     #[error(transparent)]
     Task(#[from] taskctl::TaskError),
+    /// A task-controller call failed.
+    #[error(transparent)]
+    TaskService(#[from] taskctl::TaskServiceError),
     /// Actor error.
     #[error(transparent)]
     Actor(#[from] actor::ActorError),
+    /// The actor's loop failed (training in one process).
+    #[error(transparent)]
+    ActorLoop(#[from] actor::process::ActorProcessError),
+    /// Training in one process lost its turn order (a bug, reported rather than hidden).
+    #[error("in-process training: {0}")]
+    TurnOrder(String),
     /// The validation set could not be built.
     #[error("validation set: {0}")]
     ValidationSet(#[from] crate::validation::ValidationSetError),

@@ -1,139 +1,151 @@
-//! In-process training: the task controller, one actor and the learner exchanging the same
-//! messages the distributed runtime carries (weights blob → actor, rollout chunk → learner,
-//! cumulative rewards → task controller, new tracks → actor). For debugging and tests; the
-//! `dronerace train` default runs them as processes.
+//! Training in one process: the distributed runtime's own loops — the actor's
+//! [`ActorLoop`], the learner's [`LearnerProcess`] and the task controller's
+//! [`TaskService`] — taking turns on one thread over an in-memory link (sample-factory's serial
+//! runner). For debugging, tests and experiments; `dronerace train` runs them as processes.
 //!
-//! One iteration (thesis Algorithm 1): collect n_steps in every environment with policy
-//! version k → report each environment's cumulative reward, apply switches → PPO update →
-//! version k + 1.
+//! One iteration (thesis Algorithm 1): the actor collects n_steps in every environment with
+//! policy version k, sends the rollout and reports each environment's cumulative reward (the
+//! controller switches tracks) → the learner's PPO update → version k + 1. Checkpoints hold the
+//! actor's environments and the curriculum beside the learner, so a resumed run continues bit
+//! for bit.
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::sync::atomic::AtomicBool;
 
-use actor::{Actor, ActorState};
-use taskctl::TaskController;
+use actor::ActorState;
+use actor::process::{ActorLoop, ActorSettings, Pass};
+use proto::grpc_link::LearnerService;
+use proto::memory::{MemoryActorLink, MemoryLearnerLink, memory_link};
+use taskctl::{LocalTasks, TaskController, TaskService};
 
 use crate::checkpoint::Checkpoint;
 use crate::learner::Learner;
-use crate::run::{IterationSummary, IterationTiming, Run, TrainConfig, TrainError};
-use crate::validation::Validator;
+use crate::process::{LearnerProcess, LearnerSettings};
+use crate::run::{IterationSummary, Run, TrainConfig, TrainError};
 
-/// The in-process training loop and its run directory.
+/// The actor's name in the task controller (one actor holds every environment).
+const ACTOR: &str = "in-process";
+
+/// The actor, learner and task controller of one run, in this process.
 pub struct Trainer {
-    run: Run,
-    learner: Learner,
-    actor: Actor,
-    tasks: TaskController,
-    validator: Option<Validator>,
+    learner: LearnerProcess<MemoryLearnerLink>,
+    actor: ActorLoop,
+    link: MemoryActorLink,
+    tasks: LocalTasks,
+    /// Never raised: nothing here waits on a peer that could be gone.
+    stop: AtomicBool,
+}
+
+fn actor_settings(config: &TrainConfig, envs: usize, n_steps: usize) -> ActorSettings {
+    ActorSettings {
+        name: ACTOR.into(),
+        envs,
+        seed: config.seed,
+        env: config.env,
+        n_steps,
+        weights_timeout: std::time::Duration::MAX,
+        max_rollouts: None,
+    }
 }
 
 impl Trainer {
     /// Starts a new run in `dir` (which must not hold checkpoints already).
     pub fn start(config: TrainConfig, dir: &Path) -> Result<Self, TrainError> {
         let profile = config.resolved_profile()?;
-        let tasks = config.task_controller(profile.envs)?;
-        let actor = Actor::new(tasks.tracks(), config.env, config.seed, 0);
-        let learner = config.initial_learner()?;
-        let validator = Validator::new(&config.eval)?;
+        let tasks = LocalTasks::new(config.task_controller(profile.envs)?, None);
+        let settings = actor_settings(&config, profile.envs, profile.ppo.n_steps);
+        let stop = AtomicBool::new(false);
+        let actor =
+            ActorLoop::register(&settings, &tasks, &stop)?.ok_or_else(|| TrainError::TurnOrder("stopped while registering".into()))?;
         let run = Run::create(config, dir)?;
-        Ok(Self { run, learner, actor, tasks, validator })
+        Self::assemble(run, None, actor, tasks)
     }
 
     /// Continues the run in `dir` from its newest checkpoint.
     pub fn resume(dir: &Path) -> Result<Self, TrainError> {
-        let (run, ckpt) = Run::open(dir)?;
-        let learner = Learner::restore_state(ckpt.get("weights")?, ckpt.get("optimizer")?, ckpt.get("learner")?)?;
+        let (run, checkpoint) = Run::open(dir)?;
         let origin = dir.join("checkpoints");
-        let state: ActorState = serde_json::from_slice(ckpt.get("actor")?)
+        let state: ActorState = serde_json::from_slice(checkpoint.get("actor")?)
             .map_err(|e| TrainError::Encoding { what: format!("{}: actor", origin.display()), reason: e.to_string() })?;
-        let tasks = TaskController::from_snapshot_bytes(ckpt.get("taskctl")?, &origin)?;
-        let validator = Validator::new(&run.config().eval)?;
-        Ok(Self { run, learner, actor: Actor::restore(state), tasks, validator })
+        let tasks = LocalTasks::new(TaskController::from_snapshot_bytes(checkpoint.get("taskctl")?, &origin)?, None);
+        let profile = run.config().resolved_profile()?;
+        let settings = actor_settings(run.config(), profile.envs, profile.ppo.n_steps);
+        // The controller knows the actor already: registering again tells where its reports continue.
+        let next_rollout = tasks.register(ACTOR, profile.envs)?.next_rollout;
+        let actor = ActorLoop::restore(&settings, state, next_rollout);
+        Self::assemble(run, Some(&checkpoint), actor, tasks)
+    }
+
+    fn assemble(run: Run, checkpoint: Option<&Checkpoint>, actor: ActorLoop, tasks: LocalTasks) -> Result<Self, TrainError> {
+        let (link, learner_end) = memory_link();
+        let (_, status) = LearnerService::status_only();
+        let learner = LearnerProcess::start(run, checkpoint, learner_end, status, LearnerSettings::default())?;
+        Ok(Self { learner, actor, link, tasks, stop: AtomicBool::new(false) })
     }
 
     /// The learner (weights, version, counters).
     pub fn learner(&self) -> &Learner {
-        &self.learner
+        self.learner.learner()
     }
 
     /// The task controller.
-    pub fn tasks(&self) -> &TaskController {
+    pub fn tasks(&self) -> &LocalTasks {
         &self.tasks
     }
 
     /// Iterations done.
     pub fn iteration(&self) -> u64 {
-        self.run.iteration()
+        self.learner.iteration()
     }
 
     /// Wall seconds of training so far, over every sitting.
     pub fn wall_seconds(&self) -> f64 {
-        self.run.wall_seconds()
+        self.learner.run().wall_seconds()
     }
 
     /// Highest validation S_pw so far.
     pub fn best_validation(&self) -> Option<f64> {
-        self.run.best_validation()
+        self.learner.run().best_validation()
     }
 
     /// True once the run's environment-step budget is spent.
     pub fn finished(&self) -> bool {
-        self.learner.env_steps() >= self.run.config().total_env_steps
+        self.learner.finished()
     }
 
-    /// One iteration: collect, report, switch, update, log, and checkpoint when due.
+    /// One iteration: the actor's turn (collect, send, report, switch), then the learner's
+    /// (update, publish, log, validate, checkpoint when due).
     pub fn iteration_step(&mut self) -> Result<IterationSummary, TrainError> {
-        let started = Instant::now();
-        let n_steps = self.learner.profile().ppo.n_steps;
-        self.actor.set_weights(&self.learner.weights())?;
-        let chunk = self.actor.collect(n_steps)?;
-        let iteration = self.run.iteration();
-        for (e, reward) in chunk.cumulative_rewards().into_iter().enumerate() {
-            let env = chunk.first_env + e;
-            if let Some(track) = self.tasks.report(env, iteration, reward)? {
-                self.actor.set_track(env, track)?;
-            }
+        // The learner published before this turn, so a rollout is always due.
+        match self.actor.pass(&mut self.link, &self.tasks, &self.stop)? {
+            Pass::Sent => {}
+            pass => return Err(TrainError::TurnOrder(format!("the actor's turn ended with {pass:?} instead of a rollout"))),
         }
-        let collected = Instant::now();
-        let report = self.learner.train(std::slice::from_ref(&chunk))?;
-        let timing = IterationTiming {
-            seconds: started.elapsed().as_secs_f64(),
-            update_seconds: collected.elapsed().as_secs_f64(),
-            switches: self.tasks.history().len(),
-            mean_q: self.tasks.mean_q().unwrap_or(f64::NAN),
-            version_lag: 0,
-        };
-        let validation = Validator::evaluate_if_due(self.validator.as_ref(), self.run.next_iteration(), || self.learner.weights())?;
-        let (summary, best) = self.run.record(std::slice::from_ref(&chunk), report, timing, validation.as_ref())?;
-        if best {
-            self.run.save_best(self.snapshot())?;
-        }
-        if self.run.checkpoint_due() {
-            self.checkpoint()?;
-        }
-        Ok(summary)
+        let (actor, tasks) = (&self.actor, &self.tasks);
+        let sections = |c: &mut Checkpoint| Self::add_sections(actor, tasks, c);
+        self.learner
+            .iteration_step(&self.stop, Some(&self.tasks), &sections)?
+            .ok_or_else(|| TrainError::TurnOrder("the learner's turn found no rollout".into()))
+    }
+
+    #[allow(clippy::expect_used, reason = "actor state serialises")]
+    fn add_sections(actor: &ActorLoop, tasks: &LocalTasks, checkpoint: &mut Checkpoint) {
+        checkpoint.put("actor", serde_json::to_vec(&actor.state()).expect("actor state serialises"));
+        checkpoint.put("taskctl", tasks.read(TaskController::to_snapshot_bytes));
     }
 
     /// Writes a periodic checkpoint of the current state.
     pub fn checkpoint(&self) -> Result<PathBuf, TrainError> {
-        self.run.save(self.snapshot())
-    }
-
-    #[allow(clippy::expect_used, reason = "actor state serialises")]
-    fn snapshot(&self) -> Checkpoint {
-        let mut c = self.learner.checkpoint();
-        c.put("actor", serde_json::to_vec(&self.actor.state()).expect("actor state serialises"));
-        c.put("taskctl", self.tasks.to_snapshot_bytes());
-        c
+        self.learner.checkpoint(&|c| Self::add_sections(&self.actor, &self.tasks, c))
     }
 
     /// Estimated seconds to the end of the run at the given rate.
     pub fn eta_seconds(&self, sps: f64) -> f64 {
-        self.run.eta_seconds(self.learner.env_steps(), sps)
+        self.learner.eta_seconds(sps)
     }
 
     /// The run directory.
     pub fn dir(&self) -> &Path {
-        self.run.dir()
+        self.learner.run().dir()
     }
 }

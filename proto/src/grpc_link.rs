@@ -147,6 +147,11 @@ impl LearnerShared {
         *self.status.lock() = status;
     }
 
+    /// The status as last set.
+    pub fn status(&self) -> LearnerStatus {
+        self.status.lock().clone()
+    }
+
     /// Counts a rollout the training loop refused.
     pub fn count_refused(&self) {
         self.refused.fetch_add(1, std::sync::atomic::Ordering::Relaxed);

@@ -1,10 +1,11 @@
 //! `dronerace.v1`: the gRPC messages and services (generated from `proto/dronerace/v1`), and
 //! everything both ends of a connection must agree on: track conversion, the rollout/weights
-//! transports (iceoryx2 on one machine, gRPC across machines), message limits, TLS and tokens.
+//! transports (iceoryx2 on one machine, gRPC across machines, memory within one process), message limits, TLS and tokens.
 
 pub mod chunking;
 pub mod convert;
 pub mod grpc_link;
+pub mod memory;
 pub mod security;
 pub mod shm;
 pub mod transport;

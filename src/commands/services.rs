@@ -10,11 +10,12 @@ use std::time::Duration;
 
 use anyhow::Context;
 use clap::{Args, ValueEnum};
-use learner::process::{LearnerProcess, TaskView};
+use learner::process::{LearnerProcess, learner_only};
 use learner::{Run, TrainConfig};
 use proto::grpc_link::{GrpcActorLink, LearnerService};
 use proto::shm::{ShmActorLink, ShmConfig, ShmLearnerLink};
 use proto::{LearnerLink, Security};
+use taskctl::TaskService;
 use taskctl::client::TaskClient;
 
 /// How rollouts and weights travel between actors and the learner.
@@ -79,7 +80,7 @@ pub fn taskctl(args: TaskctlArgs) -> anyhow::Result<()> {
         c
     };
     let stop = stop_flag()?;
-    let service = taskctl::grpc::TaskControllerService::new(controller, args.snapshot.clone());
+    let service = taskctl::grpc::TaskControllerService::new(Arc::new(taskctl::LocalTasks::new(controller, Some(args.snapshot.clone()))));
     eprintln!("taskctl: serving on {}", args.listen);
     runtime(1)?
         .block_on(taskctl::grpc::serve(args.listen, &security, service, until(stop)))
@@ -115,18 +116,6 @@ pub struct LearnerArgs {
     iterations: Option<u64>,
 }
 
-/// The switch count and mean q, read from the task controller.
-struct RemoteTasks(Option<TaskClient>);
-
-impl TaskView for RemoteTasks {
-    fn switches_and_mean_q(&mut self) -> Option<(usize, f64)> {
-        // A summary, not ListTasks: every environment's whole track for two numbers was the
-        // largest message of an iteration after the weights.
-        let summary = self.0.as_ref()?.summary().ok()?;
-        Some((summary.switches as usize, summary.mean_q.unwrap_or(f64::NAN)))
-    }
-}
-
 /// Runs the learner process until the budget is spent, `--iterations` are done, or SIGINT.
 pub fn learner(args: LearnerArgs) -> anyhow::Result<()> {
     let config = read_config(&args.config)?;
@@ -148,7 +137,7 @@ pub fn learner(args: LearnerArgs) -> anyhow::Result<()> {
             let shared = link.shared().clone();
             let server = serve_learner(&rt, args.listen, &security, service, stop.clone())?;
             let process = LearnerProcess::start(run, checkpoint.as_ref(), link, shared, settings)?;
-            drive(process, resumed, &args, &stop, RemoteTasks(tasks))?;
+            drive(process, resumed, &args, &stop, tasks.as_ref())?;
             finish_server(&rt, server, &stop);
         }
         Transport::Shm => {
@@ -157,7 +146,7 @@ pub fn learner(args: LearnerArgs) -> anyhow::Result<()> {
             let (service, shared) = LearnerService::status_only();
             let server = serve_learner(&rt, args.listen, &security, service, stop.clone())?;
             let process = LearnerProcess::start(run, checkpoint.as_ref(), link, shared, settings)?;
-            drive(process, resumed, &args, &stop, RemoteTasks(tasks))?;
+            drive(process, resumed, &args, &stop, tasks.as_ref())?;
             finish_server(&rt, server, &stop);
         }
     }
@@ -196,7 +185,7 @@ fn drive<L: LearnerLink>(
     resumed: bool,
     args: &LearnerArgs,
     stop: &AtomicBool,
-    mut tasks: RemoteTasks,
+    tasks: Option<&TaskClient>,
 ) -> anyhow::Result<()> {
     let dir = process.run().dir().to_path_buf();
     let log_path = dir.join("train.log");
@@ -214,14 +203,14 @@ fn drive<L: LearnerLink>(
     );
     let mut done = 0;
     while !process.finished() && !stop.load(Ordering::SeqCst) && args.iterations.is_none_or(|n| done < n) {
-        let Some(s) = process.iteration_step(stop, &mut tasks)? else { break };
+        let Some(s) = process.iteration_step(stop, tasks.map(|t| t as &dyn TaskService), &learner_only)? else { break };
         done += 1;
         let line = super::train::progress_line(&s, process.eta_seconds(s.sps));
         eprintln!("{line}");
         use std::io::Write;
         writeln!(log, "{line}").with_context(|| format!("writing {}", log_path.display()))?;
     }
-    let path = process.checkpoint()?;
+    let path = process.checkpoint(&learner_only)?;
     eprintln!("learner: checkpoint written to {}", path.display());
     Ok(())
 }

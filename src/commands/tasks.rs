@@ -5,8 +5,8 @@ use std::path::PathBuf;
 
 use clap::Args;
 use proto::Security;
-use proto::v1;
 use taskctl::client::TaskClient;
+use taskctl::{TaskInfo, TaskService};
 
 /// Arguments of `dronerace tasks`.
 #[derive(Args)]
@@ -29,9 +29,9 @@ fn opt(x: Option<f64>) -> String {
     x.map_or("–".into(), |v| format!("{v:.3}"))
 }
 
-fn row(t: &v1::Task) -> String {
-    let track = t.track.as_ref().map_or("?", |t| t.name.as_str());
-    format!("{:>4}  {:<12} {:<32} {:>6} {:>8} {:>8} {:>8}", t.env, t.actor, track, t.window_length, opt(t.rho), opt(t.q), t.switches)
+fn row(t: &TaskInfo) -> String {
+    let actor = t.actor.as_deref().unwrap_or("–");
+    format!("{:>4}  {:<12} {:<32} {:>6} {:>8} {:>8} {:>8}", t.env, actor, t.track.name, t.window_length, opt(t.rho), opt(t.q), t.switches)
 }
 
 /// Prints the tasks (or one, or the history).
@@ -47,14 +47,14 @@ pub fn run(args: TasksArgs) -> anyhow::Result<()> {
     if args.history {
         println!("{:>8} {:>4}  {:<32} {:<32} {:>8} {:>8}", "rollout", "env", "old track", "new track", "rho", "q");
         for e in client.switch_history(0)? {
-            println!("{:>8} {:>4}  {:<32} {:<32} {:>8.3} {:>8.3}", e.rollout, e.env, e.old_track, e.new_track, e.rho, e.q);
+            println!("{:>8} {:>4}  {:<32} {:<32} {:>8.3} {:>8.3}", e.iteration, e.env, e.old_track, e.new_track, e.rho, e.q);
         }
         return Ok(());
     }
     println!("{:>4}  {:<12} {:<32} {:>6} {:>8} {:>8} {:>8}", "env", "actor", "track", "window", "rho", "q", "switches");
     match args.env {
-        Some(env) => println!("{}", row(&client.get_task(env)?)),
-        None => client.list_tasks()?.iter().for_each(|t| println!("{}", row(t))),
+        Some(env) => println!("{}", row(&client.task(env)?)),
+        None => client.tasks()?.iter().for_each(|t| println!("{}", row(t))),
     }
     Ok(())
 }

@@ -1,5 +1,5 @@
-//! A blocking client of the task controller service, for the actor and learner processes
-//! (their loops are plain threads; calls run on a tokio runtime they pass in).
+//! The task controller over gRPC, as a blocking [`TaskService`] for the actor and learner
+//! processes (their loops are plain threads; calls run on a tokio runtime they pass in).
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -9,38 +9,23 @@ use proto::security::{AddToken, MAX_MESSAGE_BYTES};
 use proto::v1;
 use proto::v1::task_controller_client::TaskControllerClient;
 use sim::Track;
+
+use crate::controller::SwitchEvent;
+use crate::grpc::{summary_from_proto, switch_from_proto, task_from_proto};
+use crate::service::{Registration, Summary, TaskInfo, TaskService, TaskServiceError};
 use tokio::runtime::Handle;
 use tonic::codegen::InterceptedService;
 use tonic::transport::Channel;
 
-/// An actor's environments as the task controller assigned them.
-#[derive(Clone, Debug)]
-pub struct Registration {
-    /// Global index of the first environment.
-    pub first_env: usize,
-    /// Their current tracks.
-    pub tracks: Vec<Arc<Track>>,
-    /// Rollout index of the next report.
-    pub next_rollout: u64,
-}
-
-/// A call that failed, and whether trying again can help.
-#[derive(Debug, thiserror::Error)]
-#[error("task controller: {message}{}", if *.transient { " (transient)" } else { "" })]
-pub struct ClientError {
-    /// The controller is unreachable, restarting or timed out: the same call may succeed
-    /// later. Otherwise it refused the request itself and will refuse it again.
-    pub transient: bool,
-    /// What the server (or the connection) said.
-    pub message: String,
-}
-
-impl From<tonic::Status> for ClientError {
-    /// The one place gRPC status codes are read on the client side.
-    fn from(s: tonic::Status) -> Self {
-        use tonic::Code::{Cancelled, DeadlineExceeded, Unavailable, Unknown};
-        let transient = matches!(s.code(), Unavailable | DeadlineExceeded | Unknown | Cancelled);
-        Self { transient, message: format!("{:?}: {}", s.code(), s.message()) }
+/// The one place gRPC status codes are read on the client side (the adapter's `status` writes
+/// them): unreachable, restarting or slow is transient, a refusal is not.
+fn status_error(s: tonic::Status) -> TaskServiceError {
+    use tonic::Code::{Cancelled, DeadlineExceeded, Unavailable, Unknown};
+    let message = format!("{:?}: {}", s.code(), s.message());
+    if matches!(s.code(), Unavailable | DeadlineExceeded | Unknown | Cancelled) {
+        TaskServiceError::Unavailable(message)
+    } else {
+        TaskServiceError::RefusedRemotely(message)
     }
 }
 
@@ -69,27 +54,27 @@ impl TaskClient {
         &self,
         timeout: Duration,
         f: impl std::future::Future<Output = Result<tonic::Response<T>, tonic::Status>>,
-    ) -> Result<T, ClientError> {
+    ) -> Result<T, TaskServiceError> {
         match self.runtime.block_on(async move { tokio::time::timeout(timeout, f).await }) {
-            Ok(r) => Ok(r?.into_inner()),
-            Err(_) => Err(ClientError { transient: true, message: format!("no answer within {timeout:?}") }),
+            Ok(r) => Ok(r.map_err(status_error)?.into_inner()),
+            Err(_) => Err(TaskServiceError::Unavailable(format!("no answer within {timeout:?}"))),
         }
     }
+}
 
-    /// Registers actor `actor` with `envs` environments.
-    pub fn register(&self, actor: &str, envs: usize) -> Result<Registration, ClientError> {
+impl TaskService for TaskClient {
+    fn register(&self, actor: &str, envs: usize) -> Result<Registration, TaskServiceError> {
         let mut c = self.client.clone();
         let r = self.call(Duration::from_secs(30), c.register(v1::RegisterRequest { actor: actor.into(), envs: envs as u32 }))?;
         let tracks = r.tracks.iter().map(|t| track_from_proto(t).map(Arc::new)).collect::<Result<Vec<_>, _>>();
-        let tracks = tracks.map_err(|message| ClientError { transient: false, message })?;
+        let tracks = tracks.map_err(TaskServiceError::BadAnswer)?;
         if tracks.len() != envs {
-            return Err(ClientError { transient: false, message: format!("{} tracks for {envs} environments", tracks.len()) });
+            return Err(TaskServiceError::BadAnswer(format!("{} tracks for {envs} environments", tracks.len())));
         }
         Ok(Registration { first_env: r.first_env as usize, tracks, next_rollout: r.next_rollout })
     }
 
-    /// Reports one rollout's cumulative rewards; returns `(global env, new track)` switches.
-    pub fn report(&self, actor: &str, rollout: u64, rewards: &[f64]) -> Result<Vec<(usize, Arc<Track>)>, ClientError> {
+    fn report(&self, actor: &str, rollout: u64, rewards: &[f64]) -> Result<Vec<(usize, Arc<Track>)>, TaskServiceError> {
         let mut c = self.client.clone();
         let request = v1::ReportRequest { actor: actor.into(), rollout, cumulative_rewards: rewards.to_vec() };
         let r = self.call(Duration::from_secs(30), c.report(request))?;
@@ -97,33 +82,32 @@ impl TaskClient {
             .iter()
             .map(|a| {
                 let track = a.track.as_ref().ok_or_else(|| "switch without a track".to_string()).and_then(track_from_proto);
-                track.map(|t| (a.env as usize, Arc::new(t))).map_err(|message| ClientError { transient: false, message })
+                track.map(|t| (a.env as usize, Arc::new(t))).map_err(TaskServiceError::BadAnswer)
             })
             .collect()
     }
 
-    /// Every environment's task.
-    pub fn list_tasks(&self) -> Result<Vec<v1::Task>, ClientError> {
+    fn task(&self, env: usize) -> Result<TaskInfo, TaskServiceError> {
         let mut c = self.client.clone();
-        Ok(self.call(Duration::from_secs(5), c.list_tasks(v1::ListTasksRequest {}))?.tasks)
+        let task = self.call(Duration::from_secs(5), c.get_task(v1::GetTaskRequest { env: env as u32 }))?;
+        task_from_proto(&task).map_err(TaskServiceError::BadAnswer)
     }
 
-    /// Counts over all environments (no tracks travel).
-    pub fn summary(&self) -> Result<v1::Summary, ClientError> {
+    fn tasks(&self) -> Result<Vec<TaskInfo>, TaskServiceError> {
         let mut c = self.client.clone();
-        self.call(Duration::from_secs(5), c.get_summary(v1::SummaryRequest {}))
+        let tasks = self.call(Duration::from_secs(5), c.list_tasks(v1::ListTasksRequest {}))?.tasks;
+        tasks.iter().map(|t| task_from_proto(t).map_err(TaskServiceError::BadAnswer)).collect()
     }
 
-    /// One environment's task.
-    pub fn get_task(&self, env: usize) -> Result<v1::Task, ClientError> {
+    fn summary(&self) -> Result<Summary, TaskServiceError> {
         let mut c = self.client.clone();
-        self.call(Duration::from_secs(5), c.get_task(v1::GetTaskRequest { env: env as u32 }))
+        Ok(summary_from_proto(&self.call(Duration::from_secs(5), c.get_summary(v1::SummaryRequest {}))?))
     }
 
-    /// Switches from index `from` on, oldest first.
-    pub fn switch_history(&self, from: u64) -> Result<Vec<v1::SwitchEvent>, ClientError> {
+    fn switch_history(&self, from: u64) -> Result<Vec<SwitchEvent>, TaskServiceError> {
         let mut c = self.client.clone();
-        Ok(self.call(Duration::from_secs(5), c.get_switch_history(v1::SwitchHistoryRequest { from }))?.events)
+        let events = self.call(Duration::from_secs(5), c.get_switch_history(v1::SwitchHistoryRequest { from }))?.events;
+        Ok(events.iter().map(switch_from_proto).collect())
     }
 }
 
@@ -133,10 +117,10 @@ mod tests {
 
     #[test]
     fn an_unreachable_controller_is_transient_and_a_refusal_is_not() {
-        assert!(ClientError::from(tonic::Status::unavailable("connection refused")).transient);
-        assert!(ClientError::from(tonic::Status::deadline_exceeded("slow")).transient);
-        let refused = ClientError::from(tonic::Status::invalid_argument("2 environments but reported 1 rewards"));
-        assert!(!refused.transient);
+        assert!(status_error(tonic::Status::unavailable("connection refused")).is_transient());
+        assert!(status_error(tonic::Status::deadline_exceeded("slow")).is_transient());
+        let refused = status_error(tonic::Status::invalid_argument("2 environments but reported 1 rewards"));
+        assert!(!refused.is_transient());
         assert_eq!(refused.to_string(), "task controller: InvalidArgument: 2 environments but reported 1 rewards");
     }
 }

@@ -1,13 +1,13 @@
-//! The `dronerace.v1.TaskController` gRPC adapter: converts messages and errors around a
-//! [`TaskController`], snapshots after every change before answering (so nothing acknowledged
-//! is lost when the process dies), and broadcasts assignment and switch events.
+//! The `dronerace.v1.TaskController` gRPC adapter: serves a [`LocalTasks`] on the network,
+//! converting messages both ways and mapping [`TaskServiceError`] to status codes in one place.
+//! Calls run on the blocking pool (they lock and fsync); changes are snapshotted before they
+//! are answered, so nothing acknowledged is lost when the process dies.
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
 use std::pin::Pin;
 use std::sync::Arc;
 
-use proto::convert::track_to_proto;
+use proto::convert::{track_from_proto, track_to_proto};
 use proto::security::MAX_MESSAGE_BYTES;
 use proto::transport::check_actor_name;
 use proto::v1;
@@ -16,29 +16,34 @@ use tokio::sync::broadcast;
 use tokio_stream::Stream;
 use tonic::{Request, Response, Status};
 
-use crate::controller::{EnvSlot, SwitchEvent, TaskController, TaskError};
+use crate::controller::{SwitchEvent, TaskError};
+use crate::service::{LocalTasks, Summary, TaskEvent, TaskInfo, TaskService, TaskServiceError};
 
-/// The service: the controller, where its snapshot goes, and the event feed.
+/// The gRPC face of a [`LocalTasks`].
 pub struct TaskControllerService {
-    /// An async lock: a request that panics cannot poison it for the ones after, and it may be
-    /// held across the snapshot write, which runs on the blocking pool.
-    controller: Arc<tokio::sync::Mutex<TaskController>>,
-    snapshot: PathBuf,
-    events: broadcast::Sender<v1::TaskEvent>,
+    tasks: Arc<LocalTasks>,
 }
 
-fn status(e: TaskError) -> Status {
+/// The one place service errors become status codes (the client reads them back in
+/// `client::status_error`).
+fn status(e: TaskServiceError) -> Status {
+    let message = e.to_string();
     match e {
-        TaskError::UnknownEnv { .. } | TaskError::UnknownActor(_) => Status::not_found(e.to_string()),
-        TaskError::NotFinite { .. } | TaskError::RewardCount { .. } => Status::invalid_argument(e.to_string()),
-        TaskError::StaleIteration { .. } | TaskError::StaleRollout { .. } => Status::already_exists(e.to_string()),
-        TaskError::NoRoom { .. } => Status::resource_exhausted(e.to_string()),
-        TaskError::RangeChanged { .. } => Status::failed_precondition(e.to_string()),
-        TaskError::Generate(_) | TaskError::NoEnvironments => Status::internal(e.to_string()),
+        TaskServiceError::Refused(refusal) => match refusal {
+            TaskError::UnknownEnv { .. } | TaskError::UnknownActor(_) => Status::not_found(message),
+            TaskError::NotFinite { .. } | TaskError::RewardCount { .. } => Status::invalid_argument(message),
+            TaskError::StaleIteration { .. } | TaskError::StaleRollout { .. } => Status::already_exists(message),
+            TaskError::NoRoom { .. } => Status::resource_exhausted(message),
+            TaskError::RangeChanged { .. } => Status::failed_precondition(message),
+            TaskError::Generate(_) | TaskError::NoEnvironments => Status::internal(message),
+        },
+        TaskServiceError::RefusedRemotely(_) | TaskServiceError::BadAnswer(_) => Status::internal(message),
+        // Not applied; the same call may succeed once the disk recovers.
+        TaskServiceError::Snapshot { .. } | TaskServiceError::Unavailable(_) => Status::unavailable(message),
     }
 }
 
-fn switch_event(e: &SwitchEvent) -> v1::SwitchEvent {
+pub(crate) fn switch_to_proto(e: &SwitchEvent) -> v1::SwitchEvent {
     v1::SwitchEvent {
         rollout: e.iteration,
         env: e.env as u32,
@@ -50,24 +55,65 @@ fn switch_event(e: &SwitchEvent) -> v1::SwitchEvent {
     }
 }
 
-fn task(controller: &TaskController, env: usize, slot: &EnvSlot) -> v1::Task {
-    let actor = controller.actors().iter().find(|a| (a.first_env..a.first_env + a.envs).contains(&env));
-    v1::Task {
-        env: env as u32,
-        actor: actor.map(|a| a.actor.clone()).unwrap_or_default(),
-        track: Some(track_to_proto(&slot.track)),
-        window_length: slot.window.len() as u32,
-        rho: slot.rho,
-        q: slot.q,
-        switches: slot.switches,
-        last_rollout: slot.last_iteration,
+pub(crate) fn switch_from_proto(e: &v1::SwitchEvent) -> SwitchEvent {
+    SwitchEvent {
+        iteration: e.rollout,
+        env: e.env as usize,
+        old_track: e.old_track.clone(),
+        new_track: e.new_track.clone(),
+        new_seed: e.new_seed,
+        rho: e.rho,
+        q: e.q,
     }
 }
 
+fn task_to_proto(t: &TaskInfo) -> v1::Task {
+    v1::Task {
+        env: t.env as u32,
+        actor: t.actor.clone().unwrap_or_default(),
+        track: Some(track_to_proto(&t.track)),
+        window_length: t.window_length as u32,
+        rho: t.rho,
+        q: t.q,
+        switches: t.switches,
+        last_rollout: t.last_rollout,
+    }
+}
+
+pub(crate) fn task_from_proto(t: &v1::Task) -> Result<TaskInfo, String> {
+    let track = t.track.as_ref().ok_or_else(|| format!("task {}: no track", t.env)).and_then(track_from_proto)?;
+    Ok(TaskInfo {
+        env: t.env as usize,
+        actor: (!t.actor.is_empty()).then(|| t.actor.clone()),
+        track: Arc::new(track),
+        window_length: t.window_length as usize,
+        rho: t.rho,
+        q: t.q,
+        switches: t.switches,
+        last_rollout: t.last_rollout,
+    })
+}
+
+pub(crate) fn summary_from_proto(s: &v1::Summary) -> Summary {
+    Summary { envs: s.envs as usize, switches: s.switches, mean_q: s.mean_q }
+}
+
+fn event_to_proto(e: &TaskEvent) -> v1::TaskEvent {
+    let event = match e {
+        TaskEvent::Registered(r) => v1::task_event::Event::Registered(v1::ActorRegistered {
+            actor: r.actor.clone(),
+            first_env: r.first_env as u32,
+            envs: r.envs as u32,
+        }),
+        TaskEvent::Switched(s) => v1::task_event::Event::Switched(switch_to_proto(s)),
+    };
+    v1::TaskEvent { event: Some(event) }
+}
+
 impl TaskControllerService {
-    /// Serves `controller`, writing its snapshot to `snapshot` after every change.
-    pub fn new(controller: TaskController, snapshot: PathBuf) -> Self {
-        Self { controller: Arc::new(tokio::sync::Mutex::new(controller)), snapshot, events: broadcast::channel(1024).0 }
+    /// Serves `tasks`.
+    pub fn new(tasks: Arc<LocalTasks>) -> Self {
+        Self { tasks }
     }
 
     /// The tonic server with message limits.
@@ -75,20 +121,17 @@ impl TaskControllerService {
         TaskControllerServer::new(self).max_decoding_message_size(MAX_MESSAGE_BYTES).max_encoding_message_size(MAX_MESSAGE_BYTES)
     }
 
-    /// Applies `change` to a copy, persists the copy, then makes it current: a change is either
-    /// durable and visible, or neither. Changes are serialised by the lock; the fsync runs off
-    /// the async executor.
-    async fn change<T>(&self, change: impl FnOnce(&mut TaskController) -> Result<T, TaskError>) -> Result<(T, TaskController), Status> {
-        let mut guard = self.controller.lock().await;
-        let mut next = guard.clone();
-        let out = change(&mut next).map_err(status)?;
-        let (path, bytes) = (self.snapshot.clone(), next.to_snapshot_bytes());
-        tokio::task::spawn_blocking(move || racetracks::files::write_atomic(&path, &bytes))
-            .await
-            .map_err(|e| Status::internal(format!("snapshot writer: {e}")))?
-            .map_err(|e| Status::internal(format!("{}: {e}", self.snapshot.display())))?;
-        *guard = next.clone();
-        Ok((out, next))
+    /// Runs `call` on the blocking pool (it may wait for the lock or an fsync); a call that
+    /// panics answers `internal` and leaves the service usable.
+    async fn blocking<T: Send + 'static>(
+        &self,
+        call: impl FnOnce(&LocalTasks) -> Result<T, TaskServiceError> + Send + 'static,
+    ) -> Result<Response<T>, Status> {
+        let tasks = self.tasks.clone();
+        match tokio::task::spawn_blocking(move || call(&tasks)).await {
+            Ok(result) => result.map(Response::new).map_err(status),
+            Err(e) => Err(Status::internal(format!("task controller call failed: {e}"))),
+        }
     }
 }
 
@@ -99,68 +142,59 @@ impl TaskControllerRpc for TaskControllerService {
     async fn register(&self, request: Request<v1::RegisterRequest>) -> Result<Response<v1::RegisterResponse>, Status> {
         let r = request.into_inner();
         check_actor_name(&r.actor).map_err(Status::invalid_argument)?;
-        let (range, controller) = self.change(|c| c.register(&r.actor, r.envs as usize)).await?;
-        let tracks = controller.slots()[range.first_env..range.first_env + range.envs].iter().map(|s| track_to_proto(&s.track)).collect();
-        let event = v1::task_event::Event::Registered(v1::ActorRegistered {
-            actor: range.actor.clone(),
-            first_env: range.first_env as u32,
-            envs: range.envs as u32,
-        });
-        let _ = self.events.send(v1::TaskEvent { event: Some(event) });
-        Ok(Response::new(v1::RegisterResponse { first_env: range.first_env as u32, tracks, next_rollout: range.next_rollout }))
+        self.blocking(move |t| {
+            let registration = t.register(&r.actor, r.envs as usize)?;
+            Ok(v1::RegisterResponse {
+                first_env: registration.first_env as u32,
+                tracks: registration.tracks.iter().map(|t| track_to_proto(t)).collect(),
+                next_rollout: registration.next_rollout,
+            })
+        })
+        .await
     }
 
     async fn report(&self, request: Request<v1::ReportRequest>) -> Result<Response<v1::ReportResponse>, Status> {
         let r = request.into_inner();
-        let ((switches, history_before), controller) = self
-            .change(|c| {
-                let history_before = c.history().len();
-                c.report_rollout(&r.actor, r.rollout, &r.cumulative_rewards).map(|s| (s, history_before))
-            })
-            .await?;
-        for e in &controller.history()[history_before..] {
-            let _ = self.events.send(v1::TaskEvent { event: Some(v1::task_event::Event::Switched(switch_event(e))) });
-        }
-        let switches =
-            switches.into_iter().map(|(env, track)| v1::Assignment { env: env as u32, track: Some(track_to_proto(&track)) }).collect();
-        Ok(Response::new(v1::ReportResponse { switches }))
+        self.blocking(move |t| {
+            let switches = t.report(&r.actor, r.rollout, &r.cumulative_rewards)?;
+            let switches = switches.iter().map(|(env, track)| v1::Assignment { env: *env as u32, track: Some(track_to_proto(track)) });
+            Ok(v1::ReportResponse { switches: switches.collect() })
+        })
+        .await
     }
 
     async fn get_task(&self, request: Request<v1::GetTaskRequest>) -> Result<Response<v1::Task>, Status> {
         let env = request.into_inner().env as usize;
-        let c = self.controller.lock().await;
-        let slot = c.slots().get(env).ok_or_else(|| status(TaskError::UnknownEnv { env, envs: c.len() }))?;
-        Ok(Response::new(task(&c, env, slot)))
+        self.blocking(move |t| t.task(env).map(|info| task_to_proto(&info))).await
     }
 
     async fn list_tasks(&self, _: Request<v1::ListTasksRequest>) -> Result<Response<v1::ListTasksResponse>, Status> {
-        let c = self.controller.lock().await;
-        let tasks = c.slots().iter().enumerate().map(|(env, slot)| task(&c, env, slot)).collect();
-        Ok(Response::new(v1::ListTasksResponse { tasks }))
+        self.blocking(|t| Ok(v1::ListTasksResponse { tasks: t.tasks()?.iter().map(task_to_proto).collect() })).await
     }
 
     async fn get_summary(&self, _: Request<v1::SummaryRequest>) -> Result<Response<v1::Summary>, Status> {
-        let c = self.controller.lock().await;
-        // Counted as the in-process trainer counts them, so both modes report the same number.
-        Ok(Response::new(v1::Summary { envs: c.len() as u32, switches: c.history().len() as u64, mean_q: c.mean_q() }))
+        self.blocking(|t| {
+            let s = t.summary()?;
+            Ok(v1::Summary { envs: s.envs as u32, switches: s.switches, mean_q: s.mean_q })
+        })
+        .await
     }
 
     async fn get_switch_history(&self, request: Request<v1::SwitchHistoryRequest>) -> Result<Response<v1::SwitchHistoryResponse>, Status> {
         let from = request.into_inner().from;
-        let c = self.controller.lock().await;
-        let events = c.history().iter().skip(usize::try_from(from).unwrap_or(usize::MAX)).map(switch_event).collect();
-        Ok(Response::new(v1::SwitchHistoryResponse { events }))
+        self.blocking(move |t| Ok(v1::SwitchHistoryResponse { events: t.switch_history(from)?.iter().map(switch_to_proto).collect() }))
+            .await
     }
 
     type WatchEventsStream = EventStream;
 
     async fn watch_events(&self, _: Request<v1::WatchEventsRequest>) -> Result<Response<EventStream>, Status> {
-        let mut events = self.events.subscribe();
+        let mut events = self.tasks.subscribe();
         let stream = async_stream(move |tx| async move {
             loop {
                 match events.recv().await {
                     Ok(e) => {
-                        if tx.send(Ok(e)).await.is_err() {
+                        if tx.send(Ok(event_to_proto(&e))).await.is_err() {
                             return;
                         }
                     }
@@ -209,31 +243,26 @@ pub async fn serve(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::TaskController;
     use crate::switching::SwitchParams;
     use racetracks::generator::TrackGenerator;
 
-    /// A request whose handler panics mid-change must leave the service usable: the lock is
-    /// not poisoned, the state is the one before the failed change, later changes persist.
     #[test]
-    fn a_request_that_panics_does_not_break_the_ones_after() {
-        let dir = tempfile::tempdir().unwrap();
+    fn messages_and_refusals_cross_the_adapter_intact() {
         let controller = TaskController::new(4, TrackGenerator::default(), SwitchParams::default(), 5).unwrap();
-        let service = Arc::new(TaskControllerService::new(controller, dir.path().join("snapshot")));
-        let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+        let local = Arc::new(LocalTasks::new(controller, None));
+        let service = TaskControllerService::new(local.clone());
+        let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build().unwrap();
         rt.block_on(async {
-            let panicking = service.clone();
-            let crashed =
-                tokio::spawn(async move { panicking.change(|_| -> Result<(), TaskError> { panic!("handler bug") }).await.map(|_| ()) })
-                    .await;
-            assert!(crashed.is_err_and(|e| e.is_panic()));
-            let registered = service.register(Request::new(v1::RegisterRequest { actor: "a".into(), envs: 4 })).await.unwrap().into_inner();
-            assert_eq!(registered.tracks.len(), 4);
+            let registered = service.register(Request::new(v1::RegisterRequest { actor: "a".into(), envs: 4 })).await.unwrap();
+            assert_eq!(registered.into_inner().tracks.len(), 4);
             let listed = service.list_tasks(Request::new(v1::ListTasksRequest {})).await.unwrap().into_inner();
-            assert_eq!(listed.tasks.len(), 4);
-            let summary = service.get_summary(Request::new(v1::SummaryRequest {})).await.unwrap().into_inner();
-            assert_eq!((summary.envs, summary.switches, summary.mean_q), (4, 0, None));
+            let decoded: Vec<TaskInfo> = listed.tasks.iter().map(|t| task_from_proto(t).unwrap()).collect();
+            assert_eq!(decoded, local.tasks().unwrap());
+            let e = service.get_task(Request::new(v1::GetTaskRequest { env: 9 })).await.unwrap_err();
+            assert_eq!(e.code(), tonic::Code::NotFound, "{e:?}");
+            let e = service.register(Request::new(v1::RegisterRequest { actor: "a".into(), envs: 3 })).await.unwrap_err();
+            assert_eq!(e.code(), tonic::Code::FailedPrecondition, "{e:?}");
         });
-        let restored = TaskController::restore(&dir.path().join("snapshot")).unwrap();
-        assert_eq!(restored.slots().len(), 4, "the change after the panic was persisted");
     }
 }

@@ -1,0 +1,78 @@
+//! The actor and learner process loops driven in one process over in-memory links: the
+//! learner's drop-and-rejoin rule, without spawning or killing processes.
+
+use std::sync::atomic::AtomicBool;
+use std::time::{Duration, Instant};
+
+use actor::process::{ActorLoop, ActorSettings, Pass};
+use learner::process::{LearnerProcess, LearnerSettings, learner_only};
+use learner::{PpoConfig, Run, TrainConfig};
+use proto::ActorLink;
+use proto::grpc_link::LearnerService;
+use proto::memory::memory_link;
+use taskctl::LocalTasks;
+
+#[test]
+fn an_actor_that_misses_an_iteration_is_dropped_and_rejoins_with_its_next_rollout() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = TrainConfig {
+        profile: "cpu".into(),
+        envs: Some(4),
+        ppo: Some(PpoConfig { n_steps: 16, batch_size: 32, n_epochs: 1, ..PpoConfig::default() }),
+        ..TrainConfig::default()
+    };
+    let tasks = LocalTasks::new(config.task_controller(4).unwrap(), None);
+    let stop = AtomicBool::new(false);
+    let settings = |name: &str| ActorSettings {
+        name: name.into(),
+        envs: 2,
+        seed: 1,
+        env: config.env,
+        n_steps: 16,
+        weights_timeout: Duration::from_secs(60),
+        max_rollouts: None,
+    };
+    let (mut link0, learner_end) = memory_link();
+    let mut link1 = link0.clone();
+    let mut a0 = ActorLoop::register(&settings("a0"), &tasks, &stop).unwrap().unwrap();
+    let mut a1 = ActorLoop::register(&settings("a1"), &tasks, &stop).unwrap().unwrap();
+    let (_, status) = LearnerService::status_only();
+    let learner_settings = LearnerSettings { expected_actors: 2, actor_timeout_seconds: 0.3, ..LearnerSettings::default() };
+    let run = Run::create(config.clone(), dir.path()).unwrap();
+    let mut learner = LearnerProcess::start(run, None, learner_end, status.clone(), learner_settings).unwrap();
+    let members = || status.status().connected_actors;
+
+    // Iteration 1: both deliver; the learner waits for the two it expects.
+    assert_eq!(a0.pass(&mut link0, &tasks, &stop).unwrap(), Pass::Sent);
+    assert_eq!(a1.pass(&mut link1, &tasks, &stop).unwrap(), Pass::Sent);
+    learner.iteration_step(&stop, Some(&tasks), &learner_only).unwrap().unwrap();
+    assert_eq!(members(), ["a0", "a1"]);
+
+    // Iteration 2: a1 is silent; the learner waits out the timeout, drops it and trains on a0.
+    assert_eq!(a0.pass(&mut link0, &tasks, &stop).unwrap(), Pass::Sent);
+    let waited = Instant::now();
+    let summary = learner.iteration_step(&stop, Some(&tasks), &learner_only).unwrap().unwrap();
+    assert!(waited.elapsed() >= Duration::from_millis(300), "waited {:?} for a1", waited.elapsed());
+    assert_eq!(summary.report.env_steps, 4 * 16 + 2 * 16, "iteration 2 trained on a0's two environments only");
+    assert_eq!(members(), ["a0"]);
+    assert_eq!(a0.pass(&mut link0, &tasks, &stop).unwrap(), Pass::Sent);
+
+    // a1 picks up the newest weights and is back in the next iteration; a0 has no new version yet.
+    assert_eq!(a1.pass(&mut link1, &tasks, &stop).unwrap(), Pass::Sent);
+    assert_eq!(a0.pass(&mut link0, &tasks, &stop).unwrap(), Pass::Waiting, "one rollout per version");
+    learner.iteration_step(&stop, Some(&tasks), &learner_only).unwrap().unwrap();
+    assert_eq!(members(), ["a0", "a1"]);
+    assert_eq!(learner.learner().version(), 3);
+
+    // a1 falls silent again and is dropped; then a rollout of an old version from it arrives:
+    // unusable, but a sign of life, so the next iteration waits for a1 again.
+    assert_eq!(a0.pass(&mut link0, &tasks, &stop).unwrap(), Pass::Sent);
+    learner.iteration_step(&stop, Some(&tasks), &learner_only).unwrap().unwrap();
+    assert_eq!(members(), ["a0"]);
+    let stale = policy::RolloutChunk::zeroed(3, 2, 2, 16, sim::STATE_OBS_DIM, sim::ACTION_DIM);
+    link1.send_rollout("a1", status.status().learner_epoch, &stale).unwrap();
+    assert_eq!(a0.pass(&mut link0, &tasks, &stop).unwrap(), Pass::Sent);
+    let waited = Instant::now();
+    learner.iteration_step(&stop, Some(&tasks), &learner_only).unwrap().unwrap();
+    assert!(waited.elapsed() >= Duration::from_millis(300), "a1 was waited for again");
+}
