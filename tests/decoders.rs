@@ -3,8 +3,10 @@
 //! - the checksummed formats (weights blob, rollout chunk, checkpoint, task-controller snapshot)
 //!   must refuse every one with an error;
 //! - the same formats with the checksum recomputed after mutating (so the parser behind it is
-//!   reached), and the formats without one (track files, gRPC messages), may accept a mutation
-//!   that still means something, but must never panic.
+//!   reached; for the safetensors files, blob and checkpoint, their metadata values, tensor
+//!   shapes and data are mutated and the file re-sealed), and the formats without one (track
+//!   files, gRPC messages), may accept a mutation that still means something, but must never
+//!   panic.
 //!
 //! `cargo test --test decoders -- --nocapture` prints the counts (BENCHMARKS.md).
 
@@ -92,8 +94,7 @@ fn mutate(rng: &mut ChaCha8Rng, valid: &[u8]) -> Vec<u8> {
     }
 }
 
-/// Recomputes the trailing CRC-32 (of everything before it), as the blob, chunk and
-/// checkpoint formats end.
+/// Recomputes the trailing CRC-32 (of everything before it), as the rollout chunk ends.
 fn with_trailing_crc(mut b: Vec<u8>) -> Vec<u8> {
     if b.len() >= 4 {
         let body = b.len() - 4;
@@ -101,6 +102,64 @@ fn with_trailing_crc(mut b: Vec<u8>) -> Vec<u8> {
         b[body..].copy_from_slice(&crc.to_le_bytes());
     }
     b
+}
+
+/// A mutation behind the checksum of a safetensors file of ours: the valid file the mutated
+/// bytes came from (`VALID_FILE`) with one metadata value, tensor shape or tensor's data
+/// replaced by bytes taken from the mutation, then written out (and so sealed) again.
+fn reseal(mutated: Vec<u8>) -> Vec<u8> {
+    use policy::safetensors::TensorData;
+    let Some(mut file) = VALID_FILE.with_borrow(Clone::clone) else { return mutated };
+    let mut rng = ChaCha8Rng::seed_from_u64(crc32fast::hash(&mutated).into());
+    let junk = |rng: &mut ChaCha8Rng| {
+        let start = rng.random_range(0..=mutated.len());
+        let end = (start + rng.random_range(0..24)).min(mutated.len());
+        String::from_utf8_lossy(&mutated[start..end]).into_owned()
+    };
+    let keys: Vec<String> = file.metadata.keys().cloned().collect();
+    let names: Vec<String> = file.tensors.keys().cloned().collect();
+    match rng.random_range(0..4) {
+        0 => {
+            let key = &keys[rng.random_range(0..keys.len())];
+            let value = file.metadata.get_mut(key).unwrap();
+            let at = rng.random_range(0..=value.len());
+            let at = (0..=at).rev().find(|&i| value.is_char_boundary(i)).unwrap_or(0);
+            if rng.random_bool(0.5) { value.truncate(at) } else { value.insert_str(at, &junk(&mut rng)) }
+        }
+        1 => {
+            let tensor = file.tensors.get_mut(&names[rng.random_range(0..names.len())]).unwrap();
+            let len = match &tensor.data {
+                TensorData::F32(v) => v.len(),
+                TensorData::F64(v) => v.len(),
+                TensorData::U8(v) => v.len(),
+            };
+            // A shape that still matches the data (else the file would not be written consistently).
+            tensor.shape = if len > 1 && rng.random_bool(0.5) { vec![1, len] } else { vec![len] };
+        }
+        2 => {
+            let tensor = file.tensors.get_mut(&names[rng.random_range(0..names.len())]).unwrap();
+            let keep = rng.random_range(0..4);
+            match &mut tensor.data {
+                TensorData::F32(v) => v.truncate(keep),
+                TensorData::F64(v) => v.truncate(keep),
+                TensorData::U8(v) => v.truncate(keep),
+            }
+            tensor.shape = vec![keep.min(tensor.shape.iter().product())];
+        }
+        _ => {
+            if rng.random_bool(0.5) {
+                file.metadata.remove(&keys[rng.random_range(0..keys.len())]);
+            } else {
+                file.tensors.remove(&names[rng.random_range(0..names.len())]);
+            }
+        }
+    }
+    file.to_bytes()
+}
+
+thread_local! {
+    /// The valid safetensors file [`reseal`] mutates.
+    static VALID_FILE: std::cell::RefCell<Option<policy::safetensors::TensorFile>> = const { std::cell::RefCell::new(None) };
 }
 
 /// What one decoder made of the mutated inputs.
@@ -154,10 +213,11 @@ fn chunk() -> RolloutChunk {
 #[test]
 fn every_mutated_weights_blob_is_refused_and_none_panics_the_parser() {
     let valid = tiny_learner().weights().to_bytes();
+    VALID_FILE.set(Some(policy::safetensors::TensorFile::from_bytes(&valid).unwrap()));
     let decode = |b: &[u8]| WeightsBlob::from_bytes(b).is_ok();
     let raw = fuzz("weights blob", 1, &valid, |b| b, decode);
     assert_eq!(raw.accepted, 0);
-    fuzz("weights blob, checksum recomputed", 2, &valid, with_trailing_crc, decode);
+    fuzz("weights blob, checksum recomputed", 2, &valid, reseal, decode);
 }
 
 #[test]
@@ -172,11 +232,12 @@ fn every_mutated_rollout_chunk_is_refused_and_none_panics_the_parser() {
 #[test]
 fn every_mutated_checkpoint_is_refused_and_none_panics_the_restore() {
     let valid = tiny_learner().checkpoint().to_bytes();
+    VALID_FILE.set(Some(policy::safetensors::TensorFile::from_bytes(&valid).unwrap()));
     let origin = Path::new("fuzzed.bin");
     let raw = fuzz("checkpoint", 5, &valid, |b| b, |b| Checkpoint::from_bytes(b, origin).is_ok());
     assert_eq!(raw.accepted, 0);
     // Past the checksum, the restore decodes every section (weights, optimiser, counters).
-    fuzz("checkpoint, checksum recomputed", 6, &valid, with_trailing_crc, |b| {
+    fuzz("checkpoint, checksum recomputed", 6, &valid, reseal, |b| {
         Checkpoint::from_bytes(b, origin).is_ok_and(|c| Learner::from_checkpoint(&c).is_ok())
     });
 }

@@ -1,13 +1,29 @@
-//! Checkpoints: one file of named sections (weights, optimiser, counters, actor and task
-//! controller state), written atomically with a CRC-32; the last N are kept, plus the best.
+//! Checkpoints: named sections (weights, optimiser, counters, actor and task controller state)
+//! in one safetensors file, written atomically; the last N are kept, plus the best.
 //!
-//! Layout: `DRCKPT01`, section count u32, then per section: name length u32, name, data
-//! length u64, data; finally the CRC-32 of everything before it.
+//! The file is the policy file of the `weights` section (its tensors and metadata, see
+//! `policy::blob`) with every other section added: text sections of at most 64 KiB (counters,
+//! run progress) as metadata `section.<name>`, the rest as `U8` tensors `section.<name>`; and
+//! metadata `checkpoint_format` = `dronerace-checkpoint`, `checkpoint_format_version`. So a
+//! checkpoint opens in Python like a policy file, and `WeightsBlob::from_bytes` reads its
+//! policy directly. Checkpoints of the earlier framed layout (`DRCKPT01`) are still read.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-const MAGIC: &[u8; 8] = b"DRCKPT01";
+use policy::safetensors::{Tensor, TensorData, TensorFile};
+
+/// Magic of the earlier framed layout: `DRCKPT01`, section count u32, then per section: name
+/// length u32, name, data length u64, data; finally the CRC-32 of everything before it.
+const LEGACY_MAGIC: &[u8; 8] = b"DRCKPT01";
+/// `checkpoint_format` in the metadata.
+const FORMAT_NAME: &str = "dronerace-checkpoint";
+/// `checkpoint_format_version` this build writes and reads.
+const FORMAT: &str = "2";
+/// Prefix of section entries (metadata or tensors).
+const SECTION: &str = "section.";
+/// Longest text section kept in the metadata header (larger ones go in the data).
+const MAX_TEXT_SECTION: usize = 64 << 10;
 
 /// A checkpoint that could not be written or read.
 #[derive(Debug, thiserror::Error)]
@@ -59,32 +75,78 @@ impl Checkpoint {
             .ok_or_else(|| CheckpointError::Missing { file: self.origin.clone(), section: name.to_owned() })
     }
 
-    /// Encodes all sections.
+    /// Encodes all sections as one safetensors file.
     pub fn to_bytes(&self) -> Vec<u8> {
-        let mut out = MAGIC.to_vec();
-        out.extend_from_slice(&(self.sections.len() as u32).to_le_bytes());
+        // The policy's tensors and metadata become the file's own (a blob of the earlier layout
+        // is converted); anything else under that name stays an opaque section.
+        let weights = self.sections.get("weights").and_then(|w| match TensorFile::sniff(w) {
+            true => TensorFile::from_bytes(w).ok(),
+            false => policy::WeightsBlob::from_bytes(w).ok().map(|b| b.to_tensor_file()),
+        });
+        let mut file = weights.clone().unwrap_or_default();
         for (name, data) in &self.sections {
-            out.extend_from_slice(&(name.len() as u32).to_le_bytes());
-            out.extend_from_slice(name.as_bytes());
-            out.extend_from_slice(&(data.len() as u64).to_le_bytes());
-            out.extend_from_slice(data);
+            if name == "weights" && weights.is_some() {
+                continue;
+            }
+            match std::str::from_utf8(data) {
+                Ok(text) if data.len() <= MAX_TEXT_SECTION => {
+                    file.metadata.insert(format!("{SECTION}{name}"), text.to_owned());
+                }
+                _ => {
+                    file.tensors.insert(format!("{SECTION}{name}"), Tensor::bytes(data.clone()));
+                }
+            }
         }
-        let crc = crc32fast::hash(&out);
-        out.extend_from_slice(&crc.to_le_bytes());
-        out
+        file.metadata.insert("checkpoint_format".into(), FORMAT_NAME.into());
+        file.metadata.insert("checkpoint_format_version".into(), FORMAT.into());
+        file.to_bytes()
     }
 
-    /// Decodes and verifies; `origin` names the source in errors.
+    /// Decodes and verifies (either layout); `origin` names the source in errors.
     pub fn from_bytes(bytes: &[u8], origin: &Path) -> Result<Self, CheckpointError> {
+        let corrupt = |reason: String| CheckpointError::Corrupt { file: origin.to_path_buf(), reason };
+        if bytes.starts_with(LEGACY_MAGIC) {
+            return Self::from_legacy_bytes(bytes, origin);
+        }
+        if !TensorFile::sniff(bytes) {
+            return Err(corrupt("not a dronerace checkpoint".into()));
+        }
+        let mut file = TensorFile::from_bytes(bytes).map_err(|e| corrupt(e.to_string()))?;
+        if file.metadata.remove("checkpoint_format").as_deref() != Some(FORMAT_NAME) {
+            return Err(corrupt("not a dronerace checkpoint (a policy file?)".into()));
+        }
+        let version = file.metadata.remove("checkpoint_format_version").unwrap_or_default();
+        if version != FORMAT {
+            return Err(corrupt(format!("checkpoint format {version:?}; this build reads {FORMAT}")));
+        }
+        let mut sections = BTreeMap::new();
+        for key in file.metadata.keys().filter(|k| k.starts_with(SECTION)).cloned().collect::<Vec<_>>() {
+            let text = file.metadata.remove(&key).unwrap_or_default();
+            sections.insert(key[SECTION.len()..].to_owned(), text.into_bytes());
+        }
+        for key in file.tensors.keys().filter(|k| k.starts_with(SECTION)).cloned().collect::<Vec<_>>() {
+            match file.tensors.remove(&key).map(|t| t.data) {
+                Some(TensorData::U8(data)) => sections.insert(key[SECTION.len()..].to_owned(), data),
+                _ => return Err(corrupt(format!("{key} is not a U8 tensor"))),
+            };
+        }
+        // What remains is the policy file of the `weights` section, bit for bit as it was written.
+        if !file.tensors.is_empty() || !file.metadata.is_empty() {
+            sections.insert("weights".into(), file.to_bytes());
+        }
+        Ok(Self { sections, origin: origin.to_path_buf() })
+    }
+
+    fn from_legacy_bytes(bytes: &[u8], origin: &Path) -> Result<Self, CheckpointError> {
         let corrupt = |reason: &str| CheckpointError::Corrupt { file: origin.to_path_buf(), reason: reason.to_owned() };
-        if bytes.len() < MAGIC.len() + 8 || &bytes[..MAGIC.len()] != MAGIC {
+        if bytes.len() < LEGACY_MAGIC.len() + 8 {
             return Err(corrupt("not a dronerace checkpoint"));
         }
         let (body, crc) = bytes.split_at(bytes.len() - 4);
         if crc32fast::hash(body).to_le_bytes() != crc {
             return Err(corrupt("checksum mismatch (truncated or altered)"));
         }
-        let mut at = MAGIC.len();
+        let mut at = LEGACY_MAGIC.len();
         let mut take = |n: usize| -> Result<&[u8], CheckpointError> {
             // A corrupt length may be near usize::MAX: the end is computed without overflow.
             let end = at.checked_add(n).filter(|&end| end <= body.len()).ok_or_else(|| corrupt("section runs past the end"))?;
@@ -173,10 +235,11 @@ fn le_u64(b: &[u8]) -> u64 {
 pub fn read_policy(path: &Path) -> Result<policy::WeightsBlob, CheckpointError> {
     let bytes = std::fs::read(path).map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })?;
     let corrupt = |reason: String| CheckpointError::Corrupt { file: path.to_path_buf(), reason };
-    if bytes.starts_with(MAGIC) {
+    if bytes.starts_with(LEGACY_MAGIC) {
         let checkpoint = Checkpoint::from_bytes(&bytes, path)?;
         policy::WeightsBlob::from_bytes(checkpoint.get("weights")?).map_err(|e| corrupt(e.to_string()))
     } else {
+        // A checkpoint is a policy file with more in it: read as one, the rest is ignored.
         policy::WeightsBlob::from_bytes(&bytes).map_err(|e| corrupt(e.to_string()))
     }
 }
@@ -189,16 +252,54 @@ mod tests {
     fn sections_round_trip_and_corruption_is_refused() {
         let dir = tempfile::tempdir().unwrap();
         let mut c = Checkpoint::default();
-        c.put("weights", vec![1, 2, 3]);
+        c.put("weights", vec![0xff, 2, 3]);
         c.put("counters", b"{}".to_vec());
         let path = dir.path().join("c.bin");
         c.write(&path).unwrap();
         let back = Checkpoint::read(&path).unwrap();
-        assert_eq!(back.get("weights").unwrap(), &[1, 2, 3]);
+        assert_eq!(back.get("weights").unwrap(), &[0xff, 2, 3]);
+        assert_eq!(back.get("counters").unwrap(), b"{}");
         assert!(back.get("nothing").unwrap_err().to_string().contains("\"nothing\""));
         let bytes = std::fs::read(&path).unwrap();
         std::fs::write(&path, &bytes[..bytes.len() - 3]).unwrap();
+        assert!(Checkpoint::read(&path).unwrap_err().to_string().contains("outside the data"));
+        let mut altered = bytes.clone();
+        *altered.last_mut().unwrap() ^= 1;
+        std::fs::write(&path, &altered).unwrap();
         assert!(Checkpoint::read(&path).unwrap_err().to_string().contains("checksum"));
+    }
+
+    #[test]
+    fn a_checkpoint_of_the_earlier_layout_still_reads_and_converts() {
+        let origin = Path::new("tests/data/checkpoint-format1.bin");
+        let legacy = include_bytes!("../tests/data/checkpoint-format1.bin");
+        let old = Checkpoint::from_bytes(legacy, origin).unwrap();
+        let new = Checkpoint::from_bytes(&old.to_bytes(), origin).unwrap();
+        let weights = new.get("weights").unwrap();
+        assert!(TensorFile::sniff(weights), "the policy was rewritten as a safetensors file");
+        assert_eq!(
+            policy::WeightsBlob::from_bytes(weights).unwrap(),
+            policy::WeightsBlob::from_bytes(old.get("weights").unwrap()).unwrap()
+        );
+        for section in ["optimizer", "learner", "progress", "actor", "taskctl"] {
+            assert_eq!(new.get(section).unwrap(), old.get(section).unwrap(), "{section}");
+        }
+    }
+
+    #[test]
+    fn a_checkpoint_holds_its_policy_tensors_and_round_trips_every_section() {
+        let legacy = include_bytes!("../tests/data/checkpoint-format1.bin");
+        let old = Checkpoint::from_bytes(legacy, Path::new("c")).unwrap();
+        let blob = policy::WeightsBlob::from_bytes(old.get("weights").unwrap()).unwrap();
+        let mut c = old.clone();
+        c.put("weights", blob.to_bytes());
+        c.put("binary", vec![0xff, 0, 1]);
+        let bytes = c.to_bytes();
+        assert_eq!(Checkpoint::from_bytes(&bytes, Path::new("c")).unwrap(), Checkpoint { origin: "c".into(), ..c });
+        assert_eq!(policy::WeightsBlob::from_bytes(&bytes).unwrap(), blob, "a checkpoint reads as its policy");
+        let file = TensorFile::from_bytes(&bytes).unwrap();
+        assert!(file.tensors.contains_key("actor.0.weight") && file.tensors.contains_key("section.optimizer"));
+        assert!(file.metadata.contains_key("section.learner"), "counters travel in the header");
     }
 
     #[test]

@@ -1,19 +1,33 @@
 //! The versioned weights blob: architecture, normaliser, policy version and every parameter,
-//! in a little-endian binary layout that round-trips bit-exactly and refuses corruption.
+//! as a safetensors file (`crate::safetensors`) that round-trips bit-exactly, refuses
+//! corruption and opens in Python (`safetensors.numpy.load_file`) and burn's importers.
 //!
-//! Layout: `DRPOLICY`, format u32, version u64, architecture (u32 length + JSON), normaliser
-//! (dim u32, count, clip, epsilon, mean[dim], var[dim] as f64), parameters (count u32; each:
-//! id u64, rank u8, dims u32[rank], values f32[numel]), CRC-32 of everything before it.
+//! Tensors: `actor.<i>.weight` `[in, out]` and `actor.<i>.bias` `[out]` for layer i (so a
+//! layer is `x @ W + b`, LeakyReLU between layers, none after the last; its output is the
+//! action mean), the same for `critic` (output: the value), `log_std` `[action_dim]`,
+//! `normalizer.mean` and `normalizer.var` (F64; observations are normalised as
+//! `clip((x − mean) / sqrt(var + epsilon), ±clip)`). Metadata: `format` = `dronerace-policy`,
+//! `format_version`, `policy_version`, `architecture` and `normalizer` (count, clip, epsilon)
+//! as JSON, `param_ids` (burn's parameter ids, so optimiser moments re-attach), `crc32`.
+//!
+//! Blobs of the earlier framed layout (`DRPOLICY`, format 1) are still read.
 
 use burn::tensor::Device;
 
 use crate::architecture::Architecture;
-use crate::bytes::{Reader, Truncated, put_f32s};
+use crate::bytes::{Reader, Truncated};
 use crate::network::{ActorCritic, ExportedParam};
 use crate::normalizer::ObsNormalizer;
+use crate::safetensors::{Tensor, TensorData, TensorFile, TensorFileError};
 
-const MAGIC: &[u8; 8] = b"DRPOLICY";
-const FORMAT: u32 = 1;
+/// Magic of the earlier framed layout.
+const LEGACY_MAGIC: &[u8; 8] = b"DRPOLICY";
+/// The framed layout's format number.
+const LEGACY_FORMAT: u32 = 1;
+/// `format` in the metadata of a policy file.
+const FORMAT_NAME: &str = "dronerace-policy";
+/// `format_version` this build writes and reads.
+const FORMAT: u32 = 2;
 
 /// A blob that cannot be used.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -27,7 +41,7 @@ pub enum BlobError {
         at: usize,
     },
     /// Not a weights blob at all.
-    #[error("not a dronerace weights blob (bad magic)")]
+    #[error("not a dronerace weights blob (neither a safetensors policy file nor the earlier layout)")]
     BadMagic,
     /// Written by another format version.
     #[error("weights blob format {0}; this build reads format {FORMAT}")]
@@ -82,47 +96,127 @@ impl WeightsBlob {
         Err(BlobError::Architecture { found: json(&self.architecture), expected: json(expected) })
     }
 
-    /// Encodes the blob.
-    #[allow(clippy::expect_used, reason = "architectures serialise")]
-    pub fn to_bytes(&self) -> Vec<u8> {
-        let mut out = Vec::with_capacity(64 + 4 * self.params.iter().map(|p| p.values.len()).sum::<usize>());
-        out.extend_from_slice(MAGIC);
-        out.extend_from_slice(&FORMAT.to_le_bytes());
-        out.extend_from_slice(&self.version.to_le_bytes());
-        let arch = serde_json::to_vec(&self.architecture).expect("architectures serialise");
-        out.extend_from_slice(&(arch.len() as u32).to_le_bytes());
-        out.extend_from_slice(&arch);
-        let n = &self.normalizer;
-        out.extend_from_slice(&(n.dim() as u32).to_le_bytes());
-        for x in [n.count, n.clip, n.epsilon].iter().chain(&n.mean).chain(&n.var) {
-            out.extend_from_slice(&x.to_le_bytes());
-        }
-        out.extend_from_slice(&(self.params.len() as u32).to_le_bytes());
-        for p in &self.params {
-            out.extend_from_slice(&p.id.to_le_bytes());
-            out.push(p.shape.len() as u8);
-            for d in &p.shape {
-                out.extend_from_slice(&(*d as u32).to_le_bytes());
+    /// Tensor names in [`ActorCritic::export`] order.
+    pub fn tensor_names(architecture: &Architecture) -> Vec<String> {
+        let mut names = Vec::new();
+        for net in ["actor", "critic"] {
+            for layer in 0..=architecture.hidden.len() {
+                names.push(format!("{net}.{layer}.weight"));
+                names.push(format!("{net}.{layer}.bias"));
             }
-            put_f32s(&mut out, &p.values);
         }
-        let crc = crc32fast::hash(&out);
-        out.extend_from_slice(&crc.to_le_bytes());
-        out
+        names.push("log_std".into());
+        names
     }
 
-    /// Decodes and verifies a blob.
+    /// The blob as a safetensors file in memory (a checkpoint adds its own sections to it).
+    #[allow(clippy::expect_used, reason = "architectures, normaliser scalars and ids serialise")]
+    pub fn to_tensor_file(&self) -> TensorFile {
+        let mut file = TensorFile::default();
+        let n = &self.normalizer;
+        let meta = [
+            ("format", FORMAT_NAME.to_string()),
+            ("format_version", FORMAT.to_string()),
+            ("policy_version", self.version.to_string()),
+            ("architecture", serde_json::to_string(&self.architecture).expect("architectures serialise")),
+            ("normalizer", serde_json::json!({ "count": n.count, "clip": n.clip, "epsilon": n.epsilon }).to_string()),
+            ("param_ids", serde_json::to_string(&self.params.iter().map(|p| p.id).collect::<Vec<_>>()).expect("ids serialise")),
+        ];
+        file.metadata.extend(meta.map(|(k, v)| (k.to_string(), v)));
+        for (name, p) in Self::tensor_names(&self.architecture).into_iter().zip(&self.params) {
+            file.tensors.insert(name, Tensor { shape: p.shape.clone(), data: TensorData::F32(p.values.clone()) });
+        }
+        for (name, values) in [("normalizer.mean", &n.mean), ("normalizer.var", &n.var)] {
+            file.tensors.insert(name.into(), Tensor { shape: vec![values.len()], data: TensorData::F64(values.clone()) });
+        }
+        file
+    }
+
+    /// Encodes the blob (a safetensors file).
+    pub fn to_bytes(&self) -> Vec<u8> {
+        self.to_tensor_file().to_bytes()
+    }
+
+    /// Decodes and verifies a blob (either layout).
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, BlobError> {
-        if bytes.len() < MAGIC.len() || &bytes[..MAGIC.len()] != MAGIC {
+        if bytes.starts_with(LEGACY_MAGIC) {
+            return Self::from_legacy_bytes(bytes);
+        }
+        if !TensorFile::sniff(bytes) {
+            // Too short to tell which layout: a prefix of either is truncated, anything else foreign.
+            let shortest = 8 + crate::safetensors::HEADER_START.len();
+            let prefix = LEGACY_MAGIC.starts_with(bytes) || bytes.len() < 8 || crate::safetensors::HEADER_START.starts_with(&bytes[8..]);
+            if bytes.len() < shortest && prefix {
+                return Err(BlobError::Truncated { needed: shortest - bytes.len(), at: bytes.len() });
+            }
             return Err(BlobError::BadMagic);
         }
+        Self::from_tensor_file(&TensorFile::from_bytes(bytes)?)
+    }
+
+    /// Reads the policy out of a safetensors file (extra tensors and metadata are ignored).
+    pub fn from_tensor_file(file: &TensorFile) -> Result<Self, BlobError> {
+        let malformed = |m: String| BlobError::Malformed(m);
+        if file.meta("format")? != FORMAT_NAME {
+            return Err(BlobError::BadMagic);
+        }
+        let format = file.meta("format_version")?;
+        if format != FORMAT.to_string() {
+            return Err(BlobError::UnsupportedFormat(format.parse().unwrap_or(u32::MAX)));
+        }
+        let version = file.meta("policy_version")?.parse().map_err(|e| malformed(format!("policy_version: {e}")))?;
+        let architecture: Architecture =
+            serde_json::from_str(file.meta("architecture")?).map_err(|e| malformed(format!("architecture: {e}")))?;
+        #[derive(serde::Deserialize)]
+        struct Scalars {
+            count: f64,
+            clip: f64,
+            epsilon: f64,
+        }
+        let s: Scalars = serde_json::from_str(file.meta("normalizer")?).map_err(|e| malformed(format!("normalizer: {e}")))?;
+        let ids: Vec<u64> = serde_json::from_str(file.meta("param_ids")?).map_err(|e| malformed(format!("param_ids: {e}")))?;
+        let f64s = |name: &str| match &file.tensor(name)?.data {
+            TensorData::F64(v) => Ok(v.clone()),
+            _ => Err(malformed(format!("{name} is not F64"))),
+        };
+        let normalizer = ObsNormalizer {
+            mean: f64s("normalizer.mean")?,
+            var: f64s("normalizer.var")?,
+            count: s.count,
+            clip: s.clip,
+            epsilon: s.epsilon,
+        };
+        if normalizer.mean.len() != architecture.observation_dim || normalizer.var.len() != architecture.observation_dim {
+            return Err(malformed("normaliser length differs from the observation length".into()));
+        }
+        let names = Self::tensor_names(&architecture);
+        if ids.len() != names.len() {
+            return Err(malformed(format!("{} parameter ids for {} parameters", ids.len(), names.len())));
+        }
+        let mut params = Vec::with_capacity(names.len());
+        for ((name, id), shape) in names.iter().zip(ids).zip(ActorCritic::shapes(&architecture)) {
+            let tensor = file.tensor(name)?;
+            if tensor.shape != shape {
+                return Err(malformed(format!("{name} has shape {:?}; the architecture needs {shape:?}", tensor.shape)));
+            }
+            let TensorData::F32(values) = &tensor.data else { return Err(malformed(format!("{name} is not F32"))) };
+            params.push(ExportedParam { id, shape: tensor.shape.clone(), values: values.clone() });
+        }
+        Ok(Self { version, architecture, normalizer, params })
+    }
+
+    /// Decodes the earlier framed layout: `DRPOLICY`, format u32, version u64, architecture
+    /// (u32 length + JSON), normaliser (dim u32, count, clip, epsilon, mean[dim], var[dim] as
+    /// f64), parameters (count u32; each: id u64, rank u8, dims u32[rank], values f32[numel]),
+    /// CRC-32 of everything before it.
+    fn from_legacy_bytes(bytes: &[u8]) -> Result<Self, BlobError> {
         if bytes.len() < 16 {
             return Err(BlobError::Truncated { needed: 16 - bytes.len(), at: bytes.len() });
         }
         let (body, crc) = bytes.split_at(bytes.len() - 4);
-        let mut r = Reader::new(body, MAGIC.len());
+        let mut r = Reader::new(body, LEGACY_MAGIC.len());
         let format = r.u32()?;
-        if format != FORMAT {
+        if format != LEGACY_FORMAT {
             return Err(BlobError::UnsupportedFormat(format));
         }
         if crc32fast::hash(body).to_le_bytes() != crc {
@@ -158,6 +252,15 @@ impl WeightsBlob {
     }
 }
 
+impl From<TensorFileError> for BlobError {
+    fn from(e: TensorFileError) -> Self {
+        match e {
+            TensorFileError::Checksum => Self::Checksum,
+            other => Self::Malformed(other.to_string()),
+        }
+    }
+}
+
 impl From<Truncated> for BlobError {
     fn from(t: Truncated) -> Self {
         Self::Truncated { needed: t.needed, at: t.at }
@@ -190,16 +293,32 @@ mod tests {
     }
 
     #[test]
+    fn a_policy_of_the_earlier_layout_still_reads_and_converts_bit_exactly() {
+        let legacy = include_bytes!("../tests/data/policy-format1.bin");
+        assert!(legacy.starts_with(LEGACY_MAGIC));
+        let blob = WeightsBlob::from_bytes(legacy).unwrap();
+        assert_eq!(WeightsBlob::from_bytes(&blob.to_bytes()).unwrap(), blob);
+        let mut altered = legacy.to_vec();
+        altered[40] ^= 1;
+        assert_eq!(WeightsBlob::from_bytes(&altered), Err(BlobError::Checksum));
+    }
+
+    #[test]
     fn corrupt_truncated_foreign_and_mismatched_blobs_are_refused() {
         let b = blob();
         let bytes = b.to_bytes();
-        assert!(matches!(WeightsBlob::from_bytes(&bytes[..bytes.len() - 9]), Err(BlobError::Checksum)));
+        assert!(
+            matches!(WeightsBlob::from_bytes(&bytes[..bytes.len() - 9]), Err(BlobError::Malformed(m)) if m.contains("outside the data"))
+        );
         let mut flipped = bytes.clone();
-        flipped[100] ^= 0x40;
+        *flipped.last_mut().unwrap() ^= 0x40;
         assert_eq!(WeightsBlob::from_bytes(&flipped), Err(BlobError::Checksum));
         assert_eq!(WeightsBlob::from_bytes(b"hello world, not a blob"), Err(BlobError::BadMagic));
         assert!(matches!(WeightsBlob::from_bytes(&bytes[..12]), Err(BlobError::Truncated { .. })));
         let e = b.check_architecture(&Architecture::paper()).unwrap_err().to_string();
+        let mut other = b.to_tensor_file();
+        other.metadata.insert("format_version".into(), "3".into());
+        assert_eq!(WeightsBlob::from_bytes(&other.to_bytes()), Err(BlobError::UnsupportedFormat(3)));
         assert!(e.contains("[8,8]") && e.contains("[512,512]"), "{e}");
     }
 }

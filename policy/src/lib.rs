@@ -9,9 +9,12 @@ pub mod inference;
 pub mod network;
 pub mod normalizer;
 pub mod rollout;
+pub mod safetensors;
 
 pub use architecture::Architecture;
 pub use blob::{BlobError, WeightsBlob};
+/// The burn device networks are built on (the CPU).
+pub use burn::tensor::Device;
 pub use inference::{Acting, HALF_LN_2PI, Policy, PolicyController, gaussian_log_prob};
 pub use network::ActorCritic;
 pub use normalizer::ObsNormalizer;
