@@ -94,12 +94,15 @@ fn mutate(rng: &mut ChaCha8Rng, valid: &[u8]) -> Vec<u8> {
     }
 }
 
-/// Recomputes the trailing CRC-32 (of everything before it), as the rollout chunk ends.
-fn with_trailing_crc(mut b: Vec<u8>) -> Vec<u8> {
-    if b.len() >= 4 {
-        let body = b.len() - 4;
-        let crc = crc32fast::hash(&b[..body]);
-        b[body..].copy_from_slice(&crc.to_le_bytes());
+/// Rewrites a frame's (`frames`) length field and trailing CRC-32 to match the mutated bytes,
+/// so the parser of the body is reached.
+fn reframe(mut b: Vec<u8>) -> Vec<u8> {
+    if b.len() >= frames::OVERHEAD {
+        let body = (b.len() - frames::OVERHEAD) as u64;
+        b[12..20].copy_from_slice(&body.to_le_bytes());
+        let end = b.len() - 4;
+        let crc = crc32fast::hash(&b[..end]);
+        b[end..].copy_from_slice(&crc.to_le_bytes());
     }
     b
 }
@@ -226,7 +229,8 @@ fn every_mutated_rollout_chunk_is_refused_and_none_panics_the_parser() {
     let decode = |b: &[u8]| RolloutChunk::from_bytes(b).is_ok_and(|c| c.check(sim::STATE_OBS_DIM, sim::ACTION_DIM).is_ok());
     let raw = fuzz("rollout chunk", 3, &valid, |b| b, decode);
     assert_eq!(raw.accepted, 0);
-    fuzz("rollout chunk, checksum recomputed", 4, &valid, with_trailing_crc, decode);
+    assert!(decode(&reframe(valid.clone())), "the rewritten frame matches the format");
+    fuzz("rollout chunk, checksum recomputed", 4, &valid, reframe, decode);
 }
 
 #[test]
@@ -250,16 +254,8 @@ fn every_mutated_task_controller_snapshot_is_refused_and_none_panics_the_parser(
     let decode = |b: &[u8]| TaskController::from_snapshot_bytes(b, origin).is_ok();
     let raw = fuzz("task-controller snapshot", 7, &valid, |b| b, decode);
     assert_eq!(raw.accepted, 0);
-    // The header line carries length and checksum of the JSON body: rewrite it to match.
-    let reheader = |b: Vec<u8>| -> Vec<u8> {
-        let Some(newline) = b.iter().position(|&c| c == b'\n') else { return b };
-        let body = &b[newline + 1..];
-        let mut out = format!("dronerace-taskctl-snapshot 1 {} {:08x}\n", body.len(), crc32fast::hash(body)).into_bytes();
-        out.extend_from_slice(body);
-        out
-    };
-    assert!(decode(&reheader(valid.clone())), "the rewritten header matches the format");
-    fuzz("task-controller snapshot, header recomputed", 8, &valid, reheader, decode);
+    assert!(decode(&reframe(valid.clone())), "the rewritten frame matches the format");
+    fuzz("task-controller snapshot, checksum recomputed", 8, &valid, reframe, decode);
 }
 
 #[test]

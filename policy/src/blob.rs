@@ -15,10 +15,10 @@
 use burn::tensor::Device;
 
 use crate::architecture::Architecture;
-use crate::bytes::{Reader, Truncated};
 use crate::network::{ActorCritic, ExportedParam};
 use crate::normalizer::ObsNormalizer;
 use crate::safetensors::{Tensor, TensorData, TensorFile, TensorFileError};
+use frames::{Reader, Truncated};
 
 /// Magic of the earlier framed layout.
 const LEGACY_MAGIC: &[u8; 8] = b"DRPOLICY";

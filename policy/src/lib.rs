@@ -4,7 +4,6 @@
 
 pub mod architecture;
 pub mod blob;
-mod bytes;
 pub mod inference;
 pub mod network;
 pub mod normalizer;

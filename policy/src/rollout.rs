@@ -1,24 +1,25 @@
 //! The rollout chunk: what an actor sends the learner after each rollout, tagged with the
 //! policy version that produced it, and its wire format.
 //!
-//! Wire layout (little-endian): `DRROLL01`, policy_version u64, first_env u64, envs u32,
-//! steps u32, observation_dim u32, action_dim u32; observations, actions, log_probs, values,
-//! rewards as f32; terminated, truncated as one byte each; truncation_values f32,
-//! last_values f32[envs]; episode count u32 and per episode env u64, return f64, length u32,
-//! laps u32, fastest lap f64 (NaN for none), crashed u8; CRC-32 of everything before it.
+//! Wire layout: a frame (`frames`: magic `DRCHUNK`, format 2, length, CRC-32) whose body is,
+//! little-endian: policy_version u64, first_env u64, envs u32, steps u32, observation_dim u32,
+//! action_dim u32; observations, actions, log_probs, values, rewards as f32; terminated,
+//! truncated as one byte each; truncation_values f32, last_values f32[envs]; episode count u32
+//! and per episode env u64, return f64, length u32, laps u32, fastest lap f64 (NaN for none),
+//! crashed u8.
 
+use frames::{FrameError, FrameKind, Reader, Truncated, put_f32s};
 use serde::{Deserialize, Serialize};
 
-use crate::bytes::{Reader, Truncated, put_f32s};
-
-const MAGIC: &[u8; 8] = b"DRROLL01";
+/// The rollout chunk's frame.
+const FRAME: FrameKind = FrameKind { magic: b"DRCHUNK\0", format: 2, name: "dronerace rollout chunk" };
 
 /// Encoded rollout bytes that cannot be used.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum RolloutWireError {
-    /// Not a rollout chunk (or another format version).
-    #[error("not a dronerace rollout chunk (bad magic)")]
-    BadMagic,
+    /// Not an intact rollout-chunk frame (magic, format, length or checksum).
+    #[error(transparent)]
+    Frame(#[from] FrameError),
     /// The bytes end before the layout does.
     #[error("rollout chunk is truncated at offset {at} ({needed} more bytes needed)")]
     Truncated {
@@ -27,9 +28,6 @@ pub enum RolloutWireError {
         /// Where they were needed.
         at: usize,
     },
-    /// The checksum does not match the contents.
-    #[error("rollout chunk checksum mismatch: the contents were altered")]
-    Checksum,
     /// Anything else malformed inside.
     #[error("rollout chunk is malformed: {0}")]
     Malformed(String),
@@ -173,7 +171,6 @@ impl RolloutChunk {
         let t = self.transitions().max(1);
         let (obs_dim, act_dim) = (self.observations.len() / t, self.actions.len() / t);
         let mut out = Vec::with_capacity(64 + 4 * (self.observations.len() + self.actions.len() + 6 * t));
-        out.extend_from_slice(MAGIC);
         out.extend_from_slice(&self.policy_version.to_le_bytes());
         out.extend_from_slice(&(self.first_env as u64).to_le_bytes());
         for n in [self.envs, self.steps, obs_dim, act_dim] {
@@ -195,25 +192,13 @@ impl RolloutChunk {
             out.extend_from_slice(&e.fastest_lap.unwrap_or(f64::NAN).to_le_bytes());
             out.push(u8::from(e.crashed));
         }
-        let crc = crc32fast::hash(&out);
-        out.extend_from_slice(&crc.to_le_bytes());
-        out
+        FRAME.encode(&out)
     }
 
     /// Decodes and verifies a chunk: checksum, every array's length against the header, no
     /// trailing bytes. Lengths are checked against the input before anything is allocated.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, RolloutWireError> {
-        if bytes.len() < MAGIC.len() || &bytes[..MAGIC.len()] != MAGIC {
-            return Err(RolloutWireError::BadMagic);
-        }
-        if bytes.len() < MAGIC.len() + 4 {
-            return Err(RolloutWireError::Truncated { needed: MAGIC.len() + 4 - bytes.len(), at: bytes.len() });
-        }
-        let (body, crc) = bytes.split_at(bytes.len() - 4);
-        if crc32fast::hash(body).to_le_bytes() != crc {
-            return Err(RolloutWireError::Checksum);
-        }
-        let mut r = Reader::new(body, MAGIC.len());
+        let mut r = Reader::new(FRAME.decode(bytes)?, 0);
         let policy_version = r.u64()?;
         let first_env = usize::try_from(r.u64()?).map_err(|_| RolloutWireError::Malformed("first_env overflows".into()))?;
         let (envs, steps, obs_dim, act_dim) = (r.u32()? as usize, r.u32()? as usize, r.u32()? as usize, r.u32()? as usize);
@@ -322,14 +307,19 @@ mod tests {
     #[test]
     fn truncated_altered_foreign_and_lying_chunks_are_refused() {
         let bytes = chunk().to_bytes();
-        assert_eq!(RolloutChunk::from_bytes(&bytes[..bytes.len() - 10]), Err(RolloutWireError::Checksum));
+        let frame_error = |b: &[u8]| match RolloutChunk::from_bytes(b) {
+            Err(RolloutWireError::Frame(e)) => Some(e),
+            _ => None,
+        };
+        assert!(matches!(frame_error(&bytes[..bytes.len() - 10]), Some(FrameError::Length { .. })));
         let mut flipped = bytes.clone();
         flipped[60] ^= 1;
-        assert_eq!(RolloutChunk::from_bytes(&flipped), Err(RolloutWireError::Checksum));
-        assert_eq!(RolloutChunk::from_bytes(b"DRPOLICY........"), Err(RolloutWireError::BadMagic));
+        assert!(matches!(frame_error(&flipped), Some(FrameError::Checksum { .. })));
+        assert!(matches!(frame_error(b"DRPOLICY........"), Some(FrameError::BadMagic { .. })));
         // A header announcing a huge rollout (with a valid checksum) is refused, not allocated.
         let mut lying = bytes[..bytes.len() - 4].to_vec();
-        lying[24..28].copy_from_slice(&u32::MAX.to_le_bytes());
+        let envs_at = frames::OVERHEAD - 4 + 16; // after the frame header, policy_version and first_env
+        lying[envs_at..envs_at + 4].copy_from_slice(&u32::MAX.to_le_bytes());
         let crc = crc32fast::hash(&lying);
         lying.extend_from_slice(&crc.to_le_bytes());
         assert!(matches!(RolloutChunk::from_bytes(&lying), Err(RolloutWireError::Malformed(m)) if m.contains("more than")));

@@ -191,8 +191,10 @@ pub struct TaskController {
     state: State,
 }
 
-const SNAPSHOT_MAGIC: &str = "dronerace-taskctl-snapshot";
-const SNAPSHOT_VERSION: u32 = 1;
+/// The snapshot's frame (`frames`); its body is the state as JSON.
+const SNAPSHOT: frames::FrameKind = frames::FrameKind { magic: b"DRTASKS\0", format: 2, name: "dronerace task-controller snapshot" };
+/// First word of the earlier layout's text header line.
+const LEGACY_SNAPSHOT_MAGIC: &str = "dronerace-taskctl-snapshot";
 
 impl TaskController {
     /// `envs` environments, each with a freshly generated track.
@@ -360,13 +362,11 @@ impl TaskController {
         &self.state.switching
     }
 
-    /// The whole state as snapshot bytes: a header line (format, version, length, CRC-32)
-    /// followed by the JSON body.
+    /// The whole state as snapshot bytes: a frame (magic, format, length, CRC-32) around the
+    /// state as JSON.
     #[allow(clippy::expect_used, reason = "controller state always serialises")]
     pub fn to_snapshot_bytes(&self) -> Vec<u8> {
-        let body = serde_json::to_vec(&self.state).expect("controller state always serialises");
-        let header = format!("{SNAPSHOT_MAGIC} {SNAPSHOT_VERSION} {} {:08x}\n", body.len(), crc32fast::hash(&body));
-        [header.into_bytes(), body].concat()
+        SNAPSHOT.encode(&serde_json::to_vec(&self.state).expect("controller state always serialises"))
     }
 
     /// Writes [`TaskController::to_snapshot_bytes`] atomically: a temporary file, fsync, rename.
@@ -381,32 +381,38 @@ impl TaskController {
         Self::from_snapshot_bytes(&bytes, path)
     }
 
-    /// Decodes snapshot bytes; `origin` names their source in errors.
+    /// Decodes snapshot bytes (either layout); `origin` names their source in errors.
     pub fn from_snapshot_bytes(bytes: &[u8], origin: &Path) -> Result<Self, SnapshotError> {
         let corrupt = |reason: String| SnapshotError::Corrupt { file: origin.to_path_buf(), reason };
-        let newline = bytes.iter().position(|&b| b == b'\n').ok_or_else(|| corrupt("no header line".into()))?;
-        let header = std::str::from_utf8(&bytes[..newline]).map_err(|_| corrupt("header is not text".into()))?;
-        let fields: Vec<&str> = header.split(' ').collect();
-        let [magic, version, length, checksum] = fields[..] else {
-            return Err(corrupt(format!("malformed header {header:?}")));
+        let body = if bytes.starts_with(LEGACY_SNAPSHOT_MAGIC.as_bytes()) {
+            legacy_snapshot_body(bytes).map_err(corrupt)?
+        } else {
+            SNAPSHOT.decode(bytes).map_err(|e| corrupt(e.to_string()))?
         };
-        if magic != SNAPSHOT_MAGIC {
-            return Err(corrupt("not a dronerace task-controller snapshot".into()));
-        }
-        if version != SNAPSHOT_VERSION.to_string() {
-            return Err(corrupt(format!("format version {version}, this build reads {SNAPSHOT_VERSION}")));
-        }
-        let body = &bytes[newline + 1..];
-        let length: usize = length.parse().map_err(|_| corrupt(format!("bad length {length:?}")))?;
-        if body.len() != length {
-            return Err(corrupt(format!("truncated or padded: header says {length} bytes, found {}", body.len())));
-        }
-        if format!("{:08x}", crc32fast::hash(body)) != checksum {
-            return Err(corrupt("checksum mismatch: the contents were altered".into()));
-        }
         let state: State = serde_json::from_slice(body).map_err(|e| corrupt(format!("contents: {e}")))?;
         Ok(Self { state })
     }
+}
+
+/// The JSON body of a snapshot of the earlier layout: a text header line
+/// `dronerace-taskctl-snapshot 1 <length> <crc32 hex>`, then the body.
+fn legacy_snapshot_body(bytes: &[u8]) -> Result<&[u8], String> {
+    let newline = bytes.iter().position(|&b| b == b'\n').ok_or("no header line")?;
+    let header = std::str::from_utf8(&bytes[..newline]).map_err(|_| "header is not text")?;
+    let [_, version, length, checksum] = header.split(' ').collect::<Vec<_>>()[..] else {
+        return Err(format!("malformed header {header:?}"));
+    };
+    if version != "1" {
+        return Err(format!("format version {version}"));
+    }
+    let body = &bytes[newline + 1..];
+    if length.parse::<usize>().ok() != Some(body.len()) {
+        return Err(format!("truncated or padded: header says {length} bytes, found {}", body.len()));
+    }
+    if format!("{:08x}", crc32fast::hash(body)) != checksum {
+        return Err("checksum mismatch: the contents were altered".into());
+    }
+    Ok(body)
 }
 
 impl EnvSlot {
@@ -592,9 +598,16 @@ mod tests {
         let last = flipped.len() - 20;
         flipped[last] ^= 0x01;
         refuse(&flipped, "checksum");
-        refuse(b"{\"hello\": 1}\n", "malformed header");
-        refuse(b"", "no header");
-        let other = String::from_utf8(good.clone()).unwrap().replacen(" 1 ", " 9 ", 1);
-        refuse(other.as_bytes(), "version 9");
+        refuse(b"{\"hello\": 1}\n", "bad magic");
+        refuse(b"", "bad magic");
+        let mut other = good.clone();
+        other[8..12].copy_from_slice(&9u32.to_le_bytes());
+        refuse(&other, "format 9");
+        // The earlier text-header layout: refused when damaged, read when intact.
+        let body = serde_json::to_vec(&controller(SwitchPolicy::Adaptive, 6, 2).state).unwrap();
+        let legacy = [format!("{LEGACY_SNAPSHOT_MAGIC} 1 {} {:08x}\n", body.len(), crc32fast::hash(&body)).into_bytes(), body].concat();
+        refuse(&legacy[..legacy.len() - 1], "truncated");
+        std::fs::write(&path, &legacy).unwrap();
+        assert_eq!(TaskController::restore(&path).unwrap(), controller(SwitchPolicy::Adaptive, 6, 2));
     }
 }
