@@ -5,37 +5,175 @@ use std::fs::{File, OpenOptions};
 use std::io::Write;
 use std::path::Path;
 
-/// Metric names, in CSV column order.
-pub const METRICS: [&str; 28] = [
-    "charts/episodic_return",
-    "charts/episodic_length",
-    "charts/laps_per_episode",
-    "charts/crash_rate",
-    "charts/fastest_lap",
-    "charts/SPS",
-    "charts/learning_rate",
-    "losses/policy_loss",
-    "losses/value_loss",
-    "losses/approx_kl",
-    "losses/clipfrac",
-    "losses/explained_variance",
-    "losses/grad_norm",
-    "losses/actor_grad_norm",
-    "losses/critic_grad_norm",
-    "policy/log_std",
-    "policy/version_lag",
-    "tasks/switches",
-    "tasks/mean_q",
-    "eval/S_pw",
-    "eval/success",
-    "eval/mean_lap",
-    "eval/crash_ground",
-    "eval/crash_ceiling",
-    "eval/crash_wall",
-    "eval/crash_gate",
-    "eval/no_lap",
-    "eval/seconds",
-];
+/// One iteration's metrics: a field per `metrics.csv` column and TensorBoard tag (NaN where
+/// not measured, e.g. the `eval_*` fields of iterations without an evaluation).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MetricsRow {
+    /// `charts/episodic_return`: Mean return of the episodes that ended.
+    pub episodic_return: f64,
+    /// `charts/episodic_length`: Their mean length (steps).
+    pub episodic_length: f64,
+    /// `charts/laps_per_episode`: Their mean completed laps.
+    pub laps_per_episode: f64,
+    /// `charts/crash_rate`: Fraction of them that ended in a crash.
+    pub crash_rate: f64,
+    /// `charts/fastest_lap`: Fastest lap among them (s).
+    pub fastest_lap: f64,
+    /// `charts/SPS`: Training env-steps per second of the iteration.
+    pub sps: f64,
+    /// `charts/learning_rate`: Learning rate used.
+    pub learning_rate: f64,
+    /// `losses/policy_loss`: Clipped-surrogate loss, averaged over gradient steps.
+    pub policy_loss: f64,
+    /// `losses/value_loss`: Value loss, averaged.
+    pub value_loss: f64,
+    /// `losses/approx_kl`: Approximate KL (mean of (r − 1) − ln r).
+    pub approx_kl: f64,
+    /// `losses/clipfrac`: Fraction of samples whose ratio was clipped.
+    pub clip_fraction: f64,
+    /// `losses/explained_variance`: Explained variance of the old values.
+    pub explained_variance: f64,
+    /// `losses/grad_norm`: Global gradient norm before clipping.
+    pub grad_norm: f64,
+    /// `losses/actor_grad_norm`: The policy's part of it.
+    pub actor_grad_norm: f64,
+    /// `losses/critic_grad_norm`: The value function's part of it.
+    pub critic_grad_norm: f64,
+    /// `policy/log_std`: Mean log standard deviation after the update.
+    pub log_std: f64,
+    /// `policy/version_lag`: Largest policy-version lag among the rollouts used.
+    pub version_lag: f64,
+    /// `tasks/switches`: Task switches so far.
+    pub switches: f64,
+    /// `tasks/mean_q`: Mean flatness score q.
+    pub mean_q: f64,
+    /// `eval/S_pw`: Validation S_pw (this iteration's evaluation).
+    pub eval_s_pw: f64,
+    /// `eval/success`: Validation success rate.
+    pub eval_success: f64,
+    /// `eval/mean_lap`: Validation mean lap time (s).
+    pub eval_mean_lap: f64,
+    /// `eval/crash_ground`: Fraction of validation deployments ending on the ground.
+    pub eval_crash_ground: f64,
+    /// `eval/crash_ceiling`: … on the ceiling.
+    pub eval_crash_ceiling: f64,
+    /// `eval/crash_wall`: … on an arena wall.
+    pub eval_crash_wall: f64,
+    /// `eval/crash_gate`: … on a gate frame.
+    pub eval_crash_gate: f64,
+    /// `eval/no_lap`: … without crashing and without a lap.
+    pub eval_no_lap: f64,
+    /// `eval/seconds`: Wall seconds of the evaluation.
+    pub eval_seconds: f64,
+}
+
+impl Default for MetricsRow {
+    fn default() -> Self {
+        Self::from_columns([f64::NAN; COLUMNS])
+    }
+}
+
+impl MetricsRow {
+    /// `(column name, value)` in CSV order: the one place names and fields meet.
+    pub fn columns(&self) -> [(&'static str, f64); COLUMNS] {
+        [
+            ("charts/episodic_return", self.episodic_return),
+            ("charts/episodic_length", self.episodic_length),
+            ("charts/laps_per_episode", self.laps_per_episode),
+            ("charts/crash_rate", self.crash_rate),
+            ("charts/fastest_lap", self.fastest_lap),
+            ("charts/SPS", self.sps),
+            ("charts/learning_rate", self.learning_rate),
+            ("losses/policy_loss", self.policy_loss),
+            ("losses/value_loss", self.value_loss),
+            ("losses/approx_kl", self.approx_kl),
+            ("losses/clipfrac", self.clip_fraction),
+            ("losses/explained_variance", self.explained_variance),
+            ("losses/grad_norm", self.grad_norm),
+            ("losses/actor_grad_norm", self.actor_grad_norm),
+            ("losses/critic_grad_norm", self.critic_grad_norm),
+            ("policy/log_std", self.log_std),
+            ("policy/version_lag", self.version_lag),
+            ("tasks/switches", self.switches),
+            ("tasks/mean_q", self.mean_q),
+            ("eval/S_pw", self.eval_s_pw),
+            ("eval/success", self.eval_success),
+            ("eval/mean_lap", self.eval_mean_lap),
+            ("eval/crash_ground", self.eval_crash_ground),
+            ("eval/crash_ceiling", self.eval_crash_ceiling),
+            ("eval/crash_wall", self.eval_crash_wall),
+            ("eval/crash_gate", self.eval_crash_gate),
+            ("eval/no_lap", self.eval_no_lap),
+            ("eval/seconds", self.eval_seconds),
+        ]
+    }
+
+    fn from_columns(v: [f64; COLUMNS]) -> Self {
+        let [
+            episodic_return,
+            episodic_length,
+            laps_per_episode,
+            crash_rate,
+            fastest_lap,
+            sps,
+            learning_rate,
+            policy_loss,
+            value_loss,
+            approx_kl,
+            clip_fraction,
+            explained_variance,
+            grad_norm,
+            actor_grad_norm,
+            critic_grad_norm,
+            log_std,
+            version_lag,
+            switches,
+            mean_q,
+            eval_s_pw,
+            eval_success,
+            eval_mean_lap,
+            eval_crash_ground,
+            eval_crash_ceiling,
+            eval_crash_wall,
+            eval_crash_gate,
+            eval_no_lap,
+            eval_seconds,
+        ] = v;
+        Self {
+            episodic_return,
+            episodic_length,
+            laps_per_episode,
+            crash_rate,
+            fastest_lap,
+            sps,
+            learning_rate,
+            policy_loss,
+            value_loss,
+            approx_kl,
+            clip_fraction,
+            explained_variance,
+            grad_norm,
+            actor_grad_norm,
+            critic_grad_norm,
+            log_std,
+            version_lag,
+            switches,
+            mean_q,
+            eval_s_pw,
+            eval_success,
+            eval_mean_lap,
+            eval_crash_ground,
+            eval_crash_ceiling,
+            eval_crash_wall,
+            eval_crash_gate,
+            eval_no_lap,
+            eval_seconds,
+        }
+    }
+}
+
+/// Number of metric columns.
+const COLUMNS: usize = 28;
 
 /// Columns of `validation.csv`: one row per validation track per evaluation.
 pub const VALIDATION_COLUMNS: &str = "iteration,env_steps,track,success,s_pw,mean_lap,crash_gate,crash_other,no_lap";
@@ -81,7 +219,8 @@ impl MetricsWriter {
         let fresh = !csv_path.exists();
         let mut csv = OpenOptions::new().create(true).append(true).open(&csv_path)?;
         if fresh {
-            writeln!(csv, "iteration,env_steps,wall_seconds,{}", METRICS.join(","))?;
+            let names: Vec<&str> = MetricsRow::default().columns().iter().map(|(name, _)| *name).collect();
+            writeln!(csv, "iteration,env_steps,wall_seconds,{}", names.join(","))?;
         }
         let stamp = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default().as_secs();
         let mut events = File::create(dir.join(format!("events.out.tfevents.{stamp}.dronerace")))?;
@@ -89,13 +228,14 @@ impl MetricsWriter {
         Ok(Self { csv, events })
     }
 
-    /// One iteration's values, in [`METRICS`] order (NaN where not measured).
-    pub fn write(&mut self, iteration: u64, env_steps: u64, wall_seconds: f64, values: &[f64; METRICS.len()]) -> std::io::Result<()> {
-        let cells: Vec<String> = values.iter().map(|v| if v.is_nan() { String::new() } else { format!("{v}") }).collect();
+    /// One iteration's row.
+    pub fn write(&mut self, iteration: u64, env_steps: u64, wall_seconds: f64, row: &MetricsRow) -> std::io::Result<()> {
+        let columns = row.columns();
+        let cells: Vec<String> = columns.iter().map(|(_, v)| if v.is_nan() { String::new() } else { format!("{v}") }).collect();
         writeln!(self.csv, "{iteration},{env_steps},{wall_seconds:.3},{}", cells.join(","))?;
         self.csv.flush()?;
         let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default().as_secs_f64();
-        let scalars: Vec<(&str, f32)> = METRICS.iter().zip(values).filter(|(_, v)| v.is_finite()).map(|(n, v)| (*n, *v as f32)).collect();
+        let scalars: Vec<(&str, f32)> = columns.iter().filter(|(_, v)| v.is_finite()).map(|(n, v)| (*n, *v as f32)).collect();
         write_record(&mut self.events, &event(now, env_steps as i64, EventBody::Scalars(&scalars)))?;
         self.events.flush()
     }
@@ -183,13 +323,13 @@ mod tests {
     fn csv_rows_follow_the_header_and_events_are_framed() {
         let dir = tempfile::tempdir().unwrap();
         let mut w = MetricsWriter::open(dir.path()).unwrap();
-        let mut values = [f64::NAN; METRICS.len()];
-        values[0] = 12.5;
-        w.write(3, 72_000, 9.5, &values).unwrap();
+        w.write(3, 72_000, 9.5, &MetricsRow { episodic_return: 12.5, eval_seconds: 4.0, ..MetricsRow::default() }).unwrap();
         let csv = std::fs::read_to_string(dir.path().join("metrics.csv")).unwrap();
         let lines: Vec<&str> = csv.lines().collect();
         assert_eq!(lines[0].split(',').count(), lines[1].split(',').count());
         assert!(lines[1].starts_with("3,72000,9.500,12.5,"));
+        assert!(lines[1].ends_with(",4"), "{}", lines[1]);
+        assert!(lines[0].starts_with("iteration,env_steps,wall_seconds,charts/episodic_return,") && lines[0].ends_with(",eval/seconds"));
         let event_file =
             std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().path()).find(|p| p.to_string_lossy().contains("tfevents")).unwrap();
         let bytes = std::fs::read(event_file).unwrap();

@@ -14,7 +14,7 @@ use taskctl::{SwitchParams, TaskController};
 use crate::checkpoint::{Checkpoint, CheckpointDir, CheckpointError};
 use crate::config::{PpoConfig, Profile};
 use crate::learner::{IterationReport, Learner, LearnerError};
-use crate::metrics::{METRICS, MetricsWriter};
+use crate::metrics::{MetricsRow, MetricsWriter};
 use crate::validation::Validation;
 
 /// Where the training tracks come from.
@@ -385,38 +385,38 @@ impl Run {
         let eval = validation.map(|v| &v.report);
         let eval_value = |f: &dyn Fn(&sim::eval::EvalReport) -> f64| eval.map_or(f64::NAN, f);
         let s = &summary.report.stats;
-        let values: [f64; METRICS.len()] = [
-            summary.mean_return,
-            mean(&|e| f64::from(e.length)),
-            summary.laps_per_episode,
-            mean(&|e| if e.crashed { 1.0 } else { 0.0 }),
-            fastest,
-            summary.sps,
-            summary.report.learning_rate,
-            s.policy_loss,
-            s.value_loss,
-            s.approx_kl,
-            s.clip_fraction,
-            s.explained_variance,
-            s.grad_norm,
-            s.actor_grad_norm,
-            s.critic_grad_norm,
-            s.log_std,
-            timing.version_lag as f64,
-            summary.switches as f64,
-            timing.mean_q,
-            eval_value(&|r| r.s_pw),
-            eval_value(&|r| r.success_rate),
-            eval_value(&|r| r.mean_lap.unwrap_or(f64::NAN)),
-            eval_value(&|r| r.outcomes.fraction(r.outcomes.ground)),
-            eval_value(&|r| r.outcomes.fraction(r.outcomes.ceiling)),
-            eval_value(&|r| r.outcomes.fraction(r.outcomes.wall)),
-            eval_value(&|r| r.outcomes.fraction(r.outcomes.gate_total())),
-            eval_value(&|r| r.outcomes.fraction(r.outcomes.no_lap)),
-            validation.map_or(f64::NAN, |v| v.seconds),
-        ];
+        let row = MetricsRow {
+            episodic_return: summary.mean_return,
+            episodic_length: mean(&|e| f64::from(e.length)),
+            laps_per_episode: summary.laps_per_episode,
+            crash_rate: mean(&|e| if e.crashed { 1.0 } else { 0.0 }),
+            fastest_lap: fastest,
+            sps: summary.sps,
+            learning_rate: summary.report.learning_rate,
+            policy_loss: s.policy_loss,
+            value_loss: s.value_loss,
+            approx_kl: s.approx_kl,
+            clip_fraction: s.clip_fraction,
+            explained_variance: s.explained_variance,
+            grad_norm: s.grad_norm,
+            actor_grad_norm: s.actor_grad_norm,
+            critic_grad_norm: s.critic_grad_norm,
+            log_std: s.log_std,
+            version_lag: timing.version_lag as f64,
+            switches: summary.switches as f64,
+            mean_q: timing.mean_q,
+            eval_s_pw: eval_value(&|r| r.s_pw),
+            eval_success: eval_value(&|r| r.success_rate),
+            eval_mean_lap: eval_value(&|r| r.mean_lap.unwrap_or(f64::NAN)),
+            eval_crash_ground: eval_value(&|r| r.outcomes.fraction(r.outcomes.ground)),
+            eval_crash_ceiling: eval_value(&|r| r.outcomes.fraction(r.outcomes.ceiling)),
+            eval_crash_wall: eval_value(&|r| r.outcomes.fraction(r.outcomes.wall)),
+            eval_crash_gate: eval_value(&|r| r.outcomes.fraction(r.outcomes.gate_total())),
+            eval_no_lap: eval_value(&|r| r.outcomes.fraction(r.outcomes.no_lap)),
+            eval_seconds: validation.map_or(f64::NAN, |v| v.seconds),
+        };
         self.metrics
-            .write(self.progress.iteration, summary.report.env_steps, self.progress.wall_seconds, &values)
+            .write(self.progress.iteration, summary.report.env_steps, self.progress.wall_seconds, &row)
             .map_err(|source| TrainError::Io { file: self.dir.join("metrics.csv"), source })?;
         if let Some(v) = validation {
             crate::metrics::append_validation(&self.dir, self.progress.iteration, summary.report.env_steps, &v.report)

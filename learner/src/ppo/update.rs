@@ -1,5 +1,6 @@
-//! The PPO update: epochs × shuffled minibatches of the clipped-surrogate and value losses,
-//! global gradient-norm clipping, Adam with L2 weight decay (SB3 semantics).
+//! The PPO update, in CleanRL's order: epochs × shuffled minibatches → `minibatch_loss`
+//! (clipped surrogate and value loss) → backward → gradient-norm clipping → Adam with L2 weight
+//! decay (SB3 semantics), with named statistics (`UpdateStats`).
 
 use burn::module::ParamId;
 use burn::optim::{GradientsParams, ModuleOptimizer};
@@ -66,8 +67,102 @@ pub struct UpdateStats {
     pub gradient_steps: usize,
 }
 
-/// One PPO update of `model` on `batch`; returns the updated model and its statistics.
-#[allow(clippy::expect_used, reason = "float ratios; float log ratios")]
+/// One minibatch on the device: rows of a [`TrainingBatch`], advantages normalised over it.
+pub struct Minibatch {
+    observations: Tensor<2>,
+    actions: Tensor<2>,
+    old_log_probs: Tensor<1>,
+    advantages: Tensor<1>,
+    returns: Tensor<1>,
+}
+
+impl TrainingBatch {
+    /// The rows `rows` as a [`Minibatch`] on `device`.
+    pub fn minibatch(&self, rows: &[usize], device: &Device) -> Minibatch {
+        let n = self.len();
+        let (obs_dim, act_dim) = (self.observations.len() / n, self.actions.len() / n);
+        let take = |data: &[f32], width: usize| -> Vec<f32> {
+            rows.iter().flat_map(|&i| data[i * width..(i + 1) * width].iter().copied()).collect()
+        };
+        let b = rows.len();
+        let mut advantages = take(&self.advantages, 1);
+        normalize_advantages(&mut advantages);
+        Minibatch {
+            observations: Tensor::<2>::from_data(TensorData::new(take(&self.observations, obs_dim), [b, obs_dim]), device),
+            actions: Tensor::<2>::from_data(TensorData::new(take(&self.actions, act_dim), [b, act_dim]), device),
+            old_log_probs: Tensor::<1>::from_data(TensorData::new(take(&self.old_log_probs, 1), [b]), device),
+            advantages: Tensor::<1>::from_data(TensorData::new(advantages, [b]), device),
+            returns: Tensor::<1>::from_data(TensorData::new(take(&self.returns, 1), [b]), device),
+        }
+    }
+}
+
+/// The parts of a minibatch's loss the statistics read.
+pub struct LossParts {
+    /// The clipped-surrogate part.
+    pub policy_loss: Tensor<1>,
+    /// The value part (before vf_coef).
+    pub value_loss: Tensor<1>,
+    /// Probability ratios new/old per sample.
+    pub ratio: Tensor<1>,
+    /// Their logarithms.
+    pub log_ratio: Tensor<1>,
+}
+
+/// PPO's loss on one minibatch — clipped surrogate + vf_coef × value loss, what is
+/// differentiated — and its parts (CleanRL's `ppo_continuous_action.py`, without the entropy
+/// term: a state-independent Gaussian's entropy does not depend on the data, and SPEC's
+/// ent_coef is 0).
+pub fn minibatch_loss(model: &ActorCritic, m: Minibatch, config: &PpoConfig) -> (Tensor<1>, LossParts) {
+    let (mean, values) = model.forward(m.observations);
+    let new_log_probs = log_prob(m.actions, mean, model.log_std.val());
+    let log_ratio = new_log_probs - m.old_log_probs;
+    let ratio = log_ratio.clone().exp();
+    let policy_loss = clipped_surrogate(ratio.clone(), m.advantages, config.clip_range);
+    let value_loss = value_loss(values, m.returns);
+    let loss = policy_loss.clone() + value_loss.clone().mul_scalar(config.vf_coef);
+    (loss, LossParts { policy_loss, value_loss, ratio, log_ratio })
+}
+
+impl UpdateStats {
+    /// Adds one gradient step's figures (sums; [`UpdateStats::average`] divides at the end).
+    #[allow(clippy::expect_used, reason = "float ratios; float log ratios")]
+    fn add_step(&mut self, loss: LossParts, squares: &[f64], critic: std::ops::Range<usize>, clip_range: f64) {
+        let ratios = loss.ratio.into_data().try_into_vec::<f32>().expect("float ratios");
+        let log_ratios = loss.log_ratio.into_data().try_into_vec::<f32>().expect("float log ratios");
+        let b = ratios.len() as f64;
+        self.approx_kl += ratios.iter().zip(&log_ratios).map(|(r, l)| f64::from((r - 1.0) - l)).sum::<f64>() / b;
+        self.clip_fraction += ratios.iter().filter(|r| (f64::from(**r) - 1.0).abs() > clip_range).count() as f64 / b;
+        self.policy_loss += f64::from(scalar(loss.policy_loss));
+        self.value_loss += f64::from(scalar(loss.value_loss));
+        let critic_square: f64 = squares[critic].iter().sum();
+        let total_square: f64 = squares.iter().sum();
+        self.grad_norm += total_square.sqrt();
+        self.critic_grad_norm += critic_square.sqrt();
+        self.actor_grad_norm += (total_square - critic_square).max(0.0).sqrt();
+        self.gradient_steps += 1;
+    }
+
+    /// Turns the per-step sums into means.
+    fn average(&mut self) {
+        let steps = self.gradient_steps.max(1) as f64;
+        for x in [
+            &mut self.policy_loss,
+            &mut self.value_loss,
+            &mut self.approx_kl,
+            &mut self.clip_fraction,
+            &mut self.grad_norm,
+            &mut self.actor_grad_norm,
+            &mut self.critic_grad_norm,
+        ] {
+            *x /= steps;
+        }
+    }
+}
+
+/// One PPO update of `model` on `batch`: `n_epochs` × shuffled minibatches of
+/// [`minibatch_loss`] → backward → gradient-norm clipping → Adam step. Returns the updated
+/// model and its statistics.
 pub fn update(
     mut model: ActorCritic,
     optimizer: &mut ModuleOptimizer,
@@ -77,71 +172,23 @@ pub fn update(
     rng: &mut ChaCha8Rng,
     device: &Device,
 ) -> (ActorCritic, UpdateStats) {
-    let n = batch.len();
-    let obs_dim = batch.observations.len() / n;
-    let act_dim = batch.actions.len() / n;
-    let minibatch = config.batch_size.min(n);
     let mut stats = UpdateStats::default();
-    let mut indices: Vec<usize> = (0..n).collect();
+    let mut indices: Vec<usize> = (0..batch.len()).collect();
     let ids = model.param_ids();
     // Export order: actor layers, critic layers (as many as the actor's), then the log std.
     let critic = (ids.len() - 1) / 2..ids.len() - 1;
     let groups: Vec<usize> = (0..ids.len()).map(|i| usize::from(config.clip_per_network && critic.contains(&i))).collect();
     for _ in 0..config.n_epochs {
         indices.shuffle(rng);
-        for chunk in indices.chunks(minibatch) {
-            let rows = |data: &[f32], width: usize| -> Vec<f32> {
-                chunk.iter().flat_map(|&i| data[i * width..(i + 1) * width].iter().copied()).collect()
-            };
-            let b = chunk.len();
-            let mut advantages = rows(&batch.advantages, 1);
-            normalize_advantages(&mut advantages);
-            let obs = Tensor::<2>::from_data(TensorData::new(rows(&batch.observations, obs_dim), [b, obs_dim]), device);
-            let actions = Tensor::<2>::from_data(TensorData::new(rows(&batch.actions, act_dim), [b, act_dim]), device);
-            let old_log_probs = Tensor::<1>::from_data(TensorData::new(rows(&batch.old_log_probs, 1), [b]), device);
-            let advantages = Tensor::<1>::from_data(TensorData::new(advantages, [b]), device);
-            let returns = Tensor::<1>::from_data(TensorData::new(rows(&batch.returns, 1), [b]), device);
-
-            let (mean, values) = model.forward(obs);
-            let new_log_probs = log_prob(actions, mean, model.log_std.val());
-            let log_ratio = new_log_probs - old_log_probs;
-            let ratio = log_ratio.clone().exp();
-            let policy_loss = clipped_surrogate(ratio.clone(), advantages, config.clip_range);
-            let value_loss = value_loss(values, returns);
-            // The entropy of a state-independent Gaussian does not depend on the data; with
-            // SPEC's ent_coef = 0 it contributes nothing and is left out of the graph.
-            let loss = policy_loss.clone() + value_loss.clone().mul_scalar(config.vf_coef);
-
+        for rows in indices.chunks(config.batch_size.min(batch.len())) {
+            let (loss, parts) = minibatch_loss(&model, batch.minibatch(rows, device), config);
             let mut grads = GradientsParams::from_grads(loss.backward(), &model);
             let squares = clip_grad_norm(&mut grads, &ids, &groups, config.max_grad_norm);
             model = optimizer.step(learning_rate, model, grads);
-
-            let ratios = ratio.into_data().try_into_vec::<f32>().expect("float ratios");
-            let log_ratios = log_ratio.into_data().try_into_vec::<f32>().expect("float log ratios");
-            stats.approx_kl += ratios.iter().zip(&log_ratios).map(|(r, l)| f64::from((r - 1.0) - l)).sum::<f64>() / b as f64;
-            stats.clip_fraction += ratios.iter().filter(|r| (f64::from(**r) - 1.0).abs() > config.clip_range).count() as f64 / b as f64;
-            stats.policy_loss += f64::from(scalar(policy_loss));
-            stats.value_loss += f64::from(scalar(value_loss));
-            let critic_square: f64 = squares[critic.clone()].iter().sum();
-            let total_square: f64 = squares.iter().sum();
-            stats.grad_norm += total_square.sqrt();
-            stats.critic_grad_norm += critic_square.sqrt();
-            stats.actor_grad_norm += (total_square - critic_square).max(0.0).sqrt();
-            stats.gradient_steps += 1;
+            stats.add_step(parts, &squares, critic.clone(), config.clip_range);
         }
     }
-    let steps = stats.gradient_steps.max(1) as f64;
-    for x in [
-        &mut stats.policy_loss,
-        &mut stats.value_loss,
-        &mut stats.approx_kl,
-        &mut stats.clip_fraction,
-        &mut stats.grad_norm,
-        &mut stats.actor_grad_norm,
-        &mut stats.critic_grad_norm,
-    ] {
-        *x /= steps;
-    }
+    stats.average();
     stats.explained_variance = explained_variance(&batch.old_values, &batch.returns);
     stats.log_std = f64::from(scalar(model.log_std.val().mean()));
     (model, stats)
