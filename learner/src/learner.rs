@@ -15,14 +15,6 @@ use crate::ppo::{GaeInput, TrainingBatch, UpdateStats, gae, update};
 /// A batch of chunks the learner refuses.
 #[derive(Debug, thiserror::Error)]
 pub enum LearnerError {
-    /// A chunk was produced by another policy version than the one being trained.
-    #[error("rollout chunk of policy version {got} while training version {expected}")]
-    WrongVersion {
-        /// Version in the chunk.
-        got: u64,
-        /// Current version.
-        expected: u64,
-    },
     /// A chunk's arrays do not have the lengths its header promises.
     #[error("malformed rollout chunk: {0}")]
     Malformed(String),
@@ -121,15 +113,11 @@ impl Learner {
         WeightsBlob::from_model(c.version, &c.profile.architecture, &c.normalizer, self.model())
     }
 
-    /// One PPO iteration on chunks produced by the current version.
-    pub fn train(&mut self, chunks: &[RolloutChunk]) -> Result<IterationReport, LearnerError> {
-        self.train_with_lag(chunks, 0)
-    }
-
-    /// One PPO iteration on chunks produced at most `max_policy_lag` versions ago (asynchronous
-    /// running; the stored log-probabilities make the importance ratios right for older data).
+    /// One PPO iteration on admitted chunks (their versions were checked where they arrived,
+    /// at the link; older versions are fine: the stored log-probabilities make the importance
+    /// ratios right). Array lengths are checked here, since the batch is indexed by them.
     #[allow(clippy::expect_used, reason = "the model is present between calls")]
-    pub fn train_with_lag(&mut self, chunks: &[RolloutChunk], max_policy_lag: u64) -> Result<IterationReport, LearnerError> {
+    pub fn train(&mut self, chunks: &[RolloutChunk]) -> Result<IterationReport, LearnerError> {
         if chunks.is_empty() {
             return Err(LearnerError::Empty);
         }
@@ -137,9 +125,6 @@ impl Learner {
         let mut batch = TrainingBatch::default();
         let mut transitions = 0;
         for chunk in chunks {
-            if chunk.policy_version > self.counters.version || self.counters.version - chunk.policy_version > max_policy_lag {
-                return Err(LearnerError::WrongVersion { got: chunk.policy_version, expected: self.counters.version });
-            }
             self.check(chunk)?;
             let advantages = gae(
                 &GaeInput {

@@ -15,7 +15,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use proto::grpc_link::LearnerShared;
-use proto::{Admission, Delivery, LearnerLink, LearnerStatus, WeightsUpdate};
+use proto::{Admission, Delivery, LearnerLink, LearnerStatus, Received, WeightsUpdate};
 use serde::{Deserialize, Serialize};
 use taskctl::TaskService;
 
@@ -135,7 +135,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
             max_policy_lag: self.settings.max_policy_lag,
             blob: self.learner.weights().to_bytes(),
         };
-        self.shared.set_admission(self.admission());
+        self.link.admit(self.admission());
         self.link.publish(&update)?;
         Ok(())
     }
@@ -155,21 +155,21 @@ impl<L: LearnerLink> LearnerProcess<L> {
         self.learner.env_steps() >= self.run.config().total_env_steps
     }
 
-    /// Takes one delivery into `batch` when it is admitted. A refused rollout that was merely
-    /// too old still shows its actor is alive: the actor is a member again, so the next
-    /// iteration waits for it (a dropped actor slower than the others would otherwise never
-    /// get back in).
-    fn take(&mut self, d: Delivery, admission: &Admission, batch: &mut Vec<Delivery>) {
-        match admission.check(&d.actor, d.learner_epoch, &d.chunk) {
-            Ok(()) => {
+    /// Takes what the link handed over: an admitted rollout into `batch`; a refusal is counted,
+    /// and one that was merely too old still shows its actor is alive: the actor is a member
+    /// again, so the next iteration waits for it (a dropped actor slower than the others would
+    /// otherwise never get back in).
+    fn take(&mut self, received: Received, batch: &mut Vec<Delivery>) {
+        match received {
+            Received::Rollout(d) => {
                 self.members.insert(d.actor.clone());
                 batch.push(d);
             }
-            Err(refusal) => {
+            Received::Refused { actor, refusal } => {
                 self.shared.count_refused();
-                tracing::info!(actor = %d.actor, reason = refusal.kind(), "rollout not used: {refusal}");
-                if refusal.kind() == "too_old" && self.members.insert(d.actor.clone()) {
-                    tracing::info!("actor {} rejoins", d.actor);
+                tracing::info!(%actor, reason = refusal.kind(), "rollout not used: {refusal}");
+                if refusal.kind() == "too_old" && self.members.insert(actor.clone()) {
+                    tracing::info!("actor {actor} rejoins");
                 }
             }
         }
@@ -179,7 +179,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
     /// when `stop` was raised while waiting.
     fn gather(&mut self, stop: &AtomicBool) -> Result<Option<Vec<Delivery>>, TrainError> {
         let timeout = Duration::from_secs_f64(self.settings.actor_timeout_seconds.max(0.1));
-        let admission = self.admission();
+        let version = self.learner.version();
         let mut batch: Vec<Delivery> = Vec::new();
         let mut first_arrival: Option<Instant> = None;
         let mut waiting_logged = Instant::now();
@@ -187,8 +187,8 @@ impl<L: LearnerLink> LearnerProcess<L> {
             if stop.load(Ordering::SeqCst) {
                 return Ok(None);
             }
-            if let Some(d) = self.link.receive(Duration::from_millis(50))? {
-                self.take(d, &admission, &mut batch);
+            if let Some(received) = self.link.receive(Duration::from_millis(50))? {
+                self.take(received, &mut batch);
                 if !batch.is_empty() {
                     first_arrival.get_or_insert_with(Instant::now);
                 }
@@ -199,20 +199,20 @@ impl<L: LearnerLink> LearnerProcess<L> {
             if !batch.is_empty() && missing.is_empty() && enough {
                 // Rollouts already waiting (e.g. from a dropped actor coming back) join this
                 // update rather than arriving one version too old at the next.
-                while let Some(d) = self.link.receive(Duration::ZERO)? {
-                    self.take(d, &admission, &mut batch);
+                while let Some(received) = self.link.receive(Duration::ZERO)? {
+                    self.take(received, &mut batch);
                 }
                 return Ok(Some(batch));
             }
             if first_arrival.is_some_and(|t| t.elapsed() >= timeout) {
                 for actor in &missing {
-                    tracing::warn!("dropping actor {actor}: no rollout of version {} within {timeout:?}", admission.version);
+                    tracing::warn!("dropping actor {actor}: no rollout of version {version} within {timeout:?}");
                     self.members.remove(actor);
                 }
                 return Ok(Some(batch));
             }
             if batch.is_empty() && waiting_logged.elapsed() > Duration::from_secs(30) {
-                tracing::info!("waiting for rollouts of version {}", admission.version);
+                tracing::info!("waiting for rollouts of version {version}");
                 waiting_logged = Instant::now();
             }
         }
@@ -231,7 +231,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
         let version_lag = batch.iter().map(|d| version - d.chunk.policy_version).max().unwrap_or(0);
         let chunks: Vec<policy::RolloutChunk> = batch.into_iter().map(|d| d.chunk).collect();
         let updating = Instant::now();
-        let report = self.learner.train_with_lag(&chunks, u64::from(self.settings.max_policy_lag))?;
+        let report = self.learner.train(&chunks)?;
         let update_seconds = updating.elapsed().as_secs_f64();
         self.publish()?;
         let seconds = std::mem::replace(&mut self.previous_publish, Instant::now()).elapsed().as_secs_f64();

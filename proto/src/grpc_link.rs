@@ -22,7 +22,7 @@ use tonic::{Request, Response, Status, Streaming};
 
 use crate::chunking::{Reassembler, split};
 use crate::security::{AddToken, MAX_MESSAGE_BYTES, Security, SecurityError};
-use crate::transport::{ActorLink, Admission, Delivery, LearnerLink, LearnerStatus, LinkError, Refusal, WeightsUpdate};
+use crate::transport::{ActorLink, Admission, Delivery, LearnerLink, LearnerStatus, LinkError, Received, Refusal, WeightsUpdate};
 use crate::v1;
 use crate::v1::learner_client::LearnerClient;
 use crate::v1::learner_server::{Learner, LearnerServer};
@@ -219,9 +219,15 @@ impl GrpcLearnerLink {
 }
 
 impl LearnerLink for GrpcLearnerLink {
-    fn receive(&mut self, timeout: Duration) -> Result<Option<Delivery>, LinkError> {
+    fn admit(&mut self, admission: Admission) {
+        self.shared.set_admission(admission);
+    }
+
+    fn receive(&mut self, timeout: Duration) -> Result<Option<Received>, LinkError> {
         match self.deliveries.recv_timeout(timeout) {
-            Ok(d) => Ok(Some(d)),
+            // The service refused what was wrong on arrival, answering the actor at once; the
+            // version may have moved on while the rollout was queued, so it is checked again.
+            Ok(d) => Ok(Some(Admission::receive(self.shared.admission.lock().as_ref(), d))),
             Err(RecvTimeoutError::Timeout) => Ok(None),
             Err(RecvTimeoutError::Disconnected) => Err(LinkError("the gRPC server stopped".into())),
         }

@@ -20,7 +20,7 @@ pub mod v1 {
 pub const FILE_DESCRIPTOR_SET: &[u8] = tonic::include_file_descriptor_set!("dronerace_descriptor");
 
 pub use security::{NetworkConfig, Security, SecurityError};
-pub use transport::{ActorLink, Admission, Delivery, LearnerLink, LearnerStatus, LinkError, Refusal, WeightsUpdate};
+pub use transport::{ActorLink, Admission, Delivery, LearnerLink, LearnerStatus, LinkError, Received, Refusal, WeightsUpdate};
 
 /// gRPC health and reflection services for a server whose own services are `serving`.
 #[allow(clippy::expect_used, reason = "the compiled-in descriptor set is valid")]

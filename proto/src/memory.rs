@@ -9,7 +9,7 @@ use std::time::Duration;
 use parking_lot::{Condvar, Mutex};
 use policy::RolloutChunk;
 
-use crate::transport::{ActorLink, Delivery, LearnerLink, LinkError, WeightsUpdate};
+use crate::transport::{ActorLink, Admission, Delivery, LearnerLink, LinkError, Received, WeightsUpdate};
 
 #[derive(Default)]
 struct Channel {
@@ -29,12 +29,13 @@ pub struct MemoryActorLink {
 /// The learner's end of an in-memory link.
 pub struct MemoryLearnerLink {
     channel: Arc<Channel>,
+    admission: Option<Admission>,
 }
 
 /// A connected pair: rollouts sent on the first arrive on the second, weights the other way.
 pub fn memory_link() -> (MemoryActorLink, MemoryLearnerLink) {
     let channel = Arc::new(Channel::default());
-    (MemoryActorLink { channel: channel.clone(), seen: 0 }, MemoryLearnerLink { channel })
+    (MemoryActorLink { channel: channel.clone(), seen: 0 }, MemoryLearnerLink { channel, admission: None })
 }
 
 impl ActorLink for MemoryActorLink {
@@ -56,12 +57,16 @@ impl ActorLink for MemoryActorLink {
 }
 
 impl LearnerLink for MemoryLearnerLink {
-    fn receive(&mut self, timeout: Duration) -> Result<Option<Delivery>, LinkError> {
+    fn admit(&mut self, admission: Admission) {
+        self.admission = Some(admission);
+    }
+
+    fn receive(&mut self, timeout: Duration) -> Result<Option<Received>, LinkError> {
         let mut rollouts = self.channel.rollouts.lock();
         if rollouts.is_empty() {
             self.channel.arrived.wait_for(&mut rollouts, timeout);
         }
-        Ok(rollouts.pop_front())
+        Ok(rollouts.pop_front().map(|d| Admission::receive(self.admission.as_ref(), d)))
     }
 
     fn publish(&mut self, weights: &WeightsUpdate) -> Result<(), LinkError> {
@@ -76,7 +81,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn rollouts_arrive_in_order_and_only_the_newest_weights_are_picked_up_once() {
+    fn rollouts_arrive_in_order_admitted_and_only_the_newest_weights_are_picked_up_once() {
         let (mut actor, mut learner) = memory_link();
         assert_eq!(actor.newest_weights().unwrap(), None);
         for version in [1, 2] {
@@ -84,11 +89,19 @@ mod tests {
         }
         assert_eq!(actor.newest_weights().unwrap().map(|w| w.version), Some(2));
         assert_eq!(actor.newest_weights().unwrap(), None, "picked up once");
-        for first_env in [0, 2] {
-            actor.send_rollout("a", 7, &RolloutChunk::zeroed(2, first_env, 2, 1, 3, 4)).unwrap();
+        learner.admit(Admission { learner_epoch: 7, version: 2, max_policy_lag: 0, observation_dim: 3, action_dim: 4, total_envs: 4 });
+        for (version, first_env) in [(2, 0), (2, 2), (1, 0)] {
+            actor.send_rollout("a", 7, &RolloutChunk::zeroed(version, first_env, 2, 1, 3, 4)).unwrap();
         }
-        let order: Vec<usize> = (0..2).map(|_| learner.receive(Duration::ZERO).unwrap().unwrap().chunk.first_env).collect();
+        let mut next = || learner.receive(Duration::ZERO).unwrap().unwrap();
+        let order: Vec<usize> = (0..2)
+            .map(|_| match next() {
+                Received::Rollout(d) => d.chunk.first_env,
+                other => panic!("{other:?}"),
+            })
+            .collect();
         assert_eq!(order, [0, 2]);
+        assert!(matches!(next(), Received::Refused { refusal, .. } if refusal.kind() == "too_old"), "admitted at the link");
         assert_eq!(learner.receive(Duration::from_millis(10)).unwrap(), None);
     }
 }

@@ -15,7 +15,7 @@ use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 use policy::RolloutChunk;
 
-use crate::transport::{ActorLink, Delivery, LearnerLink, LinkError, WeightsUpdate};
+use crate::transport::{ActorLink, Admission, Delivery, LearnerLink, LinkError, Received, Refusal, WeightsUpdate};
 
 /// Longest actor name a rollout header carries.
 const NAME_BYTES: usize = 64;
@@ -166,7 +166,7 @@ impl ActorLink for ShmActorLink {
 pub struct ShmLearnerLink {
     rollouts: Subscriber<ipc::Service, [u8], RolloutHeader>,
     weights: Publisher<ipc::Service, [u8], WeightsHeader>,
-    refused: u64,
+    admission: Option<Admission>,
     _node: Node<ipc::Service>,
 }
 
@@ -183,31 +183,26 @@ impl ShmLearnerLink {
             .max_loaned_samples(1)
             .create()
             .map_err(|e| LinkError::new("weights publisher", e))?;
-        Ok(Self { rollouts, weights, refused: 0, _node: node })
-    }
-
-    /// Samples that could not be decoded so far.
-    pub fn undecodable(&self) -> u64 {
-        self.refused
+        Ok(Self { rollouts, weights, admission: None, _node: node })
     }
 }
 
 impl LearnerLink for ShmLearnerLink {
-    fn receive(&mut self, timeout: Duration) -> Result<Option<Delivery>, LinkError> {
+    fn admit(&mut self, admission: Admission) {
+        self.admission = Some(admission);
+    }
+
+    fn receive(&mut self, timeout: Duration) -> Result<Option<Received>, LinkError> {
         let deadline = Instant::now() + timeout;
         loop {
             if let Some(sample) = self.rollouts.receive().map_err(|e| LinkError::new("rollout receive", e))? {
                 let h = sample.user_header();
                 let name = &h.name[..(h.name_len as usize).min(NAME_BYTES)];
                 let actor = String::from_utf8_lossy(name).into_owned();
-                match RolloutChunk::from_bytes(sample.payload()) {
-                    Ok(chunk) => return Ok(Some(Delivery { actor, learner_epoch: h.learner_epoch, chunk })),
-                    Err(e) => {
-                        self.refused += 1;
-                        tracing::warn!(%actor, "refusing an undecodable rollout: {e}");
-                        continue;
-                    }
-                }
+                return Ok(Some(match RolloutChunk::from_bytes(sample.payload()) {
+                    Ok(chunk) => Admission::receive(self.admission.as_ref(), Delivery { actor, learner_epoch: h.learner_epoch, chunk }),
+                    Err(e) => Received::Refused { actor, refusal: Refusal::Malformed(e.to_string()) },
+                }));
             }
             // A subscriber gets the weights history only when the publisher updates its
             // connections: do it while waiting, so actors that start late get the newest weights.

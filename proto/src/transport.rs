@@ -68,10 +68,30 @@ pub trait ActorLink {
     fn newest_weights(&mut self) -> Result<Option<WeightsUpdate>, LinkError>;
 }
 
-/// The learner's end: take rollouts, publish weights.
+/// What the learner's end of a link hands over: a rollout it admitted, or word of one it refused
+/// (a refusal still shows which actors are alive).
+#[derive(Clone, Debug, PartialEq)]
+#[allow(clippy::large_enum_variant, reason = "one per rollout; the chunk's arrays are on the heap either way")]
+pub enum Received {
+    /// Admitted under the current [`Admission`]: the learner trains on it as it is.
+    Rollout(Delivery),
+    /// Refused, with the reason.
+    Refused {
+        /// Sending actor's name (as claimed).
+        actor: String,
+        /// Why.
+        refusal: Refusal,
+    },
+}
+
+/// The learner's end: take rollouts, publish weights. The link is where rollouts are admitted
+/// (the one place [`Admission::check`] is applied to what the learner trains on).
 pub trait LearnerLink {
-    /// The next rollout, waiting at most `timeout`.
-    fn receive(&mut self, timeout: Duration) -> Result<Option<Delivery>, LinkError>;
+    /// Rollouts handed over from now on must pass `admission` (the learner calls this whenever
+    /// its version changes, before publishing the weights).
+    fn admit(&mut self, admission: Admission);
+    /// The next rollout or refusal, waiting at most `timeout`.
+    fn receive(&mut self, timeout: Duration) -> Result<Option<Received>, LinkError>;
     /// Makes `weights` the newest for every actor, including those that connect later.
     fn publish(&mut self, weights: &WeightsUpdate) -> Result<(), LinkError>;
 }
@@ -132,6 +152,25 @@ impl Refusal {
 }
 
 impl Admission {
+    /// What the link hands over for `delivery` (no admission yet: refused as from another
+    /// learner lifetime).
+    pub fn receive(admission: Option<&Admission>, delivery: Delivery) -> Received {
+        let checked = match admission {
+            Some(a) => a.check(&delivery.actor, delivery.learner_epoch, &delivery.chunk),
+            None => Err(Refusal::WrongVersion {
+                version: delivery.chunk.policy_version,
+                epoch: delivery.learner_epoch,
+                current: 0,
+                current_epoch: 0,
+                lag: 0,
+            }),
+        };
+        match checked {
+            Ok(()) => Received::Rollout(delivery),
+            Err(refusal) => Received::Refused { actor: delivery.actor, refusal },
+        }
+    }
+
     /// Accepts a rollout the learner can train on now, or says why not.
     pub fn check(&self, actor: &str, learner_epoch: u64, chunk: &RolloutChunk) -> Result<(), Refusal> {
         check_actor_name(actor).map_err(Refusal::Malformed)?;

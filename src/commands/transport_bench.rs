@@ -10,7 +10,7 @@ use anyhow::Context;
 use clap::Args;
 use proto::grpc_link::{GrpcActorLink, LearnerService};
 use proto::shm::{ShmActorLink, ShmConfig, ShmLearnerLink};
-use proto::{ActorLink, LearnerLink, Security, WeightsUpdate};
+use proto::{ActorLink, Admission, LearnerLink, Received, Security, WeightsUpdate};
 
 use super::services::Transport;
 
@@ -93,10 +93,15 @@ fn measure<L: LearnerLink>(
     }
     let mut received = 0;
     let mut started = None;
+    let (observation_dim, action_dim) = (sim::STATE_OBS_DIM, sim::ACTION_DIM);
+    learner.admit(Admission { learner_epoch: 0, version: 0, max_policy_lag: 0, observation_dim, action_dim, total_envs: args.envs });
     while received < chunks {
-        let d = learner.receive(Duration::from_secs(20))?.context("a rollout chunk never arrived")?;
+        let received_now = learner.receive(Duration::from_secs(20))?.context("a rollout chunk never arrived")?;
         started.get_or_insert_with(Instant::now);
-        received += usize::from(d.chunk.transitions() == args.envs * args.steps);
+        match received_now {
+            Received::Rollout(d) => received += usize::from(d.chunk.transitions() == args.envs * args.steps),
+            Received::Refused { refusal, .. } => anyhow::bail!("the learner's end refused a benchmark chunk: {refusal}"),
+        }
     }
     // The first arrival starts the clock, so `chunks - 1` transfers are timed.
     let seconds = started.map_or(f64::NAN, |s| s.elapsed().as_secs_f64());
