@@ -5,171 +5,89 @@ use std::fs::{File, OpenOptions};
 use std::io::Write;
 use std::path::Path;
 
-/// One iteration's metrics: a field per `metrics.csv` column and TensorBoard tag (NaN where
-/// not measured, e.g. the `eval_*` fields of iterations without an evaluation).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct MetricsRow {
-    /// `charts/episodic_return`: Mean return of the episodes that ended.
-    pub episodic_return: f64,
-    /// `charts/episodic_length`: Their mean length (steps).
-    pub episodic_length: f64,
-    /// `charts/laps_per_episode`: Their mean completed laps.
-    pub laps_per_episode: f64,
-    /// `charts/crash_rate`: Fraction of them that ended in a crash.
-    pub crash_rate: f64,
-    /// `charts/fastest_lap`: Fastest lap among them (s).
-    pub fastest_lap: f64,
-    /// `charts/SPS`: Training env-steps per second of the iteration.
-    pub sps: f64,
-    /// `charts/learning_rate`: Learning rate used.
-    pub learning_rate: f64,
-    /// `losses/policy_loss`: Clipped-surrogate loss, averaged over gradient steps.
-    pub policy_loss: f64,
-    /// `losses/value_loss`: Value loss, averaged.
-    pub value_loss: f64,
-    /// `losses/approx_kl`: Approximate KL (mean of (r − 1) − ln r).
-    pub approx_kl: f64,
-    /// `losses/clipfrac`: Fraction of samples whose ratio was clipped.
-    pub clip_fraction: f64,
-    /// `losses/explained_variance`: Explained variance of the old values.
-    pub explained_variance: f64,
-    /// `losses/grad_norm`: Global gradient norm before clipping.
-    pub grad_norm: f64,
-    /// `losses/actor_grad_norm`: The policy's part of it.
-    pub actor_grad_norm: f64,
-    /// `losses/critic_grad_norm`: The value function's part of it.
-    pub critic_grad_norm: f64,
-    /// `policy/log_std`: Mean log standard deviation after the update.
-    pub log_std: f64,
-    /// `policy/version_lag`: Largest policy-version lag among the rollouts used.
-    pub version_lag: f64,
-    /// `tasks/switches`: Task switches so far.
-    pub switches: f64,
-    /// `tasks/mean_q`: Mean flatness score q.
-    pub mean_q: f64,
-    /// `eval/S_pw`: Validation S_pw (this iteration's evaluation).
-    pub eval_s_pw: f64,
-    /// `eval/success`: Validation success rate.
-    pub eval_success: f64,
-    /// `eval/mean_lap`: Validation mean lap time (s).
-    pub eval_mean_lap: f64,
-    /// `eval/crash_ground`: Fraction of validation deployments ending on the ground.
-    pub eval_crash_ground: f64,
-    /// `eval/crash_ceiling`: … on the ceiling.
-    pub eval_crash_ceiling: f64,
-    /// `eval/crash_wall`: … on an arena wall.
-    pub eval_crash_wall: f64,
-    /// `eval/crash_gate`: … on a gate frame.
-    pub eval_crash_gate: f64,
-    /// `eval/no_lap`: … without crashing and without a lap.
-    pub eval_no_lap: f64,
-    /// `eval/seconds`: Wall seconds of the evaluation.
-    pub eval_seconds: f64,
-}
-
-impl Default for MetricsRow {
-    fn default() -> Self {
-        Self::from_columns([f64::NAN; COLUMNS])
-    }
-}
-
-impl MetricsRow {
-    /// `(column name, value)` in CSV order: the one place names and fields meet.
-    pub fn columns(&self) -> [(&'static str, f64); COLUMNS] {
-        [
-            ("charts/episodic_return", self.episodic_return),
-            ("charts/episodic_length", self.episodic_length),
-            ("charts/laps_per_episode", self.laps_per_episode),
-            ("charts/crash_rate", self.crash_rate),
-            ("charts/fastest_lap", self.fastest_lap),
-            ("charts/SPS", self.sps),
-            ("charts/learning_rate", self.learning_rate),
-            ("losses/policy_loss", self.policy_loss),
-            ("losses/value_loss", self.value_loss),
-            ("losses/approx_kl", self.approx_kl),
-            ("losses/clipfrac", self.clip_fraction),
-            ("losses/explained_variance", self.explained_variance),
-            ("losses/grad_norm", self.grad_norm),
-            ("losses/actor_grad_norm", self.actor_grad_norm),
-            ("losses/critic_grad_norm", self.critic_grad_norm),
-            ("policy/log_std", self.log_std),
-            ("policy/version_lag", self.version_lag),
-            ("tasks/switches", self.switches),
-            ("tasks/mean_q", self.mean_q),
-            ("eval/S_pw", self.eval_s_pw),
-            ("eval/success", self.eval_success),
-            ("eval/mean_lap", self.eval_mean_lap),
-            ("eval/crash_ground", self.eval_crash_ground),
-            ("eval/crash_ceiling", self.eval_crash_ceiling),
-            ("eval/crash_wall", self.eval_crash_wall),
-            ("eval/crash_gate", self.eval_crash_gate),
-            ("eval/no_lap", self.eval_no_lap),
-            ("eval/seconds", self.eval_seconds),
-        ]
-    }
-
-    fn from_columns(v: [f64; COLUMNS]) -> Self {
-        let [
-            episodic_return,
-            episodic_length,
-            laps_per_episode,
-            crash_rate,
-            fastest_lap,
-            sps,
-            learning_rate,
-            policy_loss,
-            value_loss,
-            approx_kl,
-            clip_fraction,
-            explained_variance,
-            grad_norm,
-            actor_grad_norm,
-            critic_grad_norm,
-            log_std,
-            version_lag,
-            switches,
-            mean_q,
-            eval_s_pw,
-            eval_success,
-            eval_mean_lap,
-            eval_crash_ground,
-            eval_crash_ceiling,
-            eval_crash_wall,
-            eval_crash_gate,
-            eval_no_lap,
-            eval_seconds,
-        ] = v;
-        Self {
-            episodic_return,
-            episodic_length,
-            laps_per_episode,
-            crash_rate,
-            fastest_lap,
-            sps,
-            learning_rate,
-            policy_loss,
-            value_loss,
-            approx_kl,
-            clip_fraction,
-            explained_variance,
-            grad_norm,
-            actor_grad_norm,
-            critic_grad_norm,
-            log_std,
-            version_lag,
-            switches,
-            mean_q,
-            eval_s_pw,
-            eval_success,
-            eval_mean_lap,
-            eval_crash_ground,
-            eval_crash_ceiling,
-            eval_crash_wall,
-            eval_crash_gate,
-            eval_no_lap,
-            eval_seconds,
+/// Declares [`MetricsRow`] from one list of `field => "column name"` pairs, so a field and its
+/// column cannot drift apart.
+macro_rules! metrics_row {
+    ($($(#[doc = $doc:expr])* $field:ident => $name:literal,)*) => {
+        /// One iteration's metrics: a field per `metrics.csv` column and TensorBoard tag (NaN
+        /// where not measured, e.g. the `eval_*` fields of iterations without an evaluation).
+        #[derive(Clone, Copy, Debug, PartialEq)]
+        pub struct MetricsRow {
+            $($(#[doc = $doc])* pub $field: f64,)*
         }
-    }
+
+        impl Default for MetricsRow {
+            fn default() -> Self {
+                Self { $($field: f64::NAN,)* }
+            }
+        }
+
+        impl MetricsRow {
+            /// `(column name, value)` in CSV order.
+            pub fn columns(&self) -> [(&'static str, f64); COLUMNS] {
+                [$(($name, self.$field),)*]
+            }
+        }
+    };
+}
+
+metrics_row! {
+    /// Mean return of the episodes that ended.
+    episodic_return => "charts/episodic_return",
+    /// Their mean length (steps).
+    episodic_length => "charts/episodic_length",
+    /// Their mean completed laps.
+    laps_per_episode => "charts/laps_per_episode",
+    /// Fraction of them that ended in a crash.
+    crash_rate => "charts/crash_rate",
+    /// Fastest lap among them (s).
+    fastest_lap => "charts/fastest_lap",
+    /// Training env-steps per second of the iteration.
+    sps => "charts/SPS",
+    /// Learning rate used.
+    learning_rate => "charts/learning_rate",
+    /// Clipped-surrogate loss, averaged over gradient steps.
+    policy_loss => "losses/policy_loss",
+    /// Value loss, averaged.
+    value_loss => "losses/value_loss",
+    /// Approximate KL (mean of (r − 1) − ln r).
+    approx_kl => "losses/approx_kl",
+    /// Fraction of samples whose ratio was clipped.
+    clip_fraction => "losses/clipfrac",
+    /// Explained variance of the old values.
+    explained_variance => "losses/explained_variance",
+    /// Global gradient norm before clipping.
+    grad_norm => "losses/grad_norm",
+    /// The policy's part of it.
+    actor_grad_norm => "losses/actor_grad_norm",
+    /// The value function's part of it.
+    critic_grad_norm => "losses/critic_grad_norm",
+    /// Mean log standard deviation after the update.
+    log_std => "policy/log_std",
+    /// Largest policy-version lag among the rollouts used.
+    version_lag => "policy/version_lag",
+    /// Task switches so far.
+    switches => "tasks/switches",
+    /// Mean flatness score q.
+    mean_q => "tasks/mean_q",
+    /// Validation S_pw (this iteration's evaluation).
+    eval_s_pw => "eval/S_pw",
+    /// Validation success rate.
+    eval_success => "eval/success",
+    /// Validation mean lap time (s).
+    eval_mean_lap => "eval/mean_lap",
+    /// Fraction of validation deployments ending on the ground.
+    eval_crash_ground => "eval/crash_ground",
+    /// … on the ceiling.
+    eval_crash_ceiling => "eval/crash_ceiling",
+    /// … on an arena wall.
+    eval_crash_wall => "eval/crash_wall",
+    /// … on a gate frame.
+    eval_crash_gate => "eval/crash_gate",
+    /// … without crashing and without a lap.
+    eval_no_lap => "eval/no_lap",
+    /// Wall seconds of the evaluation.
+    eval_seconds => "eval/seconds",
 }
 
 /// Number of metric columns.
