@@ -8,7 +8,7 @@ use actor::process::{ActorLoop, ActorSettings, Pass};
 use learner::process::{LearnerProcess, LearnerSettings, learner_only};
 use learner::{PpoConfig, Run, TrainConfig};
 use proto::ActorLink;
-use proto::grpc_link::LearnerService;
+use proto::board::LearnerBoard;
 use proto::memory::memory_link;
 use taskctl::LocalTasks;
 
@@ -36,7 +36,7 @@ fn an_actor_that_misses_an_iteration_is_dropped_and_rejoins_with_its_next_rollou
     let mut link1 = link0.clone();
     let mut a0 = ActorLoop::register(&settings("a0"), &tasks, &stop).unwrap().unwrap();
     let mut a1 = ActorLoop::register(&settings("a1"), &tasks, &stop).unwrap().unwrap();
-    let (_, status) = LearnerService::status_only();
+    let status = std::sync::Arc::new(LearnerBoard::default());
     let learner_settings = LearnerSettings { expected_actors: 2, actor_timeout_seconds: 0.3, ..LearnerSettings::default() };
     let run = Run::create(config.clone(), dir.path()).unwrap();
     let mut learner = LearnerProcess::start(run, None, learner_end, status.clone(), learner_settings).unwrap();

@@ -14,7 +14,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use proto::grpc_link::LearnerShared;
+use proto::board::LearnerBoard;
 use proto::{Admission, Delivery, LearnerLink, LearnerStatus, Received, WeightsUpdate};
 use serde::{Deserialize, Serialize};
 use taskctl::TaskService;
@@ -56,7 +56,7 @@ pub struct LearnerProcess<L: LearnerLink> {
     run: Run,
     learner: Learner,
     link: L,
-    shared: Arc<LearnerShared>,
+    shared: Arc<LearnerBoard>,
     settings: LearnerSettings,
     epoch: u64,
     total_envs: usize,
@@ -75,7 +75,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
         run: Run,
         checkpoint: Option<&Checkpoint>,
         link: L,
-        shared: Arc<LearnerShared>,
+        shared: Arc<LearnerBoard>,
         settings: LearnerSettings,
     ) -> Result<Self, TrainError> {
         let profile = run.config().resolved_profile()?;

@@ -14,7 +14,7 @@ use std::sync::atomic::AtomicBool;
 
 use actor::ActorState;
 use actor::process::{ActorLoop, ActorSettings, Pass};
-use proto::grpc_link::LearnerService;
+use proto::board::LearnerBoard;
 use proto::memory::{MemoryActorLink, MemoryLearnerLink, memory_link};
 use taskctl::{LocalTasks, TaskController, TaskService};
 
@@ -78,8 +78,8 @@ impl Trainer {
 
     fn assemble(run: Run, checkpoint: Option<&Checkpoint>, actor: ActorLoop, tasks: LocalTasks) -> Result<Self, TrainError> {
         let (link, learner_end) = memory_link();
-        let (_, status) = LearnerService::status_only();
-        let learner = LearnerProcess::start(run, checkpoint, learner_end, status, LearnerSettings::default())?;
+        let board = std::sync::Arc::new(LearnerBoard::default());
+        let learner = LearnerProcess::start(run, checkpoint, learner_end, board, LearnerSettings::default())?;
         Ok(Self { learner, actor, link, tasks, stop: AtomicBool::new(false) })
     }
 

@@ -1,6 +1,7 @@
 //! The gRPC transport: actors stream rollouts to the learner's `PushRollouts` and watch its
-//! `WatchWeights`; the learner's service adapter checks every rollout before it reaches the
-//! training loop and answers `Status`.
+//! `WatchWeights`; the learner's service adapter refuses bad rollouts on arrival (answering the
+//! actor at once), the link admits what it hands over, and `Status` answers from the
+//! [`LearnerBoard`].
 
 use std::pin::Pin;
 use std::sync::Arc;
@@ -20,9 +21,10 @@ use tonic::codegen::InterceptedService;
 use tonic::transport::Channel;
 use tonic::{Request, Response, Status, Streaming};
 
+use crate::board::LearnerBoard;
 use crate::chunking::{Reassembler, split};
 use crate::security::{AddToken, MAX_MESSAGE_BYTES, Security, SecurityError};
-use crate::transport::{ActorLink, Admission, Delivery, LearnerLink, LearnerStatus, LinkError, Received, Refusal, WeightsUpdate};
+use crate::transport::{ActorLink, Admission, Delivery, LearnerLink, LinkError, Received, Refusal, WeightsUpdate};
 use crate::v1;
 use crate::v1::learner_client::LearnerClient;
 use crate::v1::learner_server::{Learner, LearnerServer};
@@ -128,75 +130,42 @@ impl ActorLink for GrpcActorLink {
     }
 }
 
-/// What the learner's gRPC service shares with the training loop.
-pub struct LearnerShared {
-    admission: Mutex<Option<Admission>>,
-    status: Mutex<LearnerStatus>,
-    weights: watch::Sender<Option<Arc<WeightsUpdate>>>,
-    refused: std::sync::atomic::AtomicU64,
+/// The service's rollout check at arrival: answers the actor at once; the link checks again on
+/// receipt (the version moves while rollouts queue).
+fn check_on_arrival(board: &LearnerBoard, actor: &str, epoch: u64, chunk: &RolloutChunk) -> Result<(), Status> {
+    let Some(admission) = board.admission() else { return Err(Status::unavailable("the learner is starting")) };
+    admission.check(actor, epoch, chunk).map_err(|r| {
+        board.count_refused();
+        match r {
+            Refusal::Malformed(m) => Status::invalid_argument(m),
+            wrong @ Refusal::WrongVersion { .. } => Status::failed_precondition(wrong.to_string()),
+        }
+    })
 }
 
-impl LearnerShared {
-    /// Rollouts the service lets through from now on.
-    pub fn set_admission(&self, admission: Admission) {
-        *self.admission.lock() = Some(admission);
-    }
-
-    /// Replaces the status `Status` answers with (the refused-chunk count is added on answering).
-    pub fn set_status(&self, status: LearnerStatus) {
-        *self.status.lock() = status;
-    }
-
-    /// The status as last set.
-    pub fn status(&self) -> LearnerStatus {
-        self.status.lock().clone()
-    }
-
-    /// Counts a rollout the training loop refused.
-    pub fn count_refused(&self) {
-        self.refused.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    }
-
-    fn check(&self, actor: &str, epoch: u64, chunk: &RolloutChunk) -> Result<(), Status> {
-        let admission = *self.admission.lock();
-        let Some(admission) = admission else { return Err(Status::unavailable("the learner is starting")) };
-        admission.check(actor, epoch, chunk).map_err(|r| {
-            self.count_refused();
-            match r {
-                Refusal::Malformed(m) => Status::invalid_argument(m),
-                wrong @ Refusal::WrongVersion { .. } => Status::failed_precondition(wrong.to_string()),
-            }
-        })
-    }
-}
+/// Newest weights, for `WatchWeights` streams.
+type WeightsWatch = Arc<watch::Sender<Option<Arc<WeightsUpdate>>>>;
 
 /// The `Learner` service adapter.
 pub struct LearnerService {
-    shared: Arc<LearnerShared>,
+    board: Arc<LearnerBoard>,
+    weights: WeightsWatch,
     deliveries: Option<SyncSender<Delivery>>,
 }
 
 impl LearnerService {
-    /// A service taking rollouts over gRPC, and the link the training loop reads them from.
-    pub fn with_rollouts() -> (Self, GrpcLearnerLink) {
-        let shared = Self::shared();
+    /// A service taking rollouts over gRPC, and the link the training loop reads them from;
+    /// both read and write `board`.
+    pub fn with_rollouts(board: Arc<LearnerBoard>) -> (Self, GrpcLearnerLink) {
+        let weights: WeightsWatch = Arc::new(watch::channel(None).0);
         let (tx, rx) = std::sync::mpsc::sync_channel(256);
-        (Self { shared: shared.clone(), deliveries: Some(tx) }, GrpcLearnerLink { shared, deliveries: rx })
+        let link = GrpcLearnerLink { board: board.clone(), weights: weights.clone(), deliveries: rx };
+        (Self { board, weights, deliveries: Some(tx) }, link)
     }
 
-    /// A service answering `Status` only: rollouts and weights go over iceoryx2.
-    pub fn status_only() -> (Self, Arc<LearnerShared>) {
-        let shared = Self::shared();
-        (Self { shared: shared.clone(), deliveries: None }, shared)
-    }
-
-    fn shared() -> Arc<LearnerShared> {
-        Arc::new(LearnerShared {
-            admission: Mutex::new(None),
-            status: Mutex::new(LearnerStatus::default()),
-            weights: watch::channel(None).0,
-            refused: Default::default(),
-        })
+    /// A service answering `Status` only, from `board`: rollouts and weights go over iceoryx2.
+    pub fn status_only(board: Arc<LearnerBoard>) -> Self {
+        Self { board, weights: Arc::new(watch::channel(None).0), deliveries: None }
     }
 
     /// The tonic server with message limits.
@@ -207,34 +176,28 @@ impl LearnerService {
 
 /// The learner's end over gRPC.
 pub struct GrpcLearnerLink {
-    shared: Arc<LearnerShared>,
+    board: Arc<LearnerBoard>,
+    weights: WeightsWatch,
     deliveries: Receiver<Delivery>,
-}
-
-impl GrpcLearnerLink {
-    /// State shared with the service (admission, status).
-    pub fn shared(&self) -> &Arc<LearnerShared> {
-        &self.shared
-    }
 }
 
 impl LearnerLink for GrpcLearnerLink {
     fn admit(&mut self, admission: Admission) {
-        self.shared.set_admission(admission);
+        self.board.set_admission(admission);
     }
 
     fn receive(&mut self, timeout: Duration) -> Result<Option<Received>, LinkError> {
         match self.deliveries.recv_timeout(timeout) {
             // The service refused what was wrong on arrival, answering the actor at once; the
             // version may have moved on while the rollout was queued, so it is checked again.
-            Ok(d) => Ok(Some(Admission::receive(self.shared.admission.lock().as_ref(), d))),
+            Ok(d) => Ok(Some(Admission::receive(self.board.admission().as_ref(), d))),
             Err(RecvTimeoutError::Timeout) => Ok(None),
             Err(RecvTimeoutError::Disconnected) => Err(LinkError("the gRPC server stopped".into())),
         }
     }
 
     fn publish(&mut self, weights: &WeightsUpdate) -> Result<(), LinkError> {
-        self.shared.weights.send_replace(Some(Arc::new(weights.clone())));
+        self.weights.send_replace(Some(Arc::new(weights.clone())));
         Ok(())
     }
 }
@@ -258,14 +221,14 @@ impl Learner for LearnerService {
                 continue;
             };
             let chunk = RolloutChunk::from_bytes(&bytes).map_err(|e| {
-                self.shared.count_refused();
+                self.board.count_refused();
                 Status::invalid_argument(e.to_string())
             })?;
             if chunk.policy_version != part.policy_version {
-                self.shared.count_refused();
+                self.board.count_refused();
                 return Err(Status::invalid_argument("policy_version differs from the chunk's own"));
             }
-            self.shared.check(&part.actor, part.learner_epoch, &chunk)?;
+            check_on_arrival(&self.board, &part.actor, part.learner_epoch, &chunk)?;
             let delivery = Delivery { actor: part.actor, learner_epoch: part.learner_epoch, chunk };
             match deliveries.try_send(delivery) {
                 Ok(()) => accepted += 1,
@@ -286,7 +249,7 @@ impl Learner for LearnerService {
         if self.deliveries.is_none() {
             return Err(shm_only());
         }
-        let mut updates = self.shared.weights.subscribe();
+        let mut updates = self.weights.subscribe();
         let (tx, rx) = mpsc::channel(8);
         tokio::spawn(async move {
             loop {
@@ -315,7 +278,7 @@ impl Learner for LearnerService {
     }
 
     async fn status(&self, _: Request<v1::StatusRequest>) -> Result<Response<v1::StatusResponse>, Status> {
-        let s = self.shared.status.lock().clone();
+        let s = self.board.status();
         Ok(Response::new(v1::StatusResponse {
             learner_epoch: s.learner_epoch,
             iteration: s.iteration,
@@ -323,7 +286,7 @@ impl Learner for LearnerService {
             sps: s.sps,
             connected_actors: s.connected_actors,
             policy_lag: s.policy_lag,
-            refused_chunks: self.shared.refused.load(std::sync::atomic::Ordering::Relaxed),
+            refused_chunks: self.board.refused(),
         }))
     }
 }
@@ -331,21 +294,16 @@ impl Learner for LearnerService {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::transport::LearnerStatus;
 
-    /// A thread that panics while holding the status lock must not fail later requests.
     #[test]
-    fn a_panic_while_holding_a_lock_does_not_break_later_requests() {
-        let (service, shared) = LearnerService::status_only();
-        let holder = shared.clone();
-        let crashed = std::thread::spawn(move || {
-            let _held = holder.status.lock();
-            panic!("bug while holding the lock");
-        })
-        .join();
-        assert!(crashed.is_err());
-        shared.set_status(LearnerStatus { iteration: 3, ..Default::default() });
+    fn status_answers_from_the_board() {
+        let board = Arc::new(LearnerBoard::default());
+        let service = LearnerService::status_only(board.clone());
+        board.set_status(LearnerStatus { iteration: 3, ..Default::default() });
+        board.count_refused();
         let rt = tokio::runtime::Builder::new_current_thread().build().unwrap();
         let status = rt.block_on(service.status(Request::new(v1::StatusRequest {}))).unwrap().into_inner();
-        assert_eq!(status.iteration, 3);
+        assert_eq!((status.iteration, status.refused_chunks), (3, 1));
     }
 }

@@ -2,6 +2,7 @@
 //! everything both ends of a connection must agree on: track conversion, the rollout/weights
 //! transports (iceoryx2 on one machine, gRPC across machines, memory within one process), message limits, TLS and tokens.
 
+pub mod board;
 pub mod chunking;
 pub mod convert;
 pub mod grpc_link;

@@ -12,6 +12,7 @@ use anyhow::Context;
 use clap::{Args, ValueEnum};
 use learner::process::{LearnerProcess, learner_only};
 use learner::{Run, TrainConfig};
+use proto::board::LearnerBoard;
 use proto::grpc_link::{GrpcActorLink, LearnerService};
 use proto::shm::{ShmActorLink, ShmConfig, ShmLearnerLink};
 use proto::{LearnerLink, Security};
@@ -133,8 +134,8 @@ pub fn learner(args: LearnerArgs) -> anyhow::Result<()> {
     let resumed = checkpoint.is_some();
     match args.transport {
         Transport::Grpc => {
-            let (service, link) = LearnerService::with_rollouts();
-            let shared = link.shared().clone();
+            let shared = Arc::new(LearnerBoard::default());
+            let (service, link) = LearnerService::with_rollouts(shared.clone());
             let server = serve_learner(&rt, args.listen, &security, service, stop.clone())?;
             let process = LearnerProcess::start(run, checkpoint.as_ref(), link, shared, settings)?;
             drive(process, resumed, &args, &stop, tasks.as_ref())?;
@@ -143,7 +144,8 @@ pub fn learner(args: LearnerArgs) -> anyhow::Result<()> {
         Transport::Shm => {
             let shm = ShmConfig { run: args.shm_run.clone(), max_actors: args.actors.max(1) };
             let link = ShmLearnerLink::open(&shm)?;
-            let (service, shared) = LearnerService::status_only();
+            let shared = Arc::new(LearnerBoard::default());
+            let service = LearnerService::status_only(shared.clone());
             let server = serve_learner(&rt, args.listen, &security, service, stop.clone())?;
             let process = LearnerProcess::start(run, checkpoint.as_ref(), link, shared, settings)?;
             drive(process, resumed, &args, &stop, tasks.as_ref())?;

@@ -137,9 +137,9 @@ pub fn run(args: TransportBenchArgs) -> anyhow::Result<()> {
             let listener = std::net::TcpListener::bind("127.0.0.1:0")?;
             let addr = listener.local_addr()?;
             listener.set_nonblocking(true)?;
-            let (service, link) = LearnerService::with_rollouts();
-            let shared = link.shared().clone();
-            shared.set_admission(proto::Admission {
+            let board = Arc::new(proto::board::LearnerBoard::default());
+            let (service, link) = LearnerService::with_rollouts(board.clone());
+            board.set_admission(proto::Admission {
                 learner_epoch: 0,
                 version: 0,
                 max_policy_lag: 0,
