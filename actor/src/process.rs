@@ -1,8 +1,8 @@
 //! The actor process's loop: register with the task controller → wait for weights → collect a
 //! rollout → send it to the learner → report its rewards to the task controller and apply the
 //! switches → again. [`ActorLoop::pass`] is one turn of it, so training in one process can
-//! interleave it with the learner's loop. Every peer may die and come back: the loop waits, retries and resyncs
-//! instead of failing.
+//! interleave it with the learner's loop. Every peer may die and come back: the loop waits,
+//! retries and resyncs instead of failing.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};

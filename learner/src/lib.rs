@@ -1,5 +1,6 @@
 //! The PPO learner: configuration, GAE, the clipped-surrogate update, checkpoints, metrics and
-//! the training run, the in-process training loop and the learner process.
+//! the training run, the learner process's loop, and training in one process by turns of the
+//! actor's and the learner's loops.
 
 pub mod bench;
 pub mod checkpoint;

@@ -4,9 +4,9 @@
 //! Synchronous by default: the update for version k waits for a version-k rollout from every
 //! member actor (one that delivered since it was last dropped). A member that has not delivered
 //! `actor_timeout` after the iteration's first rollout is dropped and training goes on with the
-//! others; it rejoins with its next rollout (one too old to use counts as a sign of life). Rollouts arrive whole or not at all, so a killed
-//! actor's partial rollout never reaches the update. With
-//! `max_policy_lag > 0` rollouts up to that many versions old are also used.
+//! others; it rejoins with its next rollout (one too old to use counts as a sign of life).
+//! Rollouts arrive whole or not at all, so a killed actor's partial rollout never reaches the
+//! update. With `max_policy_lag > 0` rollouts up to that many versions old are also used.
 
 use std::collections::BTreeSet;
 use std::path::PathBuf;
@@ -56,7 +56,7 @@ pub struct LearnerProcess<L: LearnerLink> {
     run: Run,
     learner: Learner,
     link: L,
-    shared: Arc<LearnerBoard>,
+    board: Arc<LearnerBoard>,
     settings: LearnerSettings,
     epoch: u64,
     total_envs: usize,
@@ -75,7 +75,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
         run: Run,
         checkpoint: Option<&Checkpoint>,
         link: L,
-        shared: Arc<LearnerBoard>,
+        board: Arc<LearnerBoard>,
         settings: LearnerSettings,
     ) -> Result<Self, TrainError> {
         let profile = run.config().resolved_profile()?;
@@ -91,7 +91,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
             run,
             learner,
             link,
-            shared,
+            board,
             settings,
             epoch,
             total_envs: profile.envs,
@@ -106,7 +106,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
     }
 
     fn set_status(&self, sps: f64, policy_lag: u64) {
-        self.shared.set_status(LearnerStatus {
+        self.board.set_status(LearnerStatus {
             learner_epoch: self.epoch,
             iteration: self.learner.version(),
             env_steps: self.learner.env_steps(),
@@ -166,7 +166,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
                 batch.push(d);
             }
             Received::Refused { actor, refusal } => {
-                self.shared.count_refused();
+                self.board.count_refused();
                 tracing::info!(%actor, reason = refusal.kind(), "rollout not used: {refusal}");
                 if refusal.kind() == "too_old" && self.members.insert(actor.clone()) {
                     tracing::info!("actor {actor} rejoins");

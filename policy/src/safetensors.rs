@@ -92,7 +92,7 @@ impl Tensor {
 /// A safetensors file in memory: metadata and tensors by name.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct TensorFile {
-    /// The `__metadata__` map (without our `crc32`, which is added on writing and checked on reading).
+    /// The `__metadata__` map (without our `crc32`: added on writing, checked on reading).
     pub metadata: BTreeMap<String, String>,
     /// Tensors by name.
     pub tensors: BTreeMap<String, Tensor>,
