@@ -79,9 +79,12 @@ impl Checkpoint {
     pub fn to_bytes(&self) -> Vec<u8> {
         // The policy's tensors and metadata become the file's own (a blob of the earlier layout
         // is converted); anything else under that name stays an opaque section.
-        let weights = self.sections.get("weights").and_then(|w| match TensorFile::sniff(w) {
-            true => TensorFile::from_bytes(w).ok(),
-            false => policy::WeightsBlob::from_bytes(w).ok().map(|b| b.to_tensor_file()),
+        let weights = self.sections.get("weights").and_then(|w| {
+            if TensorFile::sniff(w) {
+                TensorFile::from_bytes(w).ok()
+            } else {
+                policy::WeightsBlob::from_bytes(w).ok().map(|b| b.to_tensor_file())
+            }
         });
         let mut file = weights.clone().unwrap_or_default();
         for (name, data) in &self.sections {

@@ -261,11 +261,6 @@ impl<L: LearnerLink> LearnerProcess<L> {
         self.run.save(checkpoint)
     }
 
-    /// Iterations done in the run (over every sitting).
-    pub fn iteration(&self) -> u64 {
-        self.run.iteration()
-    }
-
     /// Estimated seconds to the end of the run at the given rate.
     pub fn eta_seconds(&self, sps: f64) -> f64 {
         self.run.eta_seconds(self.learner.env_steps(), sps)

@@ -95,7 +95,7 @@ impl Trainer {
 
     /// Iterations done.
     pub fn iteration(&self) -> u64 {
-        self.learner.iteration()
+        self.learner.run().iteration()
     }
 
     /// Wall seconds of training so far, over every sitting.

@@ -48,6 +48,14 @@ impl TensorData {
         }
     }
 
+    fn byte_len(&self) -> usize {
+        match self {
+            Self::F32(v) => 4 * v.len(),
+            Self::F64(v) => 8 * v.len(),
+            Self::U8(v) => v.len(),
+        }
+    }
+
     fn write(&self, out: &mut Vec<u8>) {
         match self {
             Self::F32(v) => v.iter().for_each(|x| out.extend_from_slice(&x.to_le_bytes())),
@@ -135,27 +143,33 @@ fn checksum(metadata: &BTreeMap<String, String>, tensors: &BTreeMap<String, Tens
 impl TensorFile {
     /// Encodes the file (tensors in name order; header padded with spaces to 8 bytes, as the
     /// reference implementation does, so data is aligned).
-    #[allow(clippy::expect_used, reason = "a JSON map of strings and numbers always serialises")]
     pub fn to_bytes(&self) -> Vec<u8> {
-        let mut data = Vec::with_capacity(self.tensors.values().map(|t| 8 * t.data.len()).sum());
-        let mut entries = Map::new();
-        for (name, tensor) in &self.tensors {
-            let start = data.len();
+        let mut data = Vec::with_capacity(self.tensors.values().map(|t| t.data.byte_len()).sum());
+        for tensor in self.tensors.values() {
             tensor.data.write(&mut data);
-            entries.insert(
-                name.clone(),
-                serde_json::json!({ "dtype": tensor.data.dtype(), "shape": tensor.shape, "data_offsets": [start, data.len()] }),
-            );
         }
+        let mut out = self.header(checksum(&self.metadata, &self.tensors, &data));
+        out.extend(data);
+        out
+    }
+
+    /// Everything before the tensor bytes — length prefix, JSON header with `crc`, padding —
+    /// for the tensors laid out in name order.
+    #[allow(clippy::expect_used, reason = "a JSON map of strings and numbers always serialises")]
+    fn header(&self, crc: String) -> Vec<u8> {
         let mut metadata = self.metadata.clone();
-        metadata.insert("crc32".into(), checksum(&self.metadata, &self.tensors, &data));
+        metadata.insert("crc32".into(), crc);
         // `__metadata__` first: it marks our files (HEADER_START) and reads well in a hex dump.
         let mut header = serde_json::to_vec(&Value::Object(Map::from_iter([("__metadata__".to_string(), serde_json::json!(metadata))])))
             .expect("metadata serialises");
         header.pop(); // the closing brace: tensor entries follow
-        for (name, entry) in entries {
+        let mut start = 0;
+        for (name, tensor) in &self.tensors {
+            let end = start + tensor.data.byte_len();
+            let entry = serde_json::json!({ "dtype": tensor.data.dtype(), "shape": tensor.shape, "data_offsets": [start, end] });
+            start = end;
             header.push(b',');
-            header.extend(serde_json::to_vec(&name).expect("a string serialises"));
+            header.extend(serde_json::to_vec(name).expect("a string serialises"));
             header.push(b':');
             header.extend(serde_json::to_vec(&entry).expect("an entry serialises"));
         }
@@ -163,10 +177,9 @@ impl TensorFile {
         while !(8 + header.len()).is_multiple_of(8) {
             header.push(b' ');
         }
-        let mut out = Vec::with_capacity(8 + header.len() + data.len());
+        let mut out = Vec::with_capacity(8 + header.len() + start);
         out.extend_from_slice(&(header.len() as u64).to_le_bytes());
         out.extend(header);
-        out.extend(data);
         out
     }
 
@@ -234,8 +247,8 @@ impl TensorFile {
             return Err(TensorFileError::Checksum);
         }
         // The checksum cannot cover the header's own layout (whitespace, padding, key order):
-        // a file of ours is accepted only in exactly the form we write.
-        if file.to_bytes() != bytes {
+        // a file of ours is accepted only with exactly the header we write.
+        if file.header(crc) != bytes[..8 + length] {
             return Err(TensorFileError::Malformed("the header is not laid out as dronerace writes it (altered?)".into()));
         }
         Ok(file)

@@ -133,12 +133,16 @@ impl ActorLink for GrpcActorLink {
 /// The service's rollout check at arrival: answers the actor at once; the link checks again on
 /// receipt (the version moves while rollouts queue).
 fn check_on_arrival(board: &LearnerBoard, actor: &str, epoch: u64, chunk: &RolloutChunk) -> Result<(), Status> {
-    let Some(admission) = board.admission() else { return Err(Status::unavailable("the learner is starting")) };
-    admission.check(actor, epoch, chunk).map_err(|r| {
-        board.count_refused();
-        match r {
-            Refusal::Malformed(m) => Status::invalid_argument(m),
-            wrong @ Refusal::WrongVersion { .. } => Status::failed_precondition(wrong.to_string()),
+    Admission::check_current(board.admission().as_ref(), actor, epoch, chunk).map_err(|r| match r {
+        // Not a bad rollout: it came too early, and the same one may be admitted shortly.
+        Refusal::Starting => Status::unavailable(r.to_string()),
+        Refusal::Malformed(m) => {
+            board.count_refused();
+            Status::invalid_argument(m)
+        }
+        wrong @ Refusal::WrongVersion { .. } => {
+            board.count_refused();
+            Status::failed_precondition(wrong.to_string())
         }
     })
 }

@@ -79,6 +79,7 @@ impl LearnerLink for MemoryLearnerLink {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::transport::Refusal;
 
     #[test]
     fn rollouts_arrive_in_order_admitted_and_only_the_newest_weights_are_picked_up_once() {
@@ -89,6 +90,9 @@ mod tests {
         }
         assert_eq!(actor.newest_weights().unwrap().map(|w| w.version), Some(2));
         assert_eq!(actor.newest_weights().unwrap(), None, "picked up once");
+        actor.send_rollout("a", 7, &RolloutChunk::zeroed(2, 0, 2, 1, 3, 4)).unwrap();
+        let early = learner.receive(Duration::ZERO).unwrap();
+        assert!(matches!(early, Some(Received::Refused { refusal: Refusal::Starting, .. })), "nothing is admitted before admit: {early:?}");
         learner.admit(Admission { learner_epoch: 7, version: 2, max_policy_lag: 0, observation_dim: 3, action_dim: 4, total_envs: 4 });
         for (version, first_env) in [(2, 0), (2, 2), (1, 0)] {
             actor.send_rollout("a", 7, &RolloutChunk::zeroed(version, first_env, 2, 1, 3, 4)).unwrap();

@@ -116,6 +116,9 @@ pub struct Admission {
 /// Why a rollout is refused.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum Refusal {
+    /// The learner has not admitted anything yet (it is starting).
+    #[error("the learner is starting: no rollouts are admitted yet")]
+    Starting,
     /// Shapes, numbers or environment ids are wrong.
     #[error("malformed rollout: {0}")]
     Malformed(String),
@@ -138,11 +141,12 @@ pub enum Refusal {
 }
 
 impl Refusal {
-    /// A short, stable name of the reason (for logs and counts): `malformed`,
+    /// A short, stable name of the reason (for logs and counts): `learner_starting`, `malformed`,
     /// `other_learner_epoch` (collected for a learner that has since restarted), `too_old` or
     /// `future_version`.
     pub fn kind(&self) -> &'static str {
         match self {
+            Self::Starting => "learner_starting",
             Self::Malformed(_) => "malformed",
             Self::WrongVersion { epoch, current_epoch, .. } if epoch != current_epoch => "other_learner_epoch",
             Self::WrongVersion { version, current, .. } if version > current => "future_version",
@@ -152,23 +156,18 @@ impl Refusal {
 }
 
 impl Admission {
-    /// What the link hands over for `delivery` (no admission yet: refused as from another
-    /// learner lifetime).
+    /// What the link hands over for `delivery` under the current admission.
     pub fn receive(admission: Option<&Admission>, delivery: Delivery) -> Received {
-        let checked = match admission {
-            Some(a) => a.check(&delivery.actor, delivery.learner_epoch, &delivery.chunk),
-            None => Err(Refusal::WrongVersion {
-                version: delivery.chunk.policy_version,
-                epoch: delivery.learner_epoch,
-                current: 0,
-                current_epoch: 0,
-                lag: 0,
-            }),
-        };
-        match checked {
+        match Self::check_current(admission, &delivery.actor, delivery.learner_epoch, &delivery.chunk) {
             Ok(()) => Received::Rollout(delivery),
             Err(refusal) => Received::Refused { actor: delivery.actor, refusal },
         }
+    }
+
+    /// [`Admission::check`] under the learner's current admission, refusing everything while
+    /// it has none yet.
+    pub fn check_current(admission: Option<&Admission>, actor: &str, learner_epoch: u64, chunk: &RolloutChunk) -> Result<(), Refusal> {
+        admission.ok_or(Refusal::Starting)?.check(actor, learner_epoch, chunk)
     }
 
     /// Accepts a rollout the learner can train on now, or says why not.
