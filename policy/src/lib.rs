@@ -4,6 +4,7 @@
 
 pub mod architecture;
 pub mod blob;
+pub mod dense;
 pub mod inference;
 pub mod network;
 pub mod normalizer;

@@ -3,7 +3,6 @@
 
 use burn::module::{Module, Param, ParamId};
 use burn::nn::Linear;
-use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor, TensorData};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -11,20 +10,13 @@ use rand_distr::StandardNormal;
 use sim::nalgebra::DMatrix;
 
 use crate::architecture::Architecture;
+use crate::dense::dense;
 
 /// A multilayer perceptron: LeakyReLU between layers, none after the last.
 #[derive(Module, Debug)]
 pub struct Mlp {
     layers: Vec<Linear>,
     negative_slope: f64,
-}
-
-/// LeakyReLU as `s·x + (1 − s)·relu(x)`. burn's own `leaky_relu` is a mask-where under
-/// autodiff, whose kernels branch per element: on real activations (random signs) that made
-/// the masking a third of the gradient step. ReLU has a branch-free kernel and a
-/// dedicated backward.
-fn leaky_relu(x: Tensor<2>, negative_slope: f64) -> Tensor<2> {
-    x.clone().mul_scalar(negative_slope) + relu(x).mul_scalar(1.0 - negative_slope)
 }
 
 /// A `rows × cols` matrix with orthonormal rows or columns times `gain` (as torch's
@@ -71,13 +63,17 @@ impl Mlp {
     pub fn forward(&self, mut x: Tensor<2>) -> Tensor<2> {
         let last = self.layers.len() - 1;
         for (i, layer) in self.layers.iter().enumerate() {
-            x = layer.forward(x);
-            if i != last {
-                x = leaky_relu(x, self.negative_slope);
-            }
+            let activation = (i != last).then_some(self.negative_slope);
+            x = dense(x, layer.weight.val(), layer_bias(layer), activation);
         }
         x
     }
+}
+
+/// A layer's bias (every layer here is built with one).
+#[allow(clippy::expect_used, reason = "layers have biases")]
+fn layer_bias(layer: &Linear) -> Tensor<1> {
+    layer.bias.as_ref().expect("layers have biases").val()
 }
 
 /// Actor and critic networks plus the log standard deviation of the Gaussian policy.
@@ -240,23 +236,6 @@ mod tests {
         let w = orthogonal(4, 9, 1.0, &mut rng);
         let m = DMatrix::from_row_slice(4, 9, &w.iter().map(|&x| f64::from(x)).collect::<Vec<_>>());
         assert!((&m * m.transpose() - DMatrix::identity(4, 4)).amax() < 1e-5);
-    }
-
-    #[test]
-    fn leaky_relu_has_the_leaky_value_and_gradient() {
-        let device = Device::flex().autodiff();
-        let xs = [-3.0f32, -0.25, 0.0, 0.5, 7.0];
-        let x = Tensor::<2>::from_data(TensorData::new(xs.to_vec(), [1, xs.len()]), &device).require_grad();
-        let y = leaky_relu(x.clone(), 0.01);
-        let grad = x.grad(&y.clone().sum().backward()).expect("x takes part").into_data().try_into_vec::<f32>().unwrap();
-        let y = y.into_data().try_into_vec::<f32>().unwrap();
-        for ((x, y), g) in xs.iter().zip(&y).zip(&grad) {
-            let (value, slope) = if *x < 0.0 { (0.01 * x, 0.01) } else { (*x, 1.0) };
-            assert!((y - value).abs() <= 1e-6 * value.abs(), "f({x}) = {y}, want {value}");
-            // At 0 the ReLU's subgradient is 0, torch's LeakyReLU takes the negative slope.
-            let slope = if *x == 0.0 { 0.01 } else { slope };
-            assert!((g - slope).abs() < 1e-7, "f'({x}) = {g}, want {slope}");
-        }
     }
 
     #[test]
