@@ -4,14 +4,15 @@
 use std::time::Instant;
 
 use burn::optim::GradientsParams;
-use burn::tensor::{Device, Tensor, TensorData};
+use burn::tensor::Device;
 use policy::ActorCritic;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
 use crate::config::Profile;
-use crate::ppo::loss::{clipped_surrogate, log_prob, value_loss};
+use crate::learner::adam;
+use crate::ppo::update::{TrainingBatch, clip_grad_norm, minibatch_loss};
 
 /// Median times of the three stages (seconds) and the implied rate.
 #[derive(Clone, Copy, Debug)]
@@ -20,7 +21,7 @@ pub struct StepTiming {
     pub forward: f64,
     /// Backward pass.
     pub backward: f64,
-    /// Gradient extraction and the Adam step.
+    /// Gradient extraction, gradient-norm clipping and the Adam step.
     pub optimizer: f64,
     /// Multiply-adds ×2 ×3 (forward + backward) per second of forward + backward.
     pub gflops: f64,
@@ -38,36 +39,42 @@ pub fn device(backend: &str) -> Result<Device, String> {
     }
 }
 
-/// Times `repeats` gradient steps on `samples` random samples (after one warm-up step).
+/// Times `repeats` gradient steps on `samples` random samples (after one warm-up step): the
+/// step training takes (`minibatch_loss`, backward, gradient-norm clipping, Adam with the
+/// profile's settings).
 pub fn time_gradient_step(profile: &Profile, samples: usize, repeats: usize, device: &Device) -> StepTiming {
-    let device = device.clone();
     let arch = &profile.architecture;
-    let mut model = ActorCritic::new(arch, profile.ppo.initial_log_std, 0, &device);
-    let mut optimizer = burn::optim::AdamConfig::new().init();
+    let config = &profile.ppo;
+    let mut model = ActorCritic::new(arch, config.initial_log_std, 0, device);
+    let mut optimizer = adam(profile);
     // Gaussian data, as normalised observations are: activations then change sign at random,
     // as in training. (A regular pattern let the branch predictor hide the cost of burn's
     // branchy masking kernels, so this benchmark once reported ~30 % less time than
     // training spent.)
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     let mut data = |n: usize| (0..n).map(|_| rng.sample::<f32, _>(StandardNormal)).collect::<Vec<f32>>();
-    let obs = data(samples * arch.observation_dim);
-    let actions = data(samples * arch.action_dim);
-    let targets = data(samples);
+    let batch = TrainingBatch {
+        observations: data(samples * arch.observation_dim),
+        actions: data(samples * arch.action_dim),
+        old_log_probs: data(samples),
+        advantages: data(samples),
+        returns: data(samples),
+        old_values: data(samples),
+    };
+    let rows: Vec<usize> = (0..samples).collect();
+    let ids = model.param_ids();
+    let groups = vec![0; ids.len()];
     let (mut f, mut b, mut o) = (Vec::new(), Vec::new(), Vec::new());
     for round in 0..=repeats {
         let t0 = Instant::now();
-        let x = Tensor::<2>::from_data(TensorData::new(obs.clone(), [samples, arch.observation_dim]), &device);
-        let a = Tensor::<2>::from_data(TensorData::new(actions.clone(), [samples, arch.action_dim]), &device);
-        let adv = Tensor::<1>::from_data(TensorData::new(targets.clone(), [samples]), &device);
-        let (mean, value) = model.forward(x);
-        let logp = log_prob(a, mean, model.log_std.val());
-        let loss = clipped_surrogate(logp.exp(), adv.clone(), 0.2) + value_loss(value, adv).mul_scalar(0.5);
+        let (loss, _) = minibatch_loss(&model, batch.minibatch(&rows, device), config);
         let _ = loss.clone().into_data(); // force the forward pass
         let t1 = Instant::now();
         let grads = loss.backward();
         let t2 = Instant::now();
-        let grads = GradientsParams::from_grads(grads, &model);
-        model = optimizer.step(1e-4, model, grads);
+        let mut grads = GradientsParams::from_grads(grads, &model);
+        clip_grad_norm(&mut grads, &ids, &groups, config.max_grad_norm);
+        model = optimizer.step(config.learning_rate_start, model, grads);
         let _ = model.log_std.val().into_data(); // force the update
         let t3 = Instant::now();
         if round > 0 {

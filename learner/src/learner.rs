@@ -208,7 +208,7 @@ impl Learner {
 }
 
 /// Adam with SPEC §10's ε and L2 weight decay added to the gradient (torch Adam semantics).
-fn adam(profile: &Profile) -> ModuleOptimizer {
+pub(crate) fn adam(profile: &Profile) -> ModuleOptimizer {
     let ppo = &profile.ppo;
     let decay = (ppo.weight_decay > 0.0).then(|| WeightDecayConfig::new(ppo.weight_decay as f32));
     AdamConfig::new().with_epsilon(ppo.adam_epsilon as f32).with_weight_decay(decay).init()

@@ -178,17 +178,26 @@ pub struct LearnerBenchArgs {
     /// burn backend: flex, or ndarray in a build with `--features ndarray` / `openblas`.
     #[arg(long, default_value = "flex")]
     backend: String,
+    /// Hidden layer widths instead of the profile's, e.g. `128,128` (to match another
+    /// program's network in a side-by-side comparison).
+    #[arg(long, value_delimiter = ',')]
+    hidden: Option<Vec<usize>>,
 }
 
 /// Times forward, backward and the optimiser step of one PPO gradient step.
 pub fn bench(args: LearnerBenchArgs) -> anyhow::Result<()> {
-    let profile = learner::Profile::named(&args.profile).with_context(|| format!("--profile: unknown profile {:?}", args.profile))?;
+    let mut profile = learner::Profile::named(&args.profile).with_context(|| format!("--profile: unknown profile {:?}", args.profile))?;
     anyhow::ensure!(args.samples > 0 && args.repeats > 0, "--samples and --repeats must be at least 1");
+    if let Some(hidden) = args.hidden {
+        anyhow::ensure!(!hidden.is_empty() && !hidden.contains(&0), "--hidden: widths must be at least 1, e.g. 128,128");
+        profile.architecture.hidden = hidden;
+    }
     let device = learner::bench::device(&args.backend).map_err(|e| anyhow::anyhow!("--backend: {e}"))?;
     let t = learner::bench::time_gradient_step(&profile, args.samples, args.repeats, &device);
     println!(
-        "{} profile, {} samples, {} backend, {} threads: forward {:.1} ms, backward {:.1} ms, optimiser {:.1} ms, {:.1} GFLOP/s (forward+backward)",
+        "{} profile {:?}, {} samples, {} backend, {} threads: forward {:.1} ms, backward {:.1} ms, optimiser {:.1} ms, {:.1} GFLOP/s (forward+backward)",
         profile.name,
+        profile.architecture.hidden,
         args.samples,
         args.backend,
         rayon::current_num_threads(),
