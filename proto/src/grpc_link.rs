@@ -147,8 +147,10 @@ fn check_on_arrival(board: &LearnerBoard, actor: &str, epoch: u64, chunk: &Rollo
     })
 }
 
-/// Newest weights, for `WatchWeights` streams.
-type WeightsWatch = Arc<watch::Sender<Option<Arc<WeightsUpdate>>>>;
+/// Newest weights as the messages of a `WatchWeights` stream: split into parts once when
+/// published, and shared by every watcher (parts are reference-counted `Bytes`, so N watchers
+/// cost no N copies of the blob).
+type WeightsWatch = Arc<watch::Sender<Option<Arc<Vec<v1::WeightsPart>>>>>;
 
 /// The `Learner` service adapter.
 pub struct LearnerService {
@@ -201,7 +203,18 @@ impl LearnerLink for GrpcLearnerLink {
     }
 
     fn publish(&mut self, weights: &WeightsUpdate) -> Result<(), LinkError> {
-        self.weights.send_replace(Some(Arc::new(weights.clone())));
+        let parts = split(Bytes::from(weights.blob.clone()))
+            .into_iter()
+            .map(|(part, parts, data)| v1::WeightsPart {
+                learner_epoch: weights.learner_epoch,
+                version: weights.version,
+                max_policy_lag: weights.max_policy_lag,
+                part,
+                parts,
+                data,
+            })
+            .collect();
+        self.weights.send_replace(Some(Arc::new(parts)));
         Ok(())
     }
 }
@@ -258,19 +271,9 @@ impl Learner for LearnerService {
         tokio::spawn(async move {
             loop {
                 let current = updates.borrow_and_update().clone();
-                if let Some(w) = current {
-                    for (part, parts, data) in split(Bytes::from(w.blob.clone())) {
-                        let message = v1::WeightsPart {
-                            learner_epoch: w.learner_epoch,
-                            version: w.version,
-                            max_policy_lag: w.max_policy_lag,
-                            part,
-                            parts,
-                            data,
-                        };
-                        if tx.send(Ok(message)).await.is_err() {
-                            return;
-                        }
+                for message in current.iter().flat_map(|parts| parts.iter()) {
+                    if tx.send(Ok(message.clone())).await.is_err() {
+                        return;
                     }
                 }
                 if updates.changed().await.is_err() {
