@@ -34,13 +34,13 @@ enum Command {
     /// Train a policy with PPO: task controller, learner and actors as processes on this machine.
     Train(commands::train::TrainArgs),
     /// Serve the task controller (tracks and switching of every environment) over gRPC.
-    Taskctl(commands::services::TaskctlArgs),
+    Taskctl(runtime::services::TaskctlArgs),
     /// Run the learner process (PPO; takes rollouts, publishes weights).
-    Learner(commands::services::LearnerArgs),
+    Learner(runtime::services::LearnerArgs),
     /// Show the task controller's state: every environment's track, window, ρ, q, switches.
     Tasks(commands::tasks::TasksArgs),
     /// Run an actor process (environments, inference, rollouts).
-    Actor(commands::services::ActorArgs),
+    Actor(runtime::services::ActorArgs),
     /// Measure rollout throughput and weight-broadcast latency of a transport.
     TransportBench(commands::transport_bench::TransportBenchArgs),
     /// Kill -9 random processes of a training run for minutes, then audit what was lost.
@@ -80,9 +80,9 @@ fn main() -> std::process::ExitCode {
         Command::Sim(c) => commands::sim::run(c),
         Command::Train(a) => commands::train::run(a),
         Command::Experiment(c) => commands::experiment::run(c),
-        Command::Taskctl(a) => commands::services::taskctl(a),
-        Command::Learner(a) => commands::services::learner(a),
-        Command::Actor(a) => commands::services::actor(a),
+        Command::Taskctl(a) => runtime::services::taskctl(a),
+        Command::Learner(a) => runtime::services::learner(a),
+        Command::Actor(a) => runtime::services::actor(a),
         Command::Tasks(a) => commands::tasks::run(a),
         Command::Chaos(a) => commands::chaos::run(a),
         Command::LearnerBench(a) => commands::train::bench(a),

@@ -156,7 +156,7 @@ fn draw_view(area: &DrawingArea<BitMapBackend<'_>, Shift>, track: &Track, line: 
 
 /// Validation S_pw against environment steps: per variant a thin line per seed, and the mean
 /// over its seeds (bold) with their range as a band where every seed has reached.
-pub fn draw_validation_curves(variants: &[learner::experiment::VariantSummary], out: &Path) -> anyhow::Result<()> {
+pub fn draw_validation_curves(variants: &[runtime::experiment::VariantSummary], out: &Path) -> anyhow::Result<()> {
     register_font();
     let root = BitMapBackend::new(out, (960, 600)).into_drawing_area();
     root.fill(&WHITE)?;
@@ -209,7 +209,7 @@ pub fn draw_validation_curves(variants: &[learner::experiment::VariantSummary], 
 
 /// Success per track against environment steps for a sequential curriculum, with a dashed line
 /// where each later stage began (thesis Fig. 3.5).
-pub fn draw_track_curves(curves: &[learner::experiment::TrackCurve], boundaries: &[u64], title: &str, out: &Path) -> anyhow::Result<()> {
+pub fn draw_track_curves(curves: &[runtime::experiment::TrackCurve], boundaries: &[u64], title: &str, out: &Path) -> anyhow::Result<()> {
     register_font();
     let root = BitMapBackend::new(out, (960, 600)).into_drawing_area();
     root.fill(&WHITE)?;

@@ -18,13 +18,14 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::Path;
 use std::sync::Once;
 
+use learner::Learner;
 use learner::checkpoint::Checkpoint;
-use learner::{Learner, TrainConfig};
 use policy::{EpisodeRecord, RolloutChunk, WeightsBlob};
 use prost::Message;
 use racetracks::TrackGenerator;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use runtime::TrainConfig;
 use taskctl::TaskController;
 
 /// Mutated inputs per decoder and mode.

@@ -8,7 +8,7 @@ use std::path::Path;
 use std::process::Command;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use learner::experiment::{Experiment, RunLog, run_experiment};
+use runtime::experiment::{Experiment, RunLog, run_experiment};
 
 const FILE: &str = r#"
 description = "tiny frames"
@@ -156,15 +156,15 @@ fn a_sequential_experiment_starts_each_stage_from_the_last_and_tracks_every_vali
     let experiment = Experiment::read(&file).unwrap();
     let log = run(&experiment, &out, None);
     assert_eq!(log.finished.len(), 2);
-    let second: learner::TrainConfig =
+    let second: runtime::TrainConfig =
         toml::from_str(&std::fs::read_to_string(Experiment::run_dir(&out, "second", 0).join("config.toml")).unwrap()).unwrap();
     let first_end = Experiment::run_dir(&out, "first", 0).join("checkpoints").join("ckpt-000000002.bin");
     assert_eq!(second.init_from, Some(first_end), "stage 2 starts from stage 1's last checkpoint");
-    let first: learner::TrainConfig =
+    let first: runtime::TrainConfig =
         toml::from_str(&std::fs::read_to_string(Experiment::run_dir(&out, "first", 0).join("config.toml")).unwrap()).unwrap();
     assert_eq!(first.init_from, None, "stage 1 starts fresh");
 
-    let (curves, boundaries) = learner::experiment::sequential_track_curves(&experiment, &out, 0).unwrap();
+    let (curves, boundaries) = runtime::experiment::sequential_track_curves(&experiment, &out, 0).unwrap();
     assert_eq!(boundaries, vec![256]);
     let names: Vec<&str> = curves.iter().map(|c| c.track.as_str()).collect();
     assert_eq!(names, vec!["BigS", "Figure8"]);

@@ -4,12 +4,14 @@
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
-use actor::process::{ActorLoop, ActorSettings, Pass};
-use learner::process::{LearnerProcess, LearnerSettings, learner_only};
-use learner::{PpoConfig, Run, TrainConfig};
+use learner::PpoConfig;
 use proto::ActorLink;
 use proto::board::LearnerBoard;
 use proto::memory::memory_link;
+use runtime::actor_process::{ActorLoop, ActorSettings, Pass};
+use runtime::learner_process::{LearnerProcess, learner_only};
+use runtime::run::LearnerSettings;
+use runtime::{Run, TrainConfig};
 use taskctl::LocalTasks;
 
 #[test]

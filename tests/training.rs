@@ -7,7 +7,8 @@
 use std::path::Path;
 use std::process::Command;
 
-use learner::{PpoConfig, TrainConfig, Trainer};
+use learner::PpoConfig;
+use runtime::{TrainConfig, Trainer};
 use taskctl::TaskService;
 
 /// A tiny but complete run: generated tracks with adaptive switching on a short window.
@@ -210,7 +211,7 @@ fn a_few_seconds_of_training_measurably_improve_the_mean_return() {
         seed: 1,
         envs: Some(32),
         ppo: Some(PpoConfig { n_steps: 64, batch_size: 512, n_epochs: 5, learning_rate_start: 1e-3, ..PpoConfig::default() }),
-        tracks: learner::TrackSource::Library { names: vec!["Figure8".into()] },
+        tracks: runtime::TrackSource::Library { names: vec!["Figure8".into()] },
         checkpoint_every: 1000,
         ..TrainConfig::default()
     };

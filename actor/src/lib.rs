@@ -1,8 +1,6 @@
 //! The actor: runs many environments, acts with the newest policy it was given, and turns each
-//! rollout into a [`RolloutChunk`] tagged with that policy's version; [`process`] is the actor
-//! process's loop around it.
-
-pub mod process;
+//! rollout into a [`RolloutChunk`] tagged with that policy's version. The actor process's loop
+//! around it is `runtime::actor_process`.
 
 use std::sync::Arc;
 

@@ -24,6 +24,9 @@ pub enum LearnerError {
     /// Saved learner state could not be restored.
     #[error("learner state: {0}")]
     State(String),
+    /// A checkpoint lacks a section or holds a malformed one.
+    #[error(transparent)]
+    Checkpoint(#[from] crate::checkpoint::CheckpointError),
 }
 
 /// What one iteration did.
@@ -180,8 +183,8 @@ impl Learner {
     }
 
     /// Restores a learner from a checkpoint written with [`Learner::checkpoint`].
-    pub fn from_checkpoint(c: &crate::checkpoint::Checkpoint) -> Result<Self, crate::run::TrainError> {
-        Ok(Self::restore_state(c.get("weights")?, c.get("optimizer")?, c.get("learner")?)?)
+    pub fn from_checkpoint(c: &crate::checkpoint::Checkpoint) -> Result<Self, LearnerError> {
+        Self::restore_state(c.get("weights")?, c.get("optimizer")?, c.get("learner")?)
     }
 
     /// Everything needed to continue training exactly: weights, optimiser moments, counters.

@@ -16,7 +16,7 @@ use learner::checkpoint::Checkpoint;
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
-use super::services::Transport;
+use runtime::services::Transport;
 
 /// Arguments of `dronerace chaos`.
 #[derive(Args)]
@@ -268,9 +268,9 @@ mod tests {
     #[test]
     fn the_log_audit_counts_refusals_by_reason_and_lost_reports() {
         let log = "\
-2026 INFO learner::process: rollout not used: rollout of policy version 3 actor=a0 reason=wrong_version
-2026 INFO learner::process: rollout not used: malformed rollout: x actor=a1 reason=malformed
-2026 INFO learner::process: rollout not used: rollout of policy version 4 actor=a1 reason=wrong_version
+2026 INFO runtime::learner_process: rollout not used: rollout of policy version 3 actor=a0 reason=wrong_version
+2026 INFO runtime::learner_process: rollout not used: malformed rollout: x actor=a1 reason=malformed
+2026 INFO runtime::learner_process: rollout not used: rollout of policy version 4 actor=a1 reason=wrong_version
 2026 ERROR taskctl::controller: acknowledged reports lost actor=a0 lost=3
 iter 5 | ...";
         let (refused, lost) = audit_log(log);

@@ -5,10 +5,10 @@ use std::sync::atomic::Ordering;
 
 use anyhow::Context;
 use clap::Subcommand;
-use learner::experiment::{Experiment, markdown_report, run_experiment, sequential_track_curves, summarise};
+use runtime::experiment::{Experiment, markdown_report, run_experiment, sequential_track_curves, summarise};
 
-use super::services::stop_flag;
 use super::write_atomic;
+use runtime::services::stop_flag;
 
 /// Experiment subcommands.
 #[derive(Subcommand)]
@@ -42,7 +42,7 @@ pub fn run(command: ExperimentCommand) -> anyhow::Result<()> {
             let stop = stop_flag()?;
             let log = run_experiment(&experiment, &out, &stop, &mut |dir, summary| {
                 let run = dir.strip_prefix(&out).unwrap_or(dir).display().to_string();
-                eprintln!("{run}: {}", super::train::progress_line(summary, f64::NAN));
+                eprintln!("{run}: {}", runtime::progress::progress_line(summary, f64::NAN));
             })?;
             eprintln!(
                 "experiment: {} runs finished now, {} were done already, {} resumed{}",

@@ -1,10 +1,8 @@
 //! One module per subcommand: argument types and the glue that calls the crates.
 
 pub mod chaos;
-pub mod cluster;
 pub mod eval;
 pub mod experiment;
-pub mod services;
 pub mod sim;
 pub mod tasks;
 pub mod tracks;

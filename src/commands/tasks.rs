@@ -37,7 +37,7 @@ fn row(t: &TaskInfo) -> String {
 /// Prints the tasks (or one, or the history).
 pub fn run(args: TasksArgs) -> anyhow::Result<()> {
     let network = match &args.config {
-        Some(p) => learner::TrainConfig::read(p)?.network,
+        Some(p) => runtime::TrainConfig::read(p)?.network,
         None => Default::default(),
     };
     let security = Security::load(&network)?;

@@ -7,15 +7,15 @@ use std::sync::atomic::Ordering;
 use anyhow::Context;
 use clap::Args;
 use learner::checkpoint::CheckpointDir;
-use learner::{IterationSummary, TrackSource, TrainConfig, Trainer};
-
-use super::cluster::{self, ClusterPlan};
-use super::services::{Transport, stop_flag};
+use runtime::progress::{ProgressLog, progress_line};
+use runtime::services::{Transport, stop_flag};
+use runtime::supervisor::{self, ClusterPlan};
+use runtime::{TrackSource, TrainConfig, Trainer};
 
 /// Arguments of `dronerace train`.
 #[derive(Args)]
 pub struct TrainArgs {
-    /// TOML configuration (every field optional; see learner::TrainConfig).
+    /// TOML configuration (every field optional; see runtime::TrainConfig).
     #[arg(long)]
     config: Option<PathBuf>,
     /// Run directory (default `runs/<name>`).
@@ -108,7 +108,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     }
     let envs = config.resolved_profile()?.envs;
     let actors = args.actors.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    cluster::run(ClusterPlan { dir, actors, envs, transport: args.transport, iterations: args.iterations })
+    supervisor::run(ClusterPlan { dir, actors, envs, transport: args.transport, iterations: args.iterations })
 }
 
 fn run_in_process(args: &TrainArgs, dir: PathBuf, config: TrainConfig, resume: bool) -> anyhow::Result<()> {
@@ -119,48 +119,16 @@ fn run_in_process(args: &TrainArgs, dir: PathBuf, config: TrainConfig, resume: b
         Trainer::start(config, &dir)?
     };
     let stop = stop_flag()?;
-    let log_path = trainer.dir().join("train.log");
-    let mut log =
-        std::fs::OpenOptions::new().create(true).append(true).open(&log_path).with_context(|| format!("opening {}", log_path.display()))?;
+    let mut log = ProgressLog::open(trainer.dir())?;
     let first = trainer.iteration();
     eprintln!("training in {} (from iteration {first}, in one process)", trainer.dir().display());
     while !trainer.finished() && !stop.load(Ordering::SeqCst) && args.iterations.is_none_or(|n| trainer.iteration() - first < n) {
         let s = trainer.iteration_step()?;
-        let line = progress_line(&s, trainer.eta_seconds(s.sps));
-        eprintln!("{line}");
-        use std::io::Write;
-        writeln!(log, "{line}").with_context(|| format!("writing {}", log_path.display()))?;
+        log.line(&progress_line(&s, trainer.eta_seconds(s.sps)))?;
     }
     let path = trainer.checkpoint()?;
     eprintln!("checkpoint written to {}", path.display());
     Ok(())
-}
-
-/// The live progress line of one iteration.
-pub fn progress_line(s: &IterationSummary, eta_seconds: f64) -> String {
-    let validation =
-        s.validation.map_or(String::new(), |(s_pw, success)| format!(" | validation S_pw {s_pw:.4}, success {:.0} %", 100.0 * success));
-    format!(
-        "iter {:>5} | {:>11} steps | {:>6.0} SPS (collect {:.1} s, update {:.1} s) | return {:>8.2} | laps/ep {:>5.2} | switches {:>5} | kl {:.4} | ETA {}{validation}",
-        s.iteration,
-        s.report.env_steps,
-        s.sps,
-        s.collect_seconds,
-        s.update_seconds,
-        s.mean_return,
-        s.laps_per_episode,
-        s.switches,
-        s.report.stats.approx_kl,
-        format_duration(eta_seconds)
-    )
-}
-
-fn format_duration(seconds: f64) -> String {
-    if !seconds.is_finite() {
-        return "–".into();
-    }
-    let s = seconds as u64;
-    format!("{}h{:02}m{:02}s", s / 3600, s % 3600 / 60, s % 60)
 }
 
 /// Arguments of `dronerace learner-bench`.

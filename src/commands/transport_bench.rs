@@ -14,7 +14,7 @@ use proto::grpc_link::{GrpcActorLink, LearnerService};
 use proto::shm::{ShmActorLink, ShmConfig, ShmLearnerLink};
 use proto::{ActorLink, Admission, LearnerLink, Received, Security, WeightsUpdate};
 
-use super::services::Transport;
+use runtime::services::Transport;
 
 /// Arguments of `dronerace transport-bench`.
 #[derive(Args)]

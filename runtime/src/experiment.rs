@@ -24,9 +24,9 @@ use policy::{Policy, PolicyController};
 use serde::{Deserialize, Serialize};
 use sim::eval::{EvalConfig, EvalReport, OutcomeCounts, evaluate};
 
-use crate::checkpoint::CheckpointDir;
 use crate::run::{IterationSummary, TrainConfig, TrainError};
 use crate::trainer::Trainer;
+use learner::checkpoint::CheckpointDir;
 
 /// One variant: a name and the overrides that make it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -272,7 +272,7 @@ fn test_run(trainer: &Trainer, variant: &str, seed: u64, test: &TestSettings) ->
     };
     let final_blob = trainer.learner().weights();
     let best_path = trainer.dir().join("checkpoints").join("best.bin");
-    let best_blob = if best_path.exists() { crate::checkpoint::read_policy(&best_path)? } else { final_blob.clone() };
+    let best_blob = if best_path.exists() { learner::checkpoint::read_policy(&best_path)? } else { final_blob.clone() };
     Ok(RunResult {
         variant: variant.to_owned(),
         seed,

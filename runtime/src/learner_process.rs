@@ -16,33 +16,12 @@ use std::time::{Duration, Instant};
 
 use proto::board::LearnerBoard;
 use proto::{Admission, Delivery, LearnerLink, LearnerStatus, Received, WeightsUpdate};
-use serde::{Deserialize, Serialize};
 use taskctl::TaskService;
 
-use crate::checkpoint::Checkpoint;
-use crate::learner::Learner;
-use crate::run::{IterationSummary, IterationTiming, Run, TrainError};
+use crate::run::{IterationSummary, IterationTiming, LearnerSettings, Run, TrainError};
 use crate::validation::Validator;
-
-/// How the learner process treats its actors (`[learner]` in the run config).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct LearnerSettings {
-    /// Versions a rollout may lag behind the one being trained (0: synchronous).
-    pub max_policy_lag: u32,
-    /// Seconds an iteration waits, after its first rollout, for the other actors' rollouts;
-    /// an actor that misses it is dropped (and rejoins with its next rollout).
-    pub actor_timeout_seconds: f64,
-    /// Actors the first iteration of a learner waits for (up to the timeout), so it does not
-    /// train on whichever actor happened to be first.
-    pub expected_actors: usize,
-}
-
-impl Default for LearnerSettings {
-    fn default() -> Self {
-        Self { max_policy_lag: 0, actor_timeout_seconds: 30.0, expected_actors: 1 }
-    }
-}
+use learner::checkpoint::Checkpoint;
+use learner::learner::Learner;
 
 /// State saved beside the learner's in every checkpoint by whoever owns it: training in one
 /// process adds the actor and the curriculum (so it resumes exactly); processes keep their own.

@@ -12,7 +12,7 @@ use proto::ActorLink;
 use sim::EnvConfig;
 use taskctl::{TaskService, TaskServiceError};
 
-use crate::{Actor, ActorError, ActorState};
+use actor::{Actor, ActorError, ActorState};
 
 /// What an actor process runs.
 #[derive(Clone, Debug)]

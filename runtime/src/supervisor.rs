@@ -6,6 +6,8 @@
 //! checkpoints, then the task controller). Children run in process groups of their own, so
 //! only the supervisor hears a terminal's Ctrl-C.
 
+#![allow(clippy::print_stderr, reason = "the process commands' own terminal output: what started, where it serves, what it restarted")]
+
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
@@ -14,7 +16,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 
-use super::services::{Transport, stop_flag};
+use crate::services::{Transport, stop_flag};
 
 /// What the supervisor starts.
 pub struct ClusterPlan {

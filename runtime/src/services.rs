@@ -1,6 +1,9 @@
-//! The three processes of the distributed runtime: `dronerace taskctl`, `dronerace learner`,
-//! `dronerace actor`. Each reads the run config (TOML, as for `train`) plus flags naming
+//! The three processes of the distributed runtime and their servers' wiring: `dronerace
+//! taskctl`, `dronerace learner`, `dronerace actor` (their arguments are parsed by the binary
+//! with the `Args` structs here). Each reads the run config (TOML, as for `train`) plus flags naming
 //! addresses; SIGINT or SIGTERM stops each cleanly (the learner checkpoints first).
+
+#![allow(clippy::print_stderr, reason = "the process commands' own terminal output: what started, where it serves, what it restarted")]
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -8,10 +11,11 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
+use crate::learner_process::{LearnerProcess, learner_only};
+use crate::progress::{ProgressLog, progress_line};
+use crate::{Run, TrainConfig};
 use anyhow::Context;
 use clap::{Args, ValueEnum};
-use learner::process::{LearnerProcess, learner_only};
-use learner::{Run, TrainConfig};
 use proto::board::LearnerBoard;
 use proto::grpc_link::{GrpcActorLink, LearnerService};
 use proto::shm::{ShmActorLink, ShmConfig, ShmLearnerLink};
@@ -43,7 +47,7 @@ fn read_config(path: &Option<PathBuf>) -> anyhow::Result<TrainConfig> {
     })
 }
 
-fn runtime(threads: usize) -> anyhow::Result<tokio::runtime::Runtime> {
+fn async_runtime(threads: usize) -> anyhow::Result<tokio::runtime::Runtime> {
     tokio::runtime::Builder::new_multi_thread().worker_threads(threads).enable_all().build().context("starting the async runtime")
 }
 
@@ -83,7 +87,7 @@ pub fn taskctl(args: TaskctlArgs) -> anyhow::Result<()> {
     let stop = stop_flag()?;
     let service = taskctl::grpc::TaskControllerService::new(Arc::new(taskctl::LocalTasks::new(controller, Some(args.snapshot.clone()))));
     eprintln!("taskctl: serving on {}", args.listen);
-    runtime(1)?
+    async_runtime(1)?
         .block_on(taskctl::grpc::serve(args.listen, &security, service, until(stop)))
         .map_err(|e| anyhow::anyhow!("taskctl on {}: {e}", args.listen))
 }
@@ -126,7 +130,7 @@ pub fn learner(args: LearnerArgs) -> anyhow::Result<()> {
     let mut settings = run.config().learner;
     settings.expected_actors = args.actors.max(1);
     let stop = stop_flag()?;
-    let rt = runtime(1)?;
+    let rt = async_runtime(1)?;
     let tasks = match &args.taskctl {
         Some(url) => Some(TaskClient::new(rt.handle().clone(), url, &security)?),
         None => None,
@@ -190,9 +194,7 @@ fn drive<L: LearnerLink>(
     tasks: Option<&TaskClient>,
 ) -> anyhow::Result<()> {
     let dir = process.run().dir().to_path_buf();
-    let log_path = dir.join("train.log");
-    let mut log =
-        std::fs::OpenOptions::new().create(true).append(true).open(&log_path).with_context(|| format!("opening {}", log_path.display()))?;
+    let mut log = ProgressLog::open(&dir)?;
     eprintln!(
         "learner: {} run in {} at iteration {} ({} transport)",
         if resumed { "resuming the" } else { "starting a new" },
@@ -207,10 +209,7 @@ fn drive<L: LearnerLink>(
     while !process.finished() && !stop.load(Ordering::SeqCst) && args.iterations.is_none_or(|n| done < n) {
         let Some(s) = process.iteration_step(stop, tasks.map(|t| t as &dyn TaskService), &learner_only)? else { break };
         done += 1;
-        let line = super::train::progress_line(&s, process.eta_seconds(s.sps));
-        eprintln!("{line}");
-        use std::io::Write;
-        writeln!(log, "{line}").with_context(|| format!("writing {}", log_path.display()))?;
+        log.line(&progress_line(&s, process.eta_seconds(s.sps)))?;
     }
     let path = process.checkpoint(&learner_only)?;
     eprintln!("learner: checkpoint written to {}", path.display());
@@ -256,9 +255,9 @@ pub fn actor(args: ActorArgs) -> anyhow::Result<()> {
     proto::transport::check_actor_name(&args.name).map_err(|e| anyhow::anyhow!("--name: {e}"))?;
     let profile = config.resolved_profile()?;
     let security = Security::load(&config.network)?;
-    let rt = runtime(1)?;
+    let rt = async_runtime(1)?;
     let tasks = TaskClient::new(rt.handle().clone(), &args.taskctl, &security)?;
-    let settings = actor::process::ActorSettings {
+    let settings = crate::actor_process::ActorSettings {
         name: args.name.clone(),
         envs: args.envs,
         seed: config.seed,
@@ -271,11 +270,11 @@ pub fn actor(args: ActorArgs) -> anyhow::Result<()> {
     match args.transport {
         Transport::Grpc => {
             let mut link = GrpcActorLink::connect(rt.handle().clone(), &args.learner, &security)?;
-            actor::process::run_actor(&settings, &mut link, &tasks, &stop)?;
+            crate::actor_process::run_actor(&settings, &mut link, &tasks, &stop)?;
         }
         Transport::Shm => {
             let mut link = ShmActorLink::open(&ShmConfig { run: args.shm_run.clone(), max_actors: args.max_actors.max(1) })?;
-            actor::process::run_actor(&settings, &mut link, &tasks, &stop)?;
+            crate::actor_process::run_actor(&settings, &mut link, &tasks, &stop)?;
         }
     }
     Ok(())

@@ -11,11 +11,11 @@ use serde::{Deserialize, Serialize};
 use sim::EnvConfig;
 use taskctl::{SwitchParams, TaskController};
 
-use crate::checkpoint::{Checkpoint, CheckpointDir, CheckpointError};
-use crate::config::{PpoConfig, Profile};
-use crate::learner::{IterationReport, Learner, LearnerError};
 use crate::metrics::{MetricsRow, MetricsWriter};
 use crate::validation::Validation;
+use learner::checkpoint::{Checkpoint, CheckpointDir, CheckpointError};
+use learner::config::{PpoConfig, Profile};
+use learner::learner::{IterationReport, Learner, LearnerError};
 
 /// Where the training tracks come from.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -61,7 +61,7 @@ pub struct TrainConfig {
     /// Periodic checkpoints kept.
     pub keep_checkpoints: usize,
     /// How the learner process treats its actors.
-    pub learner: crate::process::LearnerSettings,
+    pub learner: LearnerSettings,
     /// TLS and bearer-token settings of every server and client of the run.
     pub network: proto::NetworkConfig,
     /// Evaluation on the validation set during training.
@@ -130,7 +130,7 @@ impl TrainConfig {
         let profile = self.resolved_profile()?;
         Ok(match &self.init_from {
             None => Learner::new(profile, self.total_env_steps, self.seed),
-            Some(path) => Learner::from_policy(profile, self.total_env_steps, self.seed, &crate::checkpoint::read_policy(path)?)
+            Some(path) => Learner::from_policy(profile, self.total_env_steps, self.seed, &learner::checkpoint::read_policy(path)?)
                 .map_err(|e| TrainError::Config(format!("init_from {}: {e}", path.display())))?,
         })
     }
@@ -161,6 +161,26 @@ impl TrainConfig {
 }
 
 /// Why training cannot go on.
+/// How the learner process treats its actors (`[learner]` in the run config).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LearnerSettings {
+    /// Versions a rollout may lag behind the one being trained (0: synchronous).
+    pub max_policy_lag: u32,
+    /// Seconds an iteration waits, after its first rollout, for the other actors' rollouts;
+    /// an actor that misses it is dropped (and rejoins with its next rollout).
+    pub actor_timeout_seconds: f64,
+    /// Actors the first iteration of a learner waits for (up to the timeout), so it does not
+    /// train on whichever actor happened to be first.
+    pub expected_actors: usize,
+}
+
+impl Default for LearnerSettings {
+    fn default() -> Self {
+        Self { max_policy_lag: 0, actor_timeout_seconds: 30.0, expected_actors: 1 }
+    }
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum TrainError {
     /// Bad configuration.
@@ -183,7 +203,7 @@ pub enum TrainError {
     Actor(#[from] actor::ActorError),
     /// The actor's loop failed (training in one process).
     #[error(transparent)]
-    ActorLoop(#[from] actor::process::ActorProcessError),
+    ActorLoop(#[from] crate::actor_process::ActorProcessError),
     /// Training in one process lost its turn order (a bug, reported rather than hidden).
     #[error("in-process training: {0}")]
     TurnOrder(String),

@@ -12,16 +12,16 @@
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
+use crate::actor_process::{ActorLoop, ActorSettings, Pass};
 use actor::ActorState;
-use actor::process::{ActorLoop, ActorSettings, Pass};
 use proto::board::LearnerBoard;
 use proto::memory::{MemoryActorLink, MemoryLearnerLink, memory_link};
 use taskctl::{LocalTasks, TaskController, TaskService};
 
-use crate::checkpoint::Checkpoint;
-use crate::learner::Learner;
-use crate::process::{LearnerProcess, LearnerSettings};
-use crate::run::{IterationSummary, Run, TrainConfig, TrainError};
+use crate::learner_process::LearnerProcess;
+use crate::run::{IterationSummary, LearnerSettings, Run, TrainConfig, TrainError};
+use learner::checkpoint::Checkpoint;
+use learner::learner::Learner;
 
 /// The actor's name in the task controller (one actor holds every environment).
 const ACTOR: &str = "in-process";

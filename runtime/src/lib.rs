@@ -1,0 +1,21 @@
+//! The training runtime: the run configuration and run directory (`run`), metrics files
+//! (`metrics`), validation during training (`validation`), the actor's and the learner's
+//! process loops (`actor_process`, `learner_process`), training in one process by turns of
+//! those same loops over an in-memory link (`trainer`), experiment files (`experiment`), the
+//! progress line (`progress`), the three processes' commands and servers (`services`) and the
+//! supervisor of `dronerace train` (`supervisor`).
+
+pub mod actor_process;
+pub mod experiment;
+pub mod learner_process;
+pub mod metrics;
+pub mod progress;
+pub mod run;
+pub mod services;
+pub mod supervisor;
+pub mod trainer;
+pub mod validation;
+
+pub use run::{IterationSummary, Run, TrackSource, TrainConfig, TrainError};
+pub use trainer::Trainer;
+pub use validation::{EvalSettings, Validation, Validator};
