@@ -13,6 +13,7 @@ pub mod progress;
 pub mod run;
 pub mod services;
 pub mod supervisor;
+pub mod train;
 pub mod trainer;
 pub mod validation;
 

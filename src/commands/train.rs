@@ -2,15 +2,11 @@
 //! on this machine (the default), or all in this process (`--in-process`, for debugging).
 
 use std::path::PathBuf;
-use std::sync::atomic::Ordering;
 
 use anyhow::Context;
 use clap::Args;
-use learner::checkpoint::CheckpointDir;
-use runtime::progress::{ProgressLog, progress_line};
-use runtime::services::{Transport, stop_flag};
-use runtime::supervisor::{self, ClusterPlan};
-use runtime::{TrackSource, TrainConfig, Trainer};
+use runtime::services::Transport;
+use runtime::{TrackSource, TrainConfig};
 
 /// Arguments of `dronerace train`.
 #[derive(Args)]
@@ -86,49 +82,14 @@ fn prepare(args: &TrainArgs) -> anyhow::Result<(PathBuf, TrainConfig, bool)> {
     Ok((dir, config, false))
 }
 
-/// Runs training until the budget is spent, `--iterations` are done, or Ctrl-C.
+/// Runs `dronerace train` in the mode the flags choose.
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let (dir, config, resume) = prepare(&args)?;
     if args.in_process {
-        return run_in_process(&args, dir, config, resume);
+        return runtime::train::in_process(&dir, config, resume, args.iterations);
     }
-    if resume {
-        let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
-        anyhow::ensure!(checkpoints.latest().is_some(), "{} has no checkpoint to resume from", dir.display());
-    } else {
-        let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
-        anyhow::ensure!(
-            checkpoints.latest().is_none(),
-            "{} already holds checkpoints: resume it (--resume), or choose another run directory",
-            dir.display()
-        );
-        let _ = std::fs::remove_file(dir.join("taskctl.snapshot"));
-        let text = toml::to_string(&config).context("serialising the config")?;
-        super::write_atomic(&dir.join("config.toml"), text.as_bytes())?;
-    }
-    let envs = config.resolved_profile()?.envs;
     let actors = args.actors.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    supervisor::run(ClusterPlan { dir, actors, envs, transport: args.transport, iterations: args.iterations })
-}
-
-fn run_in_process(args: &TrainArgs, dir: PathBuf, config: TrainConfig, resume: bool) -> anyhow::Result<()> {
-    let mut trainer = if resume {
-        Trainer::resume(&dir)?
-    } else {
-        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-        Trainer::start(config, &dir)?
-    };
-    let stop = stop_flag()?;
-    let mut log = ProgressLog::open(trainer.dir())?;
-    let first = trainer.iteration();
-    eprintln!("training in {} (from iteration {first}, in one process)", trainer.dir().display());
-    while !trainer.finished() && !stop.load(Ordering::SeqCst) && args.iterations.is_none_or(|n| trainer.iteration() - first < n) {
-        let s = trainer.iteration_step()?;
-        log.line(&progress_line(&s, trainer.eta_seconds(s.sps)))?;
-    }
-    let path = trainer.checkpoint()?;
-    eprintln!("checkpoint written to {}", path.display());
-    Ok(())
+    runtime::train::with_processes(&dir, config, resume, actors, args.transport, args.iterations)
 }
 
 /// Arguments of `dronerace learner-bench`.
