@@ -42,9 +42,9 @@ enum Command {
     /// Run an actor process (environments, inference, rollouts).
     Actor(runtime::services::ActorArgs),
     /// Measure rollout throughput and weight-broadcast latency of a transport.
-    TransportBench(commands::transport_bench::TransportBenchArgs),
+    TransportBench(runtime::transport_bench::TransportBenchArgs),
     /// Kill -9 random processes of a training run for minutes, then audit what was lost.
-    Chaos(commands::chaos::ChaosArgs),
+    Chaos(runtime::chaos::ChaosArgs),
     /// Time one PPO gradient step (forward, backward, optimiser) on this machine.
     LearnerBench(commands::train::LearnerBenchArgs),
 }
@@ -84,9 +84,9 @@ fn main() -> std::process::ExitCode {
         Command::Learner(a) => runtime::services::learner(a),
         Command::Actor(a) => runtime::services::actor(a),
         Command::Tasks(a) => commands::tasks::run(a),
-        Command::Chaos(a) => commands::chaos::run(a),
+        Command::Chaos(a) => runtime::chaos::run(a),
         Command::LearnerBench(a) => commands::train::bench(a),
-        Command::TransportBench(a) => commands::transport_bench::run(a),
+        Command::TransportBench(a) => runtime::transport_bench::run(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

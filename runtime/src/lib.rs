@@ -6,6 +6,7 @@
 //! supervisor of `dronerace train` (`supervisor`).
 
 pub mod actor_process;
+pub mod chaos;
 pub mod experiment;
 pub mod learner_process;
 pub mod metrics;
@@ -15,6 +16,7 @@ pub mod services;
 pub mod supervisor;
 pub mod train;
 pub mod trainer;
+pub mod transport_bench;
 pub mod validation;
 
 pub use run::{IterationSummary, Run, TrackSource, TrainConfig, TrainError};

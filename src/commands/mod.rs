@@ -1,13 +1,11 @@
 //! One module per subcommand: argument types and the glue that calls the crates.
 
-pub mod chaos;
 pub mod eval;
 pub mod experiment;
 pub mod sim;
 pub mod tasks;
 pub mod tracks;
 pub mod train;
-pub mod transport_bench;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

@@ -4,6 +4,8 @@
 //! shared-memory segments or loopback sockets N processes would use) sending to one learner end,
 //! with the CPU time of the learner's threads alone.
 
+#![allow(clippy::print_stdout, clippy::print_stderr, reason = "a command whose output is its report")]
+
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Barrier};
 use std::time::{Duration, Instant};
@@ -14,7 +16,7 @@ use proto::grpc_link::{GrpcActorLink, LearnerService};
 use proto::shm::{ShmActorLink, ShmConfig, ShmLearnerLink};
 use proto::{ActorLink, Admission, LearnerLink, Received, Security, WeightsUpdate};
 
-use runtime::services::Transport;
+use crate::services::Transport;
 
 /// Arguments of `dronerace transport-bench`.
 #[derive(Args)]

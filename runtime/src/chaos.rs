@@ -5,6 +5,8 @@
 //! and lost, checkpoints readable, resident memory of each process at start and end, shared
 //! memory left behind. Writes `<out>/chaos.json` and prints a table.
 
+#![allow(clippy::print_stdout, clippy::print_stderr, reason = "a command whose output is its report")]
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -16,7 +18,7 @@ use learner::checkpoint::Checkpoint;
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
-use runtime::services::Transport;
+use crate::services::Transport;
 
 /// Arguments of `dronerace chaos`.
 #[derive(Args)]
@@ -252,7 +254,8 @@ pub fn run(args: ChaosArgs) -> anyhow::Result<()> {
         shm_left,
     };
     let json = serde_json::to_string_pretty(&report)?;
-    super::write_atomic(&args.out.join("chaos.json"), json.as_bytes())?;
+    let report_path = args.out.join("chaos.json");
+    racetracks::files::write_atomic(&report_path, json.as_bytes()).with_context(|| format!("writing {}", report_path.display()))?;
     println!("{json}");
     anyhow::ensure!(report.reports_lost == 0, "{} acknowledged task reports were lost", report.reports_lost);
     anyhow::ensure!(report.checkpoints_readable == report.checkpoints, "unreadable checkpoints in {}", args.out.display());
