@@ -140,8 +140,10 @@ pub fn learner(args: LearnerArgs) -> anyhow::Result<()> {
         Transport::Grpc => {
             let shared = Arc::new(LearnerBoard::default());
             let (service, link) = LearnerService::with_rollouts(shared.clone());
-            let server = serve_learner(&rt, args.listen, &security, service, stop.clone())?;
+            // Serve only once the process holds its restored state: a Status answered earlier
+            // would report iteration 0 for a resumed run.
             let process = LearnerProcess::start(run, checkpoint.as_ref(), link, shared, settings)?;
+            let server = serve_learner(&rt, args.listen, &security, service, stop.clone())?;
             drive(process, resumed, &args, &stop, tasks.as_ref())?;
             finish_server(&rt, server, &stop);
         }
@@ -150,8 +152,10 @@ pub fn learner(args: LearnerArgs) -> anyhow::Result<()> {
             let link = ShmLearnerLink::open(&shm)?;
             let shared = Arc::new(LearnerBoard::default());
             let service = LearnerService::status_only(shared.clone());
-            let server = serve_learner(&rt, args.listen, &security, service, stop.clone())?;
+            // Serve only once the process holds its restored state: a Status answered earlier
+            // would report iteration 0 for a resumed run.
             let process = LearnerProcess::start(run, checkpoint.as_ref(), link, shared, settings)?;
+            let server = serve_learner(&rt, args.listen, &security, service, stop.clone())?;
             drive(process, resumed, &args, &stop, tasks.as_ref())?;
             finish_server(&rt, server, &stop);
         }
