@@ -4,6 +4,8 @@
 //! is one product and one pass forward, and two products and one pass backward (issue 13).
 //! Other devices take burn's ops, which compute the same function.
 
+use std::mem::MaybeUninit;
+
 use burn::backend::Autodiff;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::NoCheckpointing;
@@ -13,8 +15,6 @@ use burn::backend::flex::{Flex, FlexTensor};
 use burn::backend::tensor::FloatTensor;
 use burn::tensor::activation::relu;
 use burn::tensor::{Tensor, TensorData};
-use std::mem::MaybeUninit;
-
 use rayon::prelude::*;
 
 /// The autodiff flex backend that training runs on.
