@@ -12,7 +12,7 @@ use rand_distr::StandardNormal;
 
 use crate::config::Profile;
 use crate::learner::adam;
-use crate::ppo::update::{TrainingBatch, clip_grad_norm, minibatch_loss};
+use crate::ppo::update::{TrainingBatch, clip_grad_norm, clip_groups, minibatch_loss};
 
 /// Median times of the three stages (seconds) and the implied rate.
 #[derive(Clone, Copy, Debug)]
@@ -63,7 +63,7 @@ pub fn time_gradient_step(profile: &Profile, samples: usize, repeats: usize, dev
     };
     let rows: Vec<usize> = (0..samples).collect();
     let ids = model.param_ids();
-    let groups = vec![0; ids.len()];
+    let (groups, _) = clip_groups(ids.len(), config);
     let (mut f, mut b, mut o) = (Vec::new(), Vec::new(), Vec::new());
     for round in 0..=repeats {
         let t0 = Instant::now();

@@ -248,6 +248,8 @@ mod tests {
         (0..rows * cols).map(|_| rng.sample(StandardNormal)).collect()
     }
 
+    type Layer = fn(Tensor<2>, Tensor<2>, Tensor<1>, Option<f64>) -> Tensor<2>;
+
     fn values_of<const D: usize>(t: Tensor<D>) -> Vec<f32> {
         t.into_data().try_into_vec::<f32>().unwrap()
     }
@@ -266,7 +268,6 @@ mod tests {
         let b1 = Tensor::<1>::from_data(TensorData::new(random(1, hidden, &mut rng), [hidden]), &device).require_grad();
         let b2 = Tensor::<1>::from_data(TensorData::new(random(1, outputs, &mut rng), [outputs]), &device).require_grad();
         let weights = Tensor::<2>::from_data(TensorData::new(random(rows, outputs, &mut rng), [rows, outputs]), &device);
-        type Layer = fn(Tensor<2>, Tensor<2>, Tensor<1>, Option<f64>) -> Tensor<2>;
         let run = |layer: Layer| {
             let h = layer(x.clone(), w1.clone(), b1.clone(), Some(0.01));
             let y = layer(h, w2.clone(), b2.clone(), None);
@@ -292,7 +293,6 @@ mod tests {
         let xs = [-3.0f32, -0.25, 0.0, 0.5, 7.0];
         let n = xs.len();
         let identity: Vec<f32> = (0..n * n).map(|i| if i % (n + 1) == 0 { 1.0 } else { 0.0 }).collect();
-        type Layer = fn(Tensor<2>, Tensor<2>, Tensor<1>, Option<f64>) -> Tensor<2>;
         for layer in [dense as Layer, dense_by_burn_ops] {
             let x = Tensor::<2>::from_data(TensorData::new(xs.to_vec(), [1, n]), &device).require_grad();
             let w = Tensor::<2>::from_data(TensorData::new(identity.clone(), [n, n]), &device);

@@ -175,9 +175,7 @@ pub fn update(
     let mut stats = UpdateStats::default();
     let mut indices: Vec<usize> = (0..batch.len()).collect();
     let ids = model.param_ids();
-    // Export order: actor layers, critic layers (as many as the actor's), then the log std.
-    let critic = (ids.len() - 1) / 2..ids.len() - 1;
-    let groups: Vec<usize> = (0..ids.len()).map(|i| usize::from(config.clip_per_network && critic.contains(&i))).collect();
+    let (groups, critic) = clip_groups(ids.len(), config);
     for _ in 0..config.n_epochs {
         indices.shuffle(rng);
         for rows in indices.chunks(config.batch_size.min(batch.len())) {
@@ -192,6 +190,15 @@ pub fn update(
     stats.explained_variance = explained_variance(&batch.old_values, &batch.returns);
     stats.log_std = f64::from(scalar(model.log_std.val().mean()));
     (model, stats)
+}
+
+/// The clipping group of each of `params` parameters in export order (actor layers, critic
+/// layers — as many as the actor's — then the log std): all 0 (SB3's global clipping), or the
+/// critic's 1 with `clip_per_network`; and the critic's index range.
+pub fn clip_groups(params: usize, config: &PpoConfig) -> (Vec<usize>, std::ops::Range<usize>) {
+    let critic = (params - 1) / 2..params - 1;
+    let groups = (0..params).map(|i| usize::from(config.clip_per_network && critic.contains(&i))).collect();
+    (groups, critic)
 }
 
 /// Gradient-norm clipping (torch `clip_grad_norm_`) over groups of parameters: `groups[i]` is
