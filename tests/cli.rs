@@ -239,3 +239,64 @@ fn generate_is_reproducible_and_testset_has_forty_valid_tracks() {
     let (w, h) = png_size(&png);
     assert!(w > h, "5 tracks: a 3 × 2 grid of gallery cells ({w} × {h})");
 }
+
+/// Pixels of an 8-bit greyscale PNG.
+fn grey_png(path: &Path) -> (u32, u32, Vec<u8>) {
+    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut pixels = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut pixels).unwrap();
+    assert_eq!((info.color_type, info.bit_depth), (png::ColorType::Grayscale, png::BitDepth::Eight));
+    pixels.truncate(info.buffer_size());
+    (info.width, info.height, pixels)
+}
+
+#[test]
+fn sim_render_writes_the_exact_observation_and_an_animated_flight() {
+    let dir = tempfile::tempdir().unwrap();
+    let track_file = library_file("figure8.toml");
+    // One frame: the PNG holds exactly what the renderer gives the policy at that pose.
+    let frame = dir.path().join("frame.png");
+    let pose = "0.5,-1.0,2.5,0.9659,0,0,0.2588"; // 30° yaw
+    let o = dronerace(&["sim", "render", "--track", &track_file, "--pose", pose, "--target", "2", "--out", frame.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (w, h, pixels) = grey_png(&frame);
+    assert_eq!((w, h), (84, 84));
+    let track = racetracks::read_track(Path::new(&track_file)).unwrap();
+    let q = sim::nalgebra::UnitQuaternion::from_quaternion(sim::nalgebra::Quaternion::new(0.9659, 0.0, 0.0, 0.2588));
+    let mut expected = vec![0u8; sim::camera::IMAGE_PIXELS];
+    sim::camera::render(&track, 2, &sim::nalgebra::Vector3::new(0.5, -1.0, 2.5), &q.to_rotation_matrix().into_inner(), &mut expected);
+    assert_eq!(pixels, expected);
+    assert!(pixels.contains(&255) || pixels.contains(&155) || pixels.contains(&55), "the pose sees a gate");
+    // A flight: a looping GIF of many frames and a strip of the chosen steps.
+    let gif_path = dir.path().join("flight.gif");
+    let strip = dir.path().join("strip.png");
+    let o = dronerace(&[
+        "sim",
+        "render",
+        "--track",
+        &track_file,
+        "--controller",
+        "pilot",
+        "--out",
+        gif_path.to_str().unwrap(),
+        "--strip",
+        strip.to_str().unwrap(),
+        "--strip-steps",
+        "0,20,40",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("laps done"), "the pilot flies a lap: {}", String::from_utf8_lossy(&o.stdout));
+    let mut decoder = gif::DecodeOptions::new().read_info(std::fs::File::open(&gif_path).unwrap()).unwrap();
+    let mut frames = 0;
+    while decoder.read_next_frame().unwrap().is_some() {
+        frames += 1;
+    }
+    assert!(frames > 50, "{frames} frames");
+    assert_eq!(grey_png(&strip).0, 3 * 86 - 2, "three frames side by side");
+    // Bad input names the field.
+    let o = dronerace(&["sim", "render", "--track", &track_file, "--pose", "1,2,3", "--out", frame.to_str().unwrap()]);
+    assert!(!o.status.success() && stderr(&o).contains("7 numbers"), "{}", stderr(&o));
+    let o = dronerace(&["sim", "render", "--track", &track_file, "--pose", pose, "--target", "9", "--out", frame.to_str().unwrap()]);
+    assert!(!o.status.success() && stderr(&o).contains("--target 9"), "{}", stderr(&o));
+}

@@ -1,6 +1,7 @@
 //! Quadrotor racing simulator: dynamics, race environment, vectorised environment, reference
 //! pilot and evaluation harness. Pure computation, no I/O.
 
+pub mod camera;
 pub mod eval;
 pub mod observation;
 pub mod params;

@@ -361,6 +361,11 @@ impl RaceEnv {
         write_state_observation(&self.quad.body, &self.previous_action, &self.track, self.target, frame, out);
     }
 
+    /// Renders the camera image of the current state (SPEC §5) into `out` (84×84 bytes).
+    pub fn render_camera(&self, out: &mut [u8]) {
+        crate::camera::render(&self.track, self.target, &self.quad.body.position, &self.quad.body.rotation(), out);
+    }
+
     /// The state observation in `frame` as a new array.
     pub fn observation_in(&self, frame: ObservationFrame) -> [f32; STATE_OBS_DIM] {
         let mut out = [0f32; STATE_OBS_DIM];

@@ -21,7 +21,7 @@ pub const GATE_CORNERS_LOCAL: [[f64; 2]; 4] = [
 ];
 
 /// The four solid bars of a gate frame as gate-local boxes `(min, max)` (SPEC §12.2).
-const FRAME_BARS: [([f64; 3], [f64; 3]); 4] = [
+pub(crate) const FRAME_BARS: [([f64; 3], [f64; 3]); 4] = [
     ([-GATE_HALF_DEPTH, -GATE_HALF_OUTER, GATE_HALF_OPENING], [GATE_HALF_DEPTH, GATE_HALF_OUTER, GATE_HALF_OUTER]),
     ([-GATE_HALF_DEPTH, -GATE_HALF_OUTER, -GATE_HALF_OUTER], [GATE_HALF_DEPTH, GATE_HALF_OUTER, -GATE_HALF_OPENING]),
     ([-GATE_HALF_DEPTH, GATE_HALF_OPENING, -GATE_HALF_OUTER], [GATE_HALF_DEPTH, GATE_HALF_OUTER, GATE_HALF_OUTER]),

@@ -2,12 +2,14 @@
 //!
 //! Each environment owns its random stream, so results are bit-identical whatever the number
 //! of rayon threads. Finished episodes reset automatically; the observation that ended them is
-//! kept in `final_observations` so a learner can bootstrap truncated episodes.
+//! kept in `final_observations` so a learner can bootstrap truncated episodes. With images on,
+//! each environment's camera image is rendered after every step into `images`.
 
 use std::sync::Arc;
 
 use rayon::prelude::*;
 
+use crate::camera::IMAGE_PIXELS;
 use crate::observation::STATE_OBS_DIM;
 use crate::race::{EnvConfig, EpisodeStats, RaceEnv, StepOutcome};
 use crate::track::Track;
@@ -39,6 +41,8 @@ pub struct VecEnv {
     pub final_observations: Vec<f32>,
     /// Episodes that finished in the last step, in environment order.
     pub finished: Vec<FinishedEpisode>,
+    /// Current camera images, `n × 84 × 84` bytes; empty unless [`VecEnv::with_images`].
+    pub images: Vec<u8>,
 }
 
 impl VecEnv {
@@ -46,6 +50,13 @@ impl VecEnv {
     pub fn new(tracks: Vec<Arc<Track>>, config: EnvConfig, seed: u64) -> Self {
         let envs: Vec<RaceEnv> = tracks.into_iter().enumerate().map(|(i, t)| RaceEnv::new(t, config, seed, i as u64)).collect();
         Self::from_envs(envs)
+    }
+
+    /// Renders a camera image for every environment after every step from now on.
+    pub fn with_images(mut self) -> Self {
+        self.images = vec![0; self.envs.len() * IMAGE_PIXELS];
+        self.render_all_images();
+        self
     }
 
     /// Number of environments.
@@ -94,6 +105,7 @@ impl VecEnv {
                 self.finished.push(FinishedEpisode { env: i, stats });
             }
         }
+        self.render_all_images();
     }
 
     /// Gives environment `i` a new track and starts a fresh episode on it; the interrupted
@@ -101,6 +113,9 @@ impl VecEnv {
     pub fn set_track(&mut self, i: usize, track: Arc<Track>) {
         self.envs[i].set_track(track);
         self.envs[i].observe(&mut self.observations[i * STATE_OBS_DIM..(i + 1) * STATE_OBS_DIM]);
+        if !self.images.is_empty() {
+            self.envs[i].render_camera(&mut self.images[i * IMAGE_PIXELS..(i + 1) * IMAGE_PIXELS]);
+        }
     }
 
     /// The environments, for inspection.
@@ -119,9 +134,23 @@ impl VecEnv {
             truncated: vec![false; n],
             final_observations: vec![0.0; n * STATE_OBS_DIM],
             finished: Vec::new(),
+            images: Vec::new(),
         };
         v.write_all_observations();
         v
+    }
+
+    /// Renders every environment's image in parallel (a no-op with images off); each image
+    /// depends on its own environment only, so the bytes do not depend on the thread count.
+    fn render_all_images(&mut self) {
+        if self.images.is_empty() {
+            return;
+        }
+        self.envs
+            .par_iter()
+            .zip(self.images.par_chunks_mut(IMAGE_PIXELS))
+            .with_min_len(4)
+            .for_each(|(env, image)| env.render_camera(image));
     }
 
     fn write_all_observations(&mut self) {
@@ -184,6 +213,33 @@ mod tests {
         let two = run(2);
         assert!(one.3 > 0, "random actions crash and reset some episodes");
         assert_eq!(one, two);
+    }
+
+    /// Every image of 100 random-action steps, concatenated.
+    fn images(threads: usize) -> Vec<u8> {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| {
+            let mut env = VecEnv::new(tracks(8), EnvConfig::default(), 7).with_images();
+            let mut rng = ChaCha8Rng::seed_from_u64(5);
+            let mut all = env.images.clone();
+            for _ in 0..100 {
+                let actions: Vec<f32> = (0..8 * 4).map(|_| rng.random_range(-1.0..1.0)).collect();
+                env.step(&actions);
+                all.extend_from_slice(&env.images);
+            }
+            all
+        })
+    }
+
+    #[test]
+    fn images_are_bit_identical_on_one_and_two_threads_and_match_each_environment() {
+        let one = images(1);
+        assert!(one.contains(&crate::camera::TARGET_COLOUR), "the target gate is in view at times");
+        assert_eq!(one, images(2));
+        let env = VecEnv::new(tracks(3), EnvConfig::default(), 7).with_images();
+        let mut single = vec![0; IMAGE_PIXELS];
+        env.envs()[2].render_camera(&mut single);
+        assert_eq!(&env.images[2 * IMAGE_PIXELS..], &single[..]);
     }
 
     #[test]

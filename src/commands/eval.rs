@@ -1,7 +1,6 @@
 //! `dronerace eval`: the evaluation harness of SPEC §9 for any controller.
 
-use std::path::PathBuf;
-
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use ::sim::eval::{EvalConfig, evaluate};
@@ -47,22 +46,30 @@ pub struct EvalArgs {
     out: PathBuf,
 }
 
+/// Makes fresh controllers of one kind, with a name for reports.
+pub type ControllerFactory = Box<dyn Fn() -> Box<dyn Controller> + Sync>;
+
+/// The reference pilot, or the mean action of the policy at `policy` (a checkpoint or blob).
+pub fn controller_factory(kind: ControllerKind, policy: Option<&Path>) -> anyhow::Result<(String, ControllerFactory)> {
+    Ok(match kind {
+        ControllerKind::Pilot => ("pilot".into(), Box::new(|| Box::new(ReferencePilot::default()))),
+        ControllerKind::Policy => {
+            let path = policy.context("--controller policy needs --policy CHECKPOINT")?;
+            let blob = learner::checkpoint::read_policy(path)?;
+            let policy = Arc::new(Policy::from_blob(&blob)?);
+            let name = format!("policy v{} ({})", blob.version, path.display());
+            (name, Box::new(move || Box::new(PolicyController::new(policy.clone()))))
+        }
+    })
+}
+
 /// Runs the evaluation, prints the table and writes JSON and Markdown.
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.runs > 0, "--runs must be at least 1");
     anyhow::ensure!(args.steps > 0, "--steps must be at least 1");
     let tracks = load_tracks(&args.tracks)?;
     let config = EvalConfig { runs: args.runs, steps: args.steps, seed: args.seed, ..EvalConfig::default() };
-    let (name, make): (String, Box<dyn Fn() -> Box<dyn Controller> + Sync>) = match args.controller {
-        ControllerKind::Pilot => ("pilot".into(), Box::new(|| Box::new(ReferencePilot::default()))),
-        ControllerKind::Policy => {
-            let path = args.policy.as_ref().context("--controller policy needs --policy CHECKPOINT")?;
-            let blob = learner::checkpoint::read_policy(path)?;
-            let policy = Arc::new(Policy::from_blob(&blob)?);
-            let name = format!("policy v{} ({})", blob.version, path.display());
-            (name, Box::new(move || Box::new(PolicyController::new(policy.clone()))))
-        }
-    };
+    let (name, make) = controller_factory(args.controller, args.policy.as_deref())?;
     let started = std::time::Instant::now();
     let report = evaluate(&name, &tracks, make.as_ref(), &config);
     let markdown = report.to_markdown();

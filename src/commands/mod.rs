@@ -2,6 +2,7 @@
 
 pub mod eval;
 pub mod experiment;
+pub mod render;
 pub mod sim;
 pub mod tasks;
 pub mod tracks;

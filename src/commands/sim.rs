@@ -1,4 +1,4 @@
-//! `dronerace sim …`: replay action files exactly; measure stepping speed.
+//! `dronerace sim …`: replay action files exactly; render the camera; measure stepping speed.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -29,6 +29,8 @@ pub enum SimCommand {
         #[arg(long, allow_hyphen_values = true)]
         start: Option<String>,
     },
+    /// Render what the vision agent sees: one frame from a pose (PNG), or a flight (GIF).
+    Render(super::render::RenderArgs),
     /// Measure environment steps per second with random actions.
     Bench {
         /// Parallel environments.
@@ -45,7 +47,20 @@ pub enum SimCommand {
         /// episodes end only by truncation (the worst case per step).
         #[arg(long, value_enum, default_value = "random")]
         actions: BenchActions,
+        /// `state`: the 40-number observation only; `vision`: also the 84×84 camera image of
+        /// every environment after every step (SPEC §5).
+        #[arg(long, value_enum, default_value = "state")]
+        obs: BenchObs,
     },
+}
+
+/// What `sim bench` observes.
+#[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
+pub enum BenchObs {
+    /// State observations.
+    State,
+    /// State observations and camera images.
+    Vision,
 }
 
 /// Action source of `sim bench`.
@@ -72,7 +87,8 @@ pub fn run(command: SimCommand) -> anyhow::Result<()> {
             println!("wrote {} rows to {}{ended}", rows.len(), out.display());
             Ok(())
         }
-        SimCommand::Bench { envs, threads, steps, actions } => bench(envs, threads, steps, actions),
+        SimCommand::Render(args) => super::render::run(args),
+        SimCommand::Bench { envs, threads, steps, actions, obs } => bench(envs, threads, steps, actions, obs),
     }
 }
 
@@ -123,7 +139,7 @@ fn read_actions(path: &Path) -> anyhow::Result<Vec<[f64; 4]>> {
 }
 
 /// Steps `envs` environments (library tracks, round robin) and reports the rate.
-fn bench(envs: usize, threads: Option<usize>, steps: usize, kind: BenchActions) -> anyhow::Result<()> {
+fn bench(envs: usize, threads: Option<usize>, steps: usize, kind: BenchActions, obs: BenchObs) -> anyhow::Result<()> {
     anyhow::ensure!(envs > 0 && steps > 0, "--envs and --steps must be at least 1");
     let threads = threads.unwrap_or_else(rayon::current_num_threads);
     let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
@@ -141,6 +157,9 @@ fn bench(envs: usize, threads: Option<usize>, steps: usize, kind: BenchActions) 
             BenchActions::Hover => EnvConfig { randomization: ::sim::RandomizationParams::none(), ..EnvConfig::default() },
         };
         let mut env = VecEnv::new(tracks, config, 0);
+        if obs == BenchObs::Vision {
+            env = env.with_images();
+        }
         let mut episodes = 0;
         let started = std::time::Instant::now();
         for k in 0..steps {
@@ -151,7 +170,7 @@ fn bench(envs: usize, threads: Option<usize>, steps: usize, kind: BenchActions) 
     });
     let rate = (envs * steps) as f64 / seconds;
     println!(
-        "{kind:?} actions, {envs} envs x {steps} steps on {threads} thread(s): {rate:.0} env-steps/s ({:.0} per thread), \
+        "{kind:?} actions, {obs:?} observations, {envs} envs x {steps} steps on {threads} thread(s): {rate:.0} env-steps/s ({:.0} per thread), \
          {episodes} episodes ended, {seconds:.2} s",
         rate / threads as f64
     );
