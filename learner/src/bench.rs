@@ -3,16 +3,19 @@
 
 use std::time::Instant;
 
+use burn::module::{Module, ParamId};
 use burn::optim::GradientsParams;
 use burn::tensor::Device;
-use policy::ActorCritic;
+use burn::tensor::{Tensor, TensorData};
+use policy::vision::{IMAGE_SIDE, PROPRIOCEPTION};
+use policy::{ActorCritic, VisionActorCritic};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
 use crate::config::Profile;
 use crate::learner::adam;
-use crate::ppo::update::{TrainingBatch, clip_grad_norm, clip_groups, minibatch_loss};
+use crate::ppo::update::{TrainingBatch, clip_grad_norm, clip_groups, minibatch_loss, ppo_loss};
 
 /// Median times of the three stages (seconds) and the implied rate.
 #[derive(Clone, Copy, Debug)]
@@ -39,43 +42,48 @@ pub fn device(backend: &str) -> Result<Device, String> {
     }
 }
 
-/// Times `repeats` gradient steps on `samples` random samples (after one warm-up step): the
-/// step training takes (`minibatch_loss`, backward, gradient-norm clipping, Adam with the
-/// profile's settings).
-pub fn time_gradient_step(profile: &Profile, samples: usize, repeats: usize, device: &Device) -> StepTiming {
-    let arch = &profile.architecture;
-    let config = &profile.ppo;
-    let mut model = ActorCritic::new(arch, config.initial_log_std, 0, device);
-    let mut optimizer = adam(profile);
-    // Gaussian data, as normalised observations are: activations then change sign at random,
-    // as in training. (A regular pattern let the branch predictor hide the cost of burn's
-    // branchy masking kernels, so this benchmark once reported ~30 % less time than
-    // training spent.)
-    let mut rng = ChaCha8Rng::seed_from_u64(0);
+/// Gaussian training data of `samples` rows with `observation_dim`-long observations, as
+/// normalised observations are: activations then change sign at random, as in training. (A
+/// regular pattern let the branch predictor hide the cost of burn's branchy masking kernels,
+/// so this benchmark once reported ~30 % less time than training spent.)
+fn gaussian_batch(samples: usize, observation_dim: usize, action_dim: usize, rng: &mut ChaCha8Rng) -> TrainingBatch {
     let mut data = |n: usize| (0..n).map(|_| rng.sample::<f32, _>(StandardNormal)).collect::<Vec<f32>>();
-    let batch = TrainingBatch {
-        observations: data(samples * arch.observation_dim),
-        actions: data(samples * arch.action_dim),
+    TrainingBatch {
+        observations: data(samples * observation_dim),
+        actions: data(samples * action_dim),
         old_log_probs: data(samples),
         advantages: data(samples),
         returns: data(samples),
         old_values: data(samples),
-    };
-    let rows: Vec<usize> = (0..samples).collect();
-    let ids = model.param_ids();
-    let (groups, _) = clip_groups(ids.len(), config);
+    }
+}
+
+/// Runs one warm-up and `repeats` timed gradient steps of `model`: `loss` is the forward pass
+/// and the loss, then backward, gradient-norm clipping over `ids` in clipping `groups`, Adam
+/// with the profile's settings, and `force`, which reads a parameter so that the lazy update
+/// runs inside the timing. Returns median (forward, backward, optimiser) seconds.
+fn time_steps<M: Module>(
+    profile: &Profile,
+    mut model: M,
+    (ids, groups): (&[(ParamId, usize)], &[usize]),
+    repeats: usize,
+    loss: impl Fn(&M) -> Tensor<1>,
+    force: impl Fn(&M),
+) -> (f64, f64, f64) {
+    let config = &profile.ppo;
+    let mut optimizer = adam(profile);
     let (mut f, mut b, mut o) = (Vec::new(), Vec::new(), Vec::new());
     for round in 0..=repeats {
         let t0 = Instant::now();
-        let (loss, _) = minibatch_loss(&model, batch.minibatch(&rows, device), config);
+        let loss = loss(&model);
         let _ = loss.clone().into_data(); // force the forward pass
         let t1 = Instant::now();
         let grads = loss.backward();
         let t2 = Instant::now();
         let mut grads = GradientsParams::from_grads(grads, &model);
-        clip_grad_norm(&mut grads, &ids, &groups, config.max_grad_norm);
+        clip_grad_norm(&mut grads, ids, groups, config.max_grad_norm);
         model = optimizer.step(config.learning_rate_start, model, grads);
-        let _ = model.log_std.val().into_data(); // force the update
+        force(&model);
         let t3 = Instant::now();
         if round > 0 {
             f.push((t1 - t0).as_secs_f64());
@@ -87,11 +95,55 @@ pub fn time_gradient_step(profile: &Profile, samples: usize, repeats: usize, dev
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]
     };
-    let (forward, backward, optimizer) = (median(&mut f), median(&mut b), median(&mut o));
+    (median(&mut f), median(&mut b), median(&mut o))
+}
+
+/// Times `repeats` gradient steps on `samples` random samples (after one warm-up step): the
+/// step training takes (`minibatch_loss`, backward, gradient-norm clipping, Adam with the
+/// profile's settings).
+pub fn time_gradient_step(profile: &Profile, samples: usize, repeats: usize, device: &Device) -> StepTiming {
+    let arch = &profile.architecture;
+    let config = &profile.ppo;
+    let model = ActorCritic::new(arch, config.initial_log_std, 0, device);
+    let batch = gaussian_batch(samples, arch.observation_dim, arch.action_dim, &mut ChaCha8Rng::seed_from_u64(0));
+    let rows: Vec<usize> = (0..samples).collect();
+    let ids = model.param_ids();
+    let (groups, _) = clip_groups(ids.len(), config);
+    let loss = |model: &ActorCritic| minibatch_loss(model, batch.minibatch(&rows, device), config).0;
+    let force = |model: &ActorCritic| drop(model.log_std.val().into_data());
+    let (forward, backward, optimizer) = time_steps(profile, model, (&ids, &groups), repeats, loss, force);
     let mut dims = vec![arch.observation_dim];
     dims.extend(&arch.hidden);
     let macs_per_sample: usize = dims.windows(2).map(|w| w[0] * w[1]).sum::<usize>() * 2
         + arch.hidden.last().copied().unwrap_or(arch.observation_dim) * (arch.action_dim + 1);
     let flops = 2.0 * 3.0 * (macs_per_sample * samples) as f64;
+    StepTiming { forward, backward, optimizer, gflops: flops / (forward + backward) / 1e9 }
+}
+
+/// [`time_gradient_step`] for the vision agent (SPEC §5): the CNN actor on random 84×84
+/// images and proprioception, the MLP critic on the state, the same PPO loss and optimiser.
+pub fn time_vision_gradient_step(profile: &Profile, samples: usize, repeats: usize, device: &Device) -> StepTiming {
+    let arch = &profile.architecture;
+    let config = &profile.ppo;
+    let model = VisionActorCritic::new(arch, config.initial_log_std, 0, device);
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let batch = gaussian_batch(samples, arch.observation_dim, arch.action_dim, &mut rng);
+    // Images as the renderer makes them: mostly background, gate pixels in three grey levels.
+    let levels = [0.0, 0.0, 0.0, 0.0, 55.0 / 255.0, 155.0 / 255.0, 1.0];
+    let pixels: Vec<f32> = (0..samples * IMAGE_SIDE * IMAGE_SIDE).map(|_| levels[rng.random_range(0..levels.len())]).collect();
+    let images = Tensor::<4>::from_data(TensorData::new(pixels, [samples, 1, IMAGE_SIDE, IMAGE_SIDE]), device);
+    let proprio: Vec<f32> = (0..samples * PROPRIOCEPTION).map(|_| rng.sample(StandardNormal)).collect();
+    let proprio = Tensor::<2>::from_data(TensorData::new(proprio, [samples, PROPRIOCEPTION]), device);
+    let rows: Vec<usize> = (0..samples).collect();
+    let ids = model.param_ids();
+    let groups = vec![0; ids.len()]; // global clipping, as SB3
+    let loss = |model: &VisionActorCritic| {
+        let m = batch.minibatch(&rows, device);
+        let (mean, values) = model.forward(images.clone(), proprio.clone(), m.observations());
+        ppo_loss(mean, values, model.log_std.val(), m, config).0
+    };
+    let force = |model: &VisionActorCritic| drop(model.log_std.val().into_data());
+    let (forward, backward, optimizer) = time_steps(profile, model, (&ids, &groups), repeats, loss, force);
+    let flops = 2.0 * 3.0 * (VisionActorCritic::macs_per_sample(arch) * samples) as f64;
     StepTiming { forward, backward, optimizer, gflops: flops / (forward + backward) / 1e9 }
 }

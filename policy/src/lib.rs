@@ -10,6 +10,7 @@ pub mod network;
 pub mod normalizer;
 pub mod rollout;
 pub mod safetensors;
+pub mod vision;
 
 pub use architecture::Architecture;
 pub use blob::{BlobError, WeightsBlob};
@@ -19,3 +20,4 @@ pub use inference::{Acting, HALF_LN_2PI, Policy, PolicyController, gaussian_log_
 pub use network::ActorCritic;
 pub use normalizer::ObsNormalizer;
 pub use rollout::{EpisodeRecord, RolloutChunk, RolloutWireError};
+pub use vision::VisionActorCritic;

@@ -22,7 +22,7 @@ pub struct Mlp {
 /// A `rows × cols` matrix with orthonormal rows or columns times `gain` (as torch's
 /// `orthogonal_`): QR of a Gaussian matrix, signs fixed by R's diagonal. Drawn from our own
 /// seeded stream: burn's random tensors share one process-wide generator.
-fn orthogonal(rows: usize, cols: usize, gain: f64, rng: &mut ChaCha8Rng) -> Vec<f32> {
+pub(crate) fn orthogonal(rows: usize, cols: usize, gain: f64, rng: &mut ChaCha8Rng) -> Vec<f32> {
     let (tall, short) = (rows.max(cols), rows.min(cols));
     let gaussian = DMatrix::<f64>::from_fn(tall, short, |_, _| rng.sample(StandardNormal));
     let qr = gaussian.qr();
@@ -37,13 +37,13 @@ fn orthogonal(rows: usize, cols: usize, gain: f64, rng: &mut ChaCha8Rng) -> Vec<
     (0..rows).flat_map(|i| (0..cols).map(move |j| (i, j))).map(|(i, j)| (gain * q[(i, j)]) as f32).collect()
 }
 
-fn parameter<const D: usize>(values: Vec<f32>, shape: [usize; D], device: &Device) -> Param<Tensor<D>> {
+pub(crate) fn parameter<const D: usize>(values: Vec<f32>, shape: [usize; D], device: &Device) -> Param<Tensor<D>> {
     Param::from_tensor(Tensor::from_data(TensorData::new(values, shape), device))
 }
 
 impl Mlp {
     /// Orthogonal weights (gain √2 for hidden layers, `head_gain` for the last), zero biases.
-    fn new(dims: &[usize], head_gain: f64, negative_slope: f64, rng: &mut ChaCha8Rng, device: &Device) -> Self {
+    pub(crate) fn new(dims: &[usize], head_gain: f64, negative_slope: f64, rng: &mut ChaCha8Rng, device: &Device) -> Self {
         let count = dims.len() - 1;
         let layers = dims
             .windows(2)
@@ -57,6 +57,11 @@ impl Mlp {
             })
             .collect();
         Self { layers, negative_slope }
+    }
+
+    /// Each layer's weight (rank 2) and bias (rank 1) id, in order.
+    pub(crate) fn param_ids(&self) -> Vec<(ParamId, usize)> {
+        self.layers.iter().flat_map(|l| [(l.weight.id, 2)].into_iter().chain(l.bias.as_ref().map(|b| (b.id, 1)))).collect()
     }
 
     /// `[batch, in] → [batch, out]`.

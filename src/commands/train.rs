@@ -111,6 +111,10 @@ pub struct LearnerBenchArgs {
     /// program's network in a side-by-side comparison).
     #[arg(long, value_delimiter = ',')]
     hidden: Option<Vec<usize>>,
+    /// `state`: the MLP actor-critic; `vision`: the CNN actor on 84×84 images (SPEC §5) with
+    /// the profile's MLP widths.
+    #[arg(long, default_value = "state")]
+    agent: String,
 }
 
 /// Times forward, backward and the optimiser step of one PPO gradient step.
@@ -122,9 +126,14 @@ pub fn bench(args: LearnerBenchArgs) -> anyhow::Result<()> {
         profile.architecture.hidden = hidden;
     }
     let device = learner::bench::device(&args.backend).map_err(|e| anyhow::anyhow!("--backend: {e}"))?;
-    let t = learner::bench::time_gradient_step(&profile, args.samples, args.repeats, &device);
+    let t = match args.agent.as_str() {
+        "state" => learner::bench::time_gradient_step(&profile, args.samples, args.repeats, &device),
+        "vision" => learner::bench::time_vision_gradient_step(&profile, args.samples, args.repeats, &device),
+        other => anyhow::bail!("--agent: {other:?} is neither state nor vision"),
+    };
     println!(
-        "{} profile {:?}, {} samples, {} backend, {} threads: forward {:.1} ms, backward {:.1} ms, optimiser {:.1} ms, {:.1} GFLOP/s (forward+backward)",
+        "{} {} profile {:?}, {} samples, {} backend, {} threads: forward {:.1} ms, backward {:.1} ms, optimiser {:.1} ms, {:.1} GFLOP/s (forward+backward)",
+        args.agent,
         profile.name,
         profile.architecture.hidden,
         args.samples,

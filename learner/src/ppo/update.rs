@@ -76,6 +76,13 @@ pub struct Minibatch {
     returns: Tensor<1>,
 }
 
+impl Minibatch {
+    /// Its normalised observations (the state-based networks' input, the vision critic's).
+    pub fn observations(&self) -> Tensor<2> {
+        self.observations.clone()
+    }
+}
+
 impl TrainingBatch {
     /// The rows `rows` as a [`Minibatch`] on `device`.
     pub fn minibatch(&self, rows: &[usize], device: &Device) -> Minibatch {
@@ -114,8 +121,14 @@ pub struct LossParts {
 /// term: a state-independent Gaussian's entropy does not depend on the data, and SPEC's
 /// ent_coef is 0).
 pub fn minibatch_loss(model: &ActorCritic, m: Minibatch, config: &PpoConfig) -> (Tensor<1>, LossParts) {
-    let (mean, values) = model.forward(m.observations);
-    let new_log_probs = log_prob(m.actions, mean, model.log_std.val());
+    let (mean, values) = model.forward(m.observations.clone());
+    ppo_loss(mean, values, model.log_std.val(), m, config)
+}
+
+/// [`minibatch_loss`] from a network's outputs on the minibatch — action means, values and the
+/// log std — whichever network produced them (the vision agent's reads images as well).
+pub fn ppo_loss(mean: Tensor<2>, values: Tensor<1>, log_std: Tensor<1>, m: Minibatch, config: &PpoConfig) -> (Tensor<1>, LossParts) {
+    let new_log_probs = log_prob(m.actions, mean, log_std);
     let log_ratio = new_log_probs - m.old_log_probs;
     let ratio = log_ratio.clone().exp();
     let policy_loss = clipped_surrogate(ratio.clone(), m.advantages, config.clip_range);
@@ -201,7 +214,8 @@ pub fn clip_groups(params: usize, config: &PpoConfig) -> (Vec<usize>, std::ops::
     (groups, critic)
 }
 
-/// Gradient-norm clipping (torch `clip_grad_norm_`) over groups of parameters: `groups[i]` is
+/// Gradient-norm clipping (torch `clip_grad_norm_`) over groups of parameters of rank 1, 2 or
+/// 4 (convolution kernels): `groups[i]` is
 /// the group of `ids[i]`, and each group whose norm exceeds `max` is scaled by
 /// `max / (norm + 1e-6)` on its own (one group: SB3's global clipping). Returns each
 /// parameter's squared gradient norm before clipping, in `ids` order.
@@ -211,7 +225,8 @@ pub fn clip_grad_norm(grads: &mut GradientsParams, ids: &[(ParamId, usize)], gro
         .map(|&(id, rank)| {
             let sum = match rank {
                 1 => grads.get::<1>(id).map(|g| scalar(g.powf_scalar(2.0).sum())),
-                _ => grads.get::<2>(id).map(|g| scalar(g.powf_scalar(2.0).sum())),
+                2 => grads.get::<2>(id).map(|g| scalar(g.powf_scalar(2.0).sum())),
+                _ => grads.get::<4>(id).map(|g| scalar(g.powf_scalar(2.0).sum())),
             };
             f64::from(sum.unwrap_or(0.0))
         })
@@ -232,8 +247,13 @@ pub fn clip_grad_norm(grads: &mut GradientsParams, ids: &[(ParamId, usize)], gro
                     grads.register(id, g.mul_scalar(coefficient));
                 }
             }
-            _ => {
+            2 => {
                 if let Some(g) = grads.remove::<2>(id) {
+                    grads.register(id, g.mul_scalar(coefficient));
+                }
+            }
+            _ => {
+                if let Some(g) = grads.remove::<4>(id) {
                     grads.register(id, g.mul_scalar(coefficient));
                 }
             }

@@ -1,0 +1,194 @@
+//! The vision agent's actor-critic (SPEC §5): a CNN reads the 84×84 camera image
+//! (conv 32@8×8/4, 64@4×4/2, 64@3×3/1, LeakyReLU after each, flatten, linear → 128, LeakyReLU,
+//! as Stable-Baselines3's NatureCNN ends in an activation), the actor MLP reads
+//! `[embedding, R_WB columns 0–1, v, ω]`, and the critic MLP reads the 40-number state
+//! observation — asymmetric: the critic exists only in training, where the state is known.
+
+use burn::module::{Module, Param, ParamId};
+use burn::nn::PaddingConfig2d;
+use burn::nn::conv::Conv2d;
+use burn::tensor::activation::relu;
+use burn::tensor::{Device, Tensor};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use crate::architecture::Architecture;
+use crate::dense::dense;
+use crate::network::{Mlp, orthogonal, parameter};
+
+/// Side of the camera image (pixels).
+pub const IMAGE_SIDE: usize = 84;
+/// Length of the CNN's embedding.
+pub const EMBEDDING: usize = 128;
+/// Length of the actor's state part: R_WB columns 0–1 (6), v (3), ω (3).
+pub const PROPRIOCEPTION: usize = 12;
+/// The three convolutions: (output channels, kernel, stride).
+const CONVOLUTIONS: [(usize, usize, usize); 3] = [(32, 8, 4), (64, 4, 2), (64, 3, 1)];
+/// Flattened length after the convolutions: 64 channels × 7 × 7 for an 84×84 image.
+pub const CONV_OUTPUT: usize = 64 * 7 * 7;
+
+/// `s·z + (1 − s)·relu(z)`: LeakyReLU from ops that stay cheap under autodiff.
+fn leaky<const D: usize>(z: Tensor<D>, slope: f64) -> Tensor<D> {
+    z.clone().mul_scalar(slope) + relu(z).mul_scalar(1.0 - slope)
+}
+
+/// The vision actor-critic.
+#[derive(Module, Debug)]
+pub struct VisionActorCritic {
+    /// The three convolutions.
+    pub convolutions: Vec<Conv2d>,
+    /// Flattened convolution output → embedding.
+    pub embedding: burn::nn::Linear,
+    /// `[embedding, proprioception]` → action mean.
+    pub actor: Mlp,
+    /// State observation → value.
+    pub critic: Mlp,
+    /// Log standard deviation per action dimension (state-independent).
+    pub log_std: Param<Tensor<1>>,
+    negative_slope: f64,
+}
+
+impl VisionActorCritic {
+    /// A freshly initialised network: orthogonal weights (gain √2 for the convolutions,
+    /// the embedding and hidden layers; 0.01 policy head, 1 value head), zero biases. `arch`
+    /// gives the MLPs' hidden widths, the state observation's length (critic) and the slope.
+    pub fn new(arch: &Architecture, initial_log_std: f64, seed: u64, device: &Device) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let gain = std::f64::consts::SQRT_2;
+        let mut channels = 1;
+        let convolutions = CONVOLUTIONS
+            .iter()
+            .map(|&(out, kernel, stride)| {
+                let fan_in = channels * kernel * kernel;
+                let conv = Conv2d {
+                    weight: parameter(orthogonal(out, fan_in, gain, &mut rng), [out, channels, kernel, kernel], device),
+                    bias: Some(parameter(vec![0.0; out], [out], device)),
+                    stride: [stride, stride],
+                    kernel_size: [kernel, kernel],
+                    dilation: [1, 1],
+                    groups: 1,
+                    padding: PaddingConfig2d::Valid,
+                };
+                channels = out;
+                conv
+            })
+            .collect();
+        let embedding = burn::nn::Linear {
+            weight: parameter(orthogonal(CONV_OUTPUT, EMBEDDING, gain, &mut rng), [CONV_OUTPUT, EMBEDDING], device),
+            bias: Some(parameter(vec![0.0; EMBEDDING], [EMBEDDING], device)),
+        };
+        let dims = |input: usize, out: usize| {
+            let mut d = vec![input];
+            d.extend(&arch.hidden);
+            d.push(out);
+            d
+        };
+        let slope = arch.negative_slope;
+        Self {
+            convolutions,
+            embedding,
+            actor: Mlp::new(&dims(EMBEDDING + PROPRIOCEPTION, arch.action_dim), 0.01, slope, &mut rng, device),
+            critic: Mlp::new(&dims(arch.observation_dim, 1), 1.0, slope, &mut rng, device),
+            log_std: parameter(vec![initial_log_std as f32; arch.action_dim], [arch.action_dim], device),
+            negative_slope: slope,
+        }
+    }
+
+    /// Embeddings `[batch, 128]` of images `[batch, 1, 84, 84]` scaled to [0, 1].
+    #[allow(clippy::expect_used, reason = "every layer is built with a bias")]
+    pub fn embed(&self, images: Tensor<4>) -> Tensor<2> {
+        let mut x = images;
+        for conv in &self.convolutions {
+            x = leaky(conv.forward(x), self.negative_slope);
+        }
+        let batch = x.dims()[0];
+        let flat = x.reshape([batch, CONV_OUTPUT]);
+        let bias = self.embedding.bias.as_ref().expect("built with a bias").val();
+        dense(flat, self.embedding.weight.val(), bias, Some(self.negative_slope))
+    }
+
+    /// Action means `[batch, action_dim]` and values `[batch]`: the actor from images and
+    /// proprioception `[batch, 12]`, the critic from normalised state observations.
+    pub fn forward(&self, images: Tensor<4>, proprioception: Tensor<2>, states: Tensor<2>) -> (Tensor<2>, Tensor<1>) {
+        let actor_input = Tensor::cat(vec![self.embed(images), proprioception], 1);
+        (self.actor.forward(actor_input), self.critic.forward(states).squeeze_dim(1))
+    }
+
+    /// Every parameter's id and rank: convolutions (weight, bias), embedding, actor layers,
+    /// critic layers, log std.
+    pub fn param_ids(&self) -> Vec<(ParamId, usize)> {
+        let mut ids: Vec<(ParamId, usize)> = Vec::new();
+        for conv in &self.convolutions {
+            ids.push((conv.weight.id, 4));
+            ids.extend(conv.bias.as_ref().map(|b| (b.id, 1)));
+        }
+        ids.push((self.embedding.weight.id, 2));
+        ids.extend(self.embedding.bias.as_ref().map(|b| (b.id, 1)));
+        ids.extend(self.actor.param_ids());
+        ids.extend(self.critic.param_ids());
+        ids.push((self.log_std.id, 1));
+        ids
+    }
+
+    /// Multiply-adds of one forward pass of one sample (convolutions, embedding, both MLPs).
+    pub fn macs_per_sample(arch: &Architecture) -> usize {
+        let (mut side, mut channels, mut macs) = (IMAGE_SIDE, 1, 0);
+        for (out, kernel, stride) in CONVOLUTIONS {
+            side = (side - kernel) / stride + 1;
+            macs += side * side * out * channels * kernel * kernel;
+            channels = out;
+        }
+        let mlp = |input: usize, out: usize| {
+            let mut d = vec![input];
+            d.extend(&arch.hidden);
+            d.push(out);
+            d.windows(2).map(|w| w[0] * w[1]).sum::<usize>()
+        };
+        macs + CONV_OUTPUT * EMBEDDING + mlp(EMBEDDING + PROPRIOCEPTION, arch.action_dim) + mlp(arch.observation_dim, 1)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::tensor::TensorData;
+
+    #[test]
+    fn forward_shapes_and_the_convolution_output_length() {
+        let arch = Architecture { hidden: vec![32, 32], ..Architecture::paper() };
+        let device = Device::flex();
+        let net = VisionActorCritic::new(&arch, -0.5, 0, &device);
+        let batch = 3;
+        let images = Tensor::<4>::from_data(
+            TensorData::new(vec![0.5f32; batch * IMAGE_SIDE * IMAGE_SIDE], [batch, 1, IMAGE_SIDE, IMAGE_SIDE]),
+            &device,
+        );
+        assert_eq!(net.embed(images.clone()).dims(), [batch, EMBEDDING]);
+        let proprio = Tensor::<2>::zeros([batch, PROPRIOCEPTION], &device);
+        let states = Tensor::<2>::zeros([batch, arch.observation_dim], &device);
+        let (mean, value) = net.forward(images, proprio, states);
+        assert_eq!(mean.dims(), [batch, arch.action_dim]);
+        assert_eq!(value.dims(), [batch]);
+        // 20×20×32×64 + 9×9×64×512 + 7×7×64×576 for the convolutions.
+        let conv = 20 * 20 * 32 * 64 + 9 * 9 * 64 * 512 + 7 * 7 * 64 * 576;
+        let mlps = CONV_OUTPUT * EMBEDDING + (140 * 32 + 32 * 32 + 32 * 4) + (40 * 32 + 32 * 32 + 32);
+        assert_eq!(VisionActorCritic::macs_per_sample(&arch), conv + mlps);
+    }
+
+    #[test]
+    fn the_image_changes_the_action_and_not_the_value() {
+        let arch = Architecture { hidden: vec![16, 16], ..Architecture::paper() };
+        let device = Device::flex();
+        let net = VisionActorCritic::new(&arch, -0.5, 1, &device);
+        let image = |level: f32| {
+            Tensor::<4>::from_data(TensorData::new(vec![level; IMAGE_SIDE * IMAGE_SIDE], [1, 1, IMAGE_SIDE, IMAGE_SIDE]), &device)
+        };
+        let proprio = Tensor::<2>::zeros([1, PROPRIOCEPTION], &device);
+        let states = Tensor::<2>::ones([1, arch.observation_dim], &device);
+        let (m0, v0) = net.forward(image(0.0), proprio.clone(), states.clone());
+        let (m1, v1) = net.forward(image(1.0), proprio, states);
+        let diff: f32 = (m0 - m1).abs().into_data().try_into_vec::<f32>().unwrap().iter().sum();
+        assert!(diff > 0.0, "the actor sees the image");
+        assert_eq!(v0.into_data(), v1.into_data(), "the critic reads the state only");
+    }
+}
