@@ -23,21 +23,84 @@ pub const FILE_DESCRIPTOR_SET: &[u8] = tonic::include_file_descriptor_set!("dron
 pub use security::{NetworkConfig, Security, SecurityError};
 pub use transport::{ActorLink, Admission, Delivery, LearnerLink, LearnerStatus, LinkError, Received, Refusal, WeightsUpdate};
 
-/// gRPC health and reflection services for a server whose own services are `serving`.
-#[allow(clippy::expect_used, reason = "the compiled-in descriptor set is valid")]
-pub async fn health_and_reflection(
-    serving: &[&str],
-) -> (
-    tonic_health::pb::health_server::HealthServer<impl tonic_health::pb::health_server::Health>,
-    tonic_reflection::server::v1::ServerReflectionServer<impl tonic_reflection::server::v1::ServerReflection>,
-) {
+/// Fully-qualified names of the discovery services every dronerace server offers beside its own.
+pub const DISCOVERY_SERVICES: [&str; 3] =
+    ["grpc.health.v1.Health", "grpc.reflection.v1.ServerReflection", "grpc.reflection.v1alpha.ServerReflection"];
+
+/// `server` with gRPC health (each of `serving` reported SERVING) and server reflection in
+/// both versions — v1, and v1alpha, which grpcio-reflection and older grpcurl speak — each
+/// listing exactly what this server serves: `serving` and the discovery services. Add the
+/// server's own services to the returned router.
+#[allow(clippy::expect_used, reason = "the compiled-in descriptor sets are valid")]
+pub async fn with_discovery(mut server: tonic::transport::Server, serving: &[&str]) -> tonic::transport::server::Router {
     let (reporter, health) = tonic_health::server::health_reporter();
     for name in serving {
         reporter.set_service_status(*name, tonic_health::ServingStatus::Serving).await;
     }
-    let reflection = tonic_reflection::server::Builder::configure()
-        .register_encoded_file_descriptor_set(FILE_DESCRIPTOR_SET)
-        .build_v1()
-        .expect("the compiled-in descriptor set is valid");
-    (health, reflection)
+    let builder = || {
+        let mut b = tonic_reflection::server::Builder::configure()
+            .register_encoded_file_descriptor_set(FILE_DESCRIPTOR_SET)
+            .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+            .register_encoded_file_descriptor_set(tonic_reflection::pb::v1::FILE_DESCRIPTOR_SET)
+            .register_encoded_file_descriptor_set(tonic_reflection::pb::v1alpha::FILE_DESCRIPTOR_SET)
+            .include_reflection_service(false);
+        for name in serving.iter().chain(&DISCOVERY_SERVICES) {
+            b = b.with_service_name(*name);
+        }
+        b
+    };
+    let v1 = builder().build_v1().expect("the compiled-in descriptor sets are valid");
+    let v1alpha = builder().build_v1alpha().expect("the compiled-in descriptor sets are valid");
+    server.add_service(health).add_service(v1).add_service(v1alpha)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tokio_stream::StreamExt;
+
+    /// The services a reflection client of either version lists.
+    async fn listed(addr: std::net::SocketAddr) -> (Vec<String>, Vec<String>) {
+        use tonic_reflection::pb::{v1, v1alpha};
+        let channel = tonic::transport::Endpoint::from_shared(format!("http://{addr}")).unwrap().connect().await.unwrap();
+        let mut client = v1::server_reflection_client::ServerReflectionClient::new(channel.clone());
+        let request = v1::ServerReflectionRequest {
+            host: String::new(),
+            message_request: Some(v1::server_reflection_request::MessageRequest::ListServices(String::new())),
+        };
+        let mut stream = client.server_reflection_info(tokio_stream::iter([request])).await.unwrap().into_inner();
+        let Some(v1::server_reflection_response::MessageResponse::ListServicesResponse(list)) =
+            stream.next().await.unwrap().unwrap().message_response
+        else {
+            panic!("v1: not a service list")
+        };
+        let v1_names = list.service.into_iter().map(|s| s.name).collect();
+        let mut client = v1alpha::server_reflection_client::ServerReflectionClient::new(channel);
+        let request = v1alpha::ServerReflectionRequest {
+            host: String::new(),
+            message_request: Some(v1alpha::server_reflection_request::MessageRequest::ListServices(String::new())),
+        };
+        let mut stream = client.server_reflection_info(tokio_stream::iter([request])).await.unwrap().into_inner();
+        let Some(v1alpha::server_reflection_response::MessageResponse::ListServicesResponse(list)) =
+            stream.next().await.unwrap().unwrap().message_response
+        else {
+            panic!("v1alpha: not a service list")
+        };
+        (v1_names, list.service.into_iter().map(|s| s.name).collect())
+    }
+
+    #[tokio::test]
+    async fn both_reflection_versions_list_exactly_what_the_server_serves() {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let router = with_discovery(tonic::transport::Server::builder(), &["dronerace.v1.TaskController"]).await;
+        tokio::spawn(router.serve_with_incoming(tokio_stream::wrappers::TcpListenerStream::new(listener)));
+        let (v1, v1alpha) = listed(addr).await;
+        let mut expected: Vec<String> = ["dronerace.v1.TaskController"].iter().chain(&DISCOVERY_SERVICES).map(|s| s.to_string()).collect();
+        expected.sort();
+        for (version, mut names) in [("v1", v1), ("v1alpha", v1alpha)] {
+            names.sort();
+            assert_eq!(names, expected, "reflection {version}");
+        }
+    }
 }

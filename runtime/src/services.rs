@@ -174,11 +174,8 @@ fn serve_learner(
 ) -> anyhow::Result<ServerTask> {
     // Bind now, so a taken port is an error at start rather than a silent background failure.
     let listener = rt.block_on(tokio::net::TcpListener::bind(addr)).with_context(|| format!("learner: binding {addr}"))?;
-    let (health, reflection) = rt.block_on(proto::health_and_reflection(&["dronerace.v1.Learner"]));
-    let router = security
-        .server()?
-        .add_service(health)
-        .add_service(reflection)
+    let router = rt
+        .block_on(proto::with_discovery(security.server()?, &["dronerace.v1.Learner"]))
         .add_service(tonic::service::interceptor::InterceptedService::new(service.into_server(), security.token_check()));
     let incoming = proto::security::incoming(listener);
     eprintln!("learner: serving on {addr}");

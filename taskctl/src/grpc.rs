@@ -229,11 +229,8 @@ pub async fn serve(
     shutdown: impl std::future::Future<Output = ()>,
 ) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
     security.check_listen(&addr)?;
-    let (health, reflection) = proto::health_and_reflection(&["dronerace.v1.TaskController"]).await;
-    security
-        .server()?
-        .add_service(health)
-        .add_service(reflection)
+    proto::with_discovery(security.server()?, &["dronerace.v1.TaskController"])
+        .await
         .add_service(tonic::service::interceptor::InterceptedService::new(service.into_server(), security.token_check()))
         .serve_with_shutdown(addr, shutdown)
         .await?;
