@@ -25,7 +25,9 @@ enum Command {
     Eval(commands::eval::EvalArgs),
     /// Write a checkpoint's policy as a stand-alone weights blob.
     ExportPolicy(commands::eval::ExportArgs),
-    /// Simulator tools: replay action files, measure stepping speed.
+    /// Serve a trained policy over gRPC (dronerace.v1.Pilot) for a flight stack.
+    Serve(runtime::pilot::ServeArgs),
+    /// Simulator tools: replay action files, render the camera, measure stepping speed.
     #[command(subcommand)]
     Sim(commands::sim::SimCommand),
     /// Run an experiment file (variants × seeds, resumable) and write its report.
@@ -87,6 +89,7 @@ fn main() -> std::process::ExitCode {
         Command::Chaos(a) => runtime::chaos::run(a),
         Command::LearnerBench(a) => commands::train::bench(a),
         Command::TransportBench(a) => runtime::transport_bench::run(a),
+        Command::Serve(a) => runtime::pilot::serve(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

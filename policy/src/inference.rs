@@ -70,6 +70,11 @@ impl Policy {
         self.frame
     }
 
+    /// Length of a raw observation.
+    pub fn observation_dim(&self) -> usize {
+        self.normalizer.dim()
+    }
+
     /// Action dimension.
     pub fn action_dim(&self) -> usize {
         self.log_std.len()

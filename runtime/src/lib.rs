@@ -10,6 +10,7 @@ pub mod chaos;
 pub mod experiment;
 pub mod learner_process;
 pub mod metrics;
+pub mod pilot;
 pub mod progress;
 pub mod run;
 pub mod services;

@@ -40,18 +40,21 @@ pub fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
     Ok(stop)
 }
 
-fn read_config(path: &Option<PathBuf>) -> anyhow::Result<TrainConfig> {
+/// The run configuration at `path`, or the defaults.
+pub(crate) fn read_config(path: &Option<PathBuf>) -> anyhow::Result<TrainConfig> {
     Ok(match path {
         Some(p) => TrainConfig::read(p)?,
         None => TrainConfig::default(),
     })
 }
 
-fn async_runtime(threads: usize) -> anyhow::Result<tokio::runtime::Runtime> {
+/// A multi-threaded tokio runtime with `threads` workers.
+pub(crate) fn async_runtime(threads: usize) -> anyhow::Result<tokio::runtime::Runtime> {
     tokio::runtime::Builder::new_multi_thread().worker_threads(threads).enable_all().build().context("starting the async runtime")
 }
 
-async fn until(stop: Arc<AtomicBool>) {
+/// Resolves once `stop` is set (polled every 100 ms).
+pub(crate) async fn until(stop: Arc<AtomicBool>) {
     while !stop.load(Ordering::SeqCst) {
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
