@@ -25,6 +25,8 @@ enum Command {
     Eval(commands::eval::EvalArgs),
     /// Write a checkpoint's policy as a stand-alone weights blob.
     ExportPolicy(commands::eval::ExportArgs),
+    /// Export a policy for other runtimes: the deterministic actor as ONNX.
+    Export(commands::eval::ExportModelArgs),
     /// Serve a trained policy over gRPC (dronerace.v1.Pilot) for a flight stack.
     Serve(runtime::pilot::ServeArgs),
     /// Simulator tools: replay action files, render the camera, measure stepping speed.
@@ -90,6 +92,7 @@ fn main() -> std::process::ExitCode {
         Command::LearnerBench(a) => commands::train::bench(a),
         Command::TransportBench(a) => runtime::transport_bench::run(a),
         Command::Serve(a) => runtime::pilot::serve(a),
+        Command::Export(a) => commands::eval::export_model(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

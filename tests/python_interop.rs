@@ -67,3 +67,66 @@ fn a_policy_and_a_checkpoint_act_the_same_in_numpy_as_in_dronerace() {
     let status = Command::new("python3").arg(script).arg(&policy_path).arg("--check").arg(&expected_path).output().unwrap().status;
     assert!(!status.success(), "different weights must not match");
 }
+
+/// Runs `docs/python/check_onnx.py` on a model, observations and expected actions.
+fn onnx_check(model: &Path, observations: &Path, expected: &Path) -> (bool, String) {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/python/check_onnx.py");
+    let out = Command::new("python3")
+        .arg(script)
+        .args([model, observations, expected])
+        .output()
+        .expect("python3 runs (install it, with `pip install numpy onnxruntime`, or run .ci/run)");
+    (out.status.success(), format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr)))
+}
+
+#[test]
+fn an_exported_onnx_actor_acts_as_dronerace_in_onnxruntime() {
+    let dir = tempfile::tempdir().unwrap();
+    let arch = Architecture {
+        hidden: vec![64, 32],
+        negative_slope: 0.2,
+        observation_frame: sim::ObservationFrame::Heading,
+        ..Architecture::cpu()
+    };
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(8);
+    let mut normalizer = ObsNormalizer::new(arch.observation_dim);
+    let sample: Vec<f32> = (0..arch.observation_dim * 200).map(|_| rng.random_range(-3.0..3.0) * 2.0 + 1.0).collect();
+    normalizer.update(&sample);
+    // A policy head with gain 1 rather than 0.01, so actions spread over [-1, 1] and the clip
+    // at ±1 is exercised too.
+    let mut model = ActorCritic::new(&arch, -0.5, 5, &policy::Device::flex());
+    let mut params = model.export();
+    for p in params.iter_mut().take(2 * (arch.hidden.len() + 1)).skip(2 * arch.hidden.len()) {
+        p.values.iter_mut().for_each(|v| *v *= 100.0);
+    }
+    model = ActorCritic::import(&arch, &params, &policy::Device::flex()).unwrap();
+    let blob = WeightsBlob::from_model(21, &arch, &normalizer, &model);
+    let blob_path = dir.path().join("policy.bin");
+    std::fs::write(&blob_path, blob.to_bytes()).unwrap();
+    // 1,000 observations, some beyond the normaliser's clip.
+    let observations: Vec<f32> = (0..arch.observation_dim * 1000).map(|_| rng.random_range(-25.0..25.0)).collect();
+    let (means, _) = Policy::from_blob(&blob).unwrap().means_and_values(&observations);
+    let actions: Vec<f32> = means.iter().map(|a| a.clamp(-1.0, 1.0)).collect();
+    assert!(actions.iter().filter(|a| a.abs() == 1.0).count() > 100, "the clip is exercised");
+    assert!(actions.iter().filter(|a| a.abs() < 0.9).count() > 100, "so is the interior");
+    let observations_path = dir.path().join("observations.json");
+    let expected_path = dir.path().join("expected.json");
+    let rows = |v: &[f32], w: usize| serde_json::to_string(&v.chunks(w).collect::<Vec<_>>()).unwrap();
+    std::fs::write(&observations_path, rows(&observations, arch.observation_dim)).unwrap();
+    std::fs::write(&expected_path, rows(&actions, arch.action_dim)).unwrap();
+
+    let model_path = dir.path().join("policy.onnx");
+    let o = Command::new(env!("CARGO_BIN_EXE_dronerace"))
+        .args(["export", "--policy", blob_path.to_str().unwrap(), "--format", "onnx", "--out", model_path.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (ok, report) = onnx_check(&model_path, &observations_path, &expected_path);
+    assert!(ok && report.contains("1000 observations"), "{report}");
+
+    // And the comparison can fail: another policy's actions do not pass.
+    let other: Vec<f32> = actions.iter().map(|a| (a * 0.5).clamp(-1.0, 1.0)).collect();
+    std::fs::write(&expected_path, rows(&other, arch.action_dim)).unwrap();
+    let (ok, report) = onnx_check(&model_path, &observations_path, &expected_path);
+    assert!(!ok, "{report}");
+}

@@ -8,6 +8,7 @@ pub mod dense;
 pub mod inference;
 pub mod network;
 pub mod normalizer;
+pub mod onnx;
 pub mod rollout;
 pub mod safetensors;
 pub mod vision;

@@ -100,3 +100,43 @@ pub fn export(args: ExportArgs) -> anyhow::Result<()> {
     println!("wrote {} (policy v{}, {} bytes)", args.out.display(), blob.version, bytes.len());
     Ok(())
 }
+
+/// Formats `dronerace export` writes.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum ExportFormat {
+    /// The deterministic actor with its normaliser folded in, as an ONNX model (opset 13).
+    Onnx,
+}
+
+/// Arguments of `dronerace export`.
+#[derive(Args)]
+pub struct ExportModelArgs {
+    /// Checkpoint or weights blob of the policy.
+    #[arg(long)]
+    policy: PathBuf,
+    /// Format of the file to write.
+    #[arg(long, value_enum, default_value = "onnx")]
+    format: ExportFormat,
+    /// File to write.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// Writes a policy in a format other programs run (ONNX Runtime, TensorRT, …).
+pub fn export_model(args: ExportModelArgs) -> anyhow::Result<()> {
+    let blob = learner::checkpoint::read_policy(&args.policy)?;
+    let bytes = match args.format {
+        ExportFormat::Onnx => policy::onnx::actor_model(&blob),
+    };
+    write_atomic(&args.out, &bytes)?;
+    println!(
+        "wrote {} (policy v{}: {} raw observations in the {:?} frame -> {} actions in [-1, 1], {} bytes)",
+        args.out.display(),
+        blob.version,
+        blob.architecture.observation_dim,
+        blob.architecture.observation_frame,
+        blob.architecture.action_dim,
+        bytes.len()
+    );
+    Ok(())
+}
