@@ -2,6 +2,27 @@
 
 use serde::{Deserialize, Serialize};
 
+/// Which kind of agent a network is (SPEC §5): what its actor reads.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Agent {
+    /// State-based: actor and critic read the 40-number state observation.
+    #[default]
+    State,
+    /// Vision-based: the actor reads the camera image and proprioception through a CNN
+    /// (`crate::vision`); the critic reads the state observation.
+    Vision,
+}
+
+impl std::fmt::Display for Agent {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Agent::State => "state-based",
+            Agent::Vision => "vision-based",
+        })
+    }
+}
+
 /// Shape of the actor-critic: what a weights blob must match to be loaded.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -18,6 +39,9 @@ pub struct Architecture {
     /// Blobs written before this field existed were world-frame.
     #[serde(default)]
     pub observation_frame: sim::ObservationFrame,
+    /// Kind of agent; blobs written before this field existed were state-based.
+    #[serde(default)]
+    pub agent: Agent,
 }
 
 impl Architecture {
@@ -29,6 +53,7 @@ impl Architecture {
             hidden: vec![512, 512],
             negative_slope: 0.01,
             observation_frame: sim::ObservationFrame::World,
+            agent: Agent::State,
         }
     }
 

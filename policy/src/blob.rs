@@ -14,10 +14,11 @@
 
 use burn::tensor::Device;
 
-use crate::architecture::Architecture;
+use crate::architecture::{Agent, Architecture};
 use crate::network::{ActorCritic, ExportedParam};
 use crate::normalizer::ObsNormalizer;
 use crate::safetensors::{Tensor, TensorData, TensorFile, TensorFileError};
+use crate::vision::VisionActorCritic;
 use frames::{Reader, Truncated};
 
 /// Magic of the earlier framed layout.
@@ -49,6 +50,14 @@ pub enum BlobError {
     /// The checksum does not match the contents.
     #[error("weights blob checksum mismatch: the contents were altered")]
     Checksum,
+    /// The blob holds another kind of agent than the one asked for.
+    #[error("weights blob holds a {found} policy; a {expected} one is needed here")]
+    Agent {
+        /// Kind in the blob.
+        found: Agent,
+        /// Kind needed.
+        expected: Agent,
+    },
     /// The network shape differs from the one expected.
     #[error("weights blob holds architecture {found}, expected {expected}")]
     Architecture {
@@ -81,9 +90,36 @@ impl WeightsBlob {
         Self { version, architecture: architecture.clone(), normalizer: normalizer.clone(), params: model.export() }
     }
 
-    /// The network on `device`, with its original parameter ids.
+    /// Captures a vision agent with its normaliser (of the critic's state observations).
+    pub fn from_vision_model(version: u64, architecture: &Architecture, normalizer: &ObsNormalizer, model: &VisionActorCritic) -> Self {
+        let architecture = Architecture { agent: Agent::Vision, ..architecture.clone() };
+        Self { version, architecture, normalizer: normalizer.clone(), params: model.export() }
+    }
+
+    /// Refuses a blob of another kind of agent than `expected`.
+    pub fn check_agent(&self, expected: Agent) -> Result<(), BlobError> {
+        let found = self.architecture.agent;
+        if found == expected { Ok(()) } else { Err(BlobError::Agent { found, expected }) }
+    }
+
+    /// The state-based network on `device`, with its original parameter ids.
     pub fn model(&self, device: &Device) -> Result<ActorCritic, BlobError> {
+        self.check_agent(Agent::State)?;
         ActorCritic::import(&self.architecture, &self.params, device).map_err(BlobError::Malformed)
+    }
+
+    /// The vision network on `device`, with its original parameter ids.
+    pub fn vision_model(&self, device: &Device) -> Result<VisionActorCritic, BlobError> {
+        self.check_agent(Agent::Vision)?;
+        VisionActorCritic::import(&self.architecture, &self.params, device).map_err(BlobError::Malformed)
+    }
+
+    /// Parameter shapes of `architecture`, in export order.
+    fn shapes(architecture: &Architecture) -> Vec<Vec<usize>> {
+        match architecture.agent {
+            Agent::State => ActorCritic::shapes(architecture),
+            Agent::Vision => VisionActorCritic::shapes(architecture),
+        }
     }
 
     /// Refuses a blob whose architecture is not `expected`.
@@ -96,9 +132,18 @@ impl WeightsBlob {
         Err(BlobError::Architecture { found: json(&self.architecture), expected: json(expected) })
     }
 
-    /// Tensor names in [`ActorCritic::export`] order.
+    /// Tensor names in export order ([`ActorCritic::export`], or
+    /// [`VisionActorCritic::export`], whose names start with `cnn.<i>` and `embedding`).
     pub fn tensor_names(architecture: &Architecture) -> Vec<String> {
         let mut names = Vec::new();
+        if architecture.agent == Agent::Vision {
+            for layer in 0..VisionActorCritic::CONVOLUTION_COUNT {
+                names.push(format!("cnn.{layer}.weight"));
+                names.push(format!("cnn.{layer}.bias"));
+            }
+            names.push("embedding.weight".into());
+            names.push("embedding.bias".into());
+        }
         for net in ["actor", "critic"] {
             for layer in 0..=architecture.hidden.len() {
                 names.push(format!("{net}.{layer}.weight"));
@@ -194,7 +239,7 @@ impl WeightsBlob {
             return Err(malformed(format!("{} parameter ids for {} parameters", ids.len(), names.len())));
         }
         let mut params = Vec::with_capacity(names.len());
-        for ((name, id), shape) in names.iter().zip(ids).zip(ActorCritic::shapes(&architecture)) {
+        for ((name, id), shape) in names.iter().zip(ids).zip(Self::shapes(&architecture)) {
             let tensor = file.tensor(name)?;
             if tensor.shape != shape {
                 return Err(malformed(format!("{name} has shape {:?}; the architecture needs {shape:?}", tensor.shape)));

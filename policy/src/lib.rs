@@ -13,7 +13,7 @@ pub mod rollout;
 pub mod safetensors;
 pub mod vision;
 
-pub use architecture::Architecture;
+pub use architecture::{Agent, Architecture};
 pub use blob::{BlobError, WeightsBlob};
 /// The burn device networks are built on (the CPU).
 pub use burn::tensor::Device;

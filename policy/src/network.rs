@@ -64,6 +64,27 @@ impl Mlp {
         self.layers.iter().flat_map(|l| [(l.weight.id, 2)].into_iter().chain(l.bias.as_ref().map(|b| (b.id, 1)))).collect()
     }
 
+    /// Each layer's weight and bias, in order.
+    pub(crate) fn export(&self) -> Vec<ExportedParam> {
+        let mut out = Vec::new();
+        for layer in &self.layers {
+            out.push(exported(&layer.weight));
+            out.extend(layer.bias.as_ref().map(exported));
+        }
+        out
+    }
+
+    /// Rebuilds an MLP from (weight, bias) pairs, keeping parameter ids.
+    pub(crate) fn import(pairs: &[ExportedParam], negative_slope: f64, device: &Device) -> Self {
+        let layers = pairs.chunks(2).map(|wb| Linear { weight: loaded(&wb[0], device), bias: Some(loaded(&wb[1], device)) }).collect();
+        Self { layers, negative_slope }
+    }
+
+    /// (weight, bias) shapes of the layers between `dims`.
+    pub(crate) fn shapes(dims: &[usize]) -> Vec<Vec<usize>> {
+        dims.windows(2).flat_map(|w| [vec![w[0], w[1]], vec![w[1]]]).collect()
+    }
+
     /// `[batch, in] → [batch, out]`.
     pub fn forward(&self, mut x: Tensor<2>) -> Tensor<2> {
         let last = self.layers.len() - 1;
@@ -73,6 +94,20 @@ impl Mlp {
         }
         x
     }
+}
+
+/// One parameter's id, shape and values.
+#[allow(clippy::expect_used, reason = "float parameters")]
+pub(crate) fn exported<const D: usize>(p: &Param<Tensor<D>>) -> ExportedParam {
+    let data = p.val().into_data();
+    ExportedParam { id: p.id.val(), shape: data.shape().to_vec(), values: data.try_into_vec::<f32>().expect("float parameters") }
+}
+
+/// A trainable parameter from an exported one, keeping its id (shapes checked by the caller).
+pub(crate) fn loaded<const D: usize>(p: &ExportedParam, device: &Device) -> Param<Tensor<D>> {
+    let shape: [usize; D] = std::array::from_fn(|i| p.shape[i]);
+    let t = Tensor::from_data(TensorData::new(p.values.clone(), shape), device);
+    Param::initialized(ParamId::from(p.id), t).set_require_grad(true)
 }
 
 /// A layer's bias (every layer here is built with one).

@@ -12,7 +12,8 @@
 
 use prost::Message;
 
-use crate::blob::WeightsBlob;
+use crate::architecture::Agent;
+use crate::blob::{BlobError, WeightsBlob};
 
 /// ONNX opset the graph uses.
 const OPSET: i64 = 13;
@@ -179,8 +180,10 @@ fn int_attribute(name: &str, i: i64) -> AttributeProto {
     AttributeProto { name: name.into(), f: 0.0, i, r#type: ATTRIBUTE_INT }
 }
 
-/// The deterministic actor of a state-based policy blob as an ONNX model file.
-pub fn actor_model(blob: &WeightsBlob) -> Vec<u8> {
+/// The deterministic actor of a state-based policy blob as an ONNX model file (a vision
+/// policy is refused).
+pub fn actor_model(blob: &WeightsBlob) -> Result<Vec<u8>, BlobError> {
+    blob.check_agent(Agent::State)?;
     let arch = &blob.architecture;
     let n = &blob.normalizer;
     let std: Vec<f64> = n.var.iter().map(|v| (v + n.epsilon).sqrt()).collect();
@@ -226,7 +229,7 @@ pub fn actor_model(blob: &WeightsBlob) -> Vec<u8> {
         output: vec![batch_of("action", arch.action_dim)],
     };
     let frame = serde_json::to_string(&arch.observation_frame).unwrap_or_default();
-    ModelProto {
+    Ok(ModelProto {
         ir_version: IR_VERSION,
         producer_name: "dronerace".into(),
         producer_version: env!("CARGO_PKG_VERSION").into(),
@@ -237,5 +240,5 @@ pub fn actor_model(blob: &WeightsBlob) -> Vec<u8> {
         graph: Some(graph),
         opset_import: vec![OperatorSetIdProto { domain: String::new(), version: OPSET }],
     }
-    .encode_to_vec()
+    .encode_to_vec())
 }

@@ -14,7 +14,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::architecture::Architecture;
 use crate::dense::dense;
-use crate::network::{Mlp, orthogonal, parameter};
+use crate::network::{ExportedParam, Mlp, exported, loaded, orthogonal, parameter};
 
 /// Side of the camera image (pixels).
 pub const IMAGE_SIDE: usize = 84;
@@ -130,6 +130,76 @@ impl VisionActorCritic {
         ids
     }
 
+    /// Number of convolutions.
+    pub const CONVOLUTION_COUNT: usize = CONVOLUTIONS.len();
+
+    /// Every parameter's values in [`VisionActorCritic::param_ids`] order.
+    pub fn export(&self) -> Vec<ExportedParam> {
+        let mut out = Vec::new();
+        for conv in &self.convolutions {
+            out.push(exported(&conv.weight));
+            out.extend(conv.bias.as_ref().map(exported));
+        }
+        out.push(exported(&self.embedding.weight));
+        out.extend(self.embedding.bias.as_ref().map(exported));
+        out.extend(self.actor.export());
+        out.extend(self.critic.export());
+        out.push(exported(&self.log_std));
+        out
+    }
+
+    /// Parameter shapes of a vision agent of `arch`, in export order.
+    pub fn shapes(arch: &Architecture) -> Vec<Vec<usize>> {
+        let mut shapes = Vec::new();
+        let mut channels = 1;
+        for (out, kernel, _) in CONVOLUTIONS {
+            shapes.push(vec![out, channels, kernel, kernel]);
+            shapes.push(vec![out]);
+            channels = out;
+        }
+        shapes.extend(Mlp::shapes(&[CONV_OUTPUT, EMBEDDING]));
+        let dims = |input: usize, out: usize| [vec![input], arch.hidden.clone(), vec![out]].concat();
+        shapes.extend(Mlp::shapes(&dims(EMBEDDING + PROPRIOCEPTION, arch.action_dim)));
+        shapes.extend(Mlp::shapes(&dims(arch.observation_dim, 1)));
+        shapes.push(vec![arch.action_dim]);
+        shapes
+    }
+
+    /// Rebuilds a network of `arch` from [`VisionActorCritic::export`]'s output, keeping ids.
+    pub fn import(arch: &Architecture, params: &[ExportedParam], device: &Device) -> Result<Self, String> {
+        let expected = Self::shapes(arch);
+        let got: Vec<Vec<usize>> = params.iter().map(|p| p.shape.clone()).collect();
+        if expected != got {
+            return Err(format!("parameter shapes {got:?} do not fit the vision architecture's {expected:?}"));
+        }
+        let (convs, rest) = params.split_at(2 * CONVOLUTIONS.len());
+        let convolutions = convs
+            .chunks(2)
+            .zip(CONVOLUTIONS)
+            .map(|(wb, (_, kernel, stride))| Conv2d {
+                weight: loaded(&wb[0], device),
+                bias: Some(loaded(&wb[1], device)),
+                stride: [stride, stride],
+                kernel_size: [kernel, kernel],
+                dilation: [1, 1],
+                groups: 1,
+                padding: PaddingConfig2d::Valid,
+            })
+            .collect();
+        let (embedding, rest) = rest.split_at(2);
+        let mlp_params = 2 * (arch.hidden.len() + 1);
+        let (actor, rest) = rest.split_at(mlp_params);
+        let (critic, log_std) = rest.split_at(mlp_params);
+        Ok(Self {
+            convolutions,
+            embedding: burn::nn::Linear { weight: loaded(&embedding[0], device), bias: Some(loaded(&embedding[1], device)) },
+            actor: Mlp::import(actor, arch.negative_slope, device),
+            critic: Mlp::import(critic, arch.negative_slope, device),
+            log_std: loaded(&log_std[0], device),
+            negative_slope: arch.negative_slope,
+        })
+    }
+
     /// Multiply-adds of one forward pass of one sample (convolutions, embedding, both MLPs).
     pub fn macs_per_sample(arch: &Architecture) -> usize {
         let (mut side, mut channels, mut macs) = (IMAGE_SIDE, 1, 0);
@@ -173,6 +243,39 @@ mod tests {
         let conv = 20 * 20 * 32 * 64 + 9 * 9 * 64 * 512 + 7 * 7 * 64 * 576;
         let mlps = CONV_OUTPUT * EMBEDDING + (140 * 32 + 32 * 32 + 32 * 4) + (40 * 32 + 32 * 32 + 32);
         assert_eq!(VisionActorCritic::macs_per_sample(&arch), conv + mlps);
+    }
+
+    #[test]
+    fn a_vision_blob_round_trips_and_each_kind_refuses_the_other() {
+        use crate::architecture::Agent;
+        use crate::{ActorCritic, BlobError, ObsNormalizer, Policy, WeightsBlob};
+        let arch = Architecture { hidden: vec![16, 8], ..Architecture::paper() };
+        let device = Device::flex();
+        let net = VisionActorCritic::new(&arch, -0.5, 3, &device);
+        let blob = WeightsBlob::from_vision_model(4, &arch, &ObsNormalizer::new(arch.observation_dim), &net);
+        assert_eq!(blob.architecture.agent, Agent::Vision);
+        let back = WeightsBlob::from_bytes(&blob.to_bytes()).unwrap();
+        assert_eq!(back, blob, "bit-exact round trip through the safetensors file");
+        let names = WeightsBlob::tensor_names(&back.architecture);
+        assert_eq!(&names[..3], ["cnn.0.weight", "cnn.0.bias", "cnn.1.weight"]);
+        // The rebuilt network is the same network: same outputs, same parameter ids.
+        let rebuilt = back.vision_model(&device).unwrap();
+        assert_eq!(rebuilt.param_ids(), net.param_ids());
+        let images =
+            Tensor::<4>::from_data(TensorData::new(vec![0.3f32; 2 * IMAGE_SIDE * IMAGE_SIDE], [2, 1, IMAGE_SIDE, IMAGE_SIDE]), &device);
+        let proprio = Tensor::<2>::ones([2, PROPRIOCEPTION], &device);
+        let states = Tensor::<2>::ones([2, arch.observation_dim], &device);
+        let (a, _) = net.forward(images.clone(), proprio.clone(), states.clone());
+        let (b, _) = rebuilt.forward(images, proprio, states);
+        assert_eq!(a.into_data(), b.into_data());
+        // Each kind refuses the other, naming both.
+        let err = back.model(&device).unwrap_err();
+        assert_eq!(err, BlobError::Agent { found: Agent::Vision, expected: Agent::State });
+        assert!(err.to_string().contains("vision-based") && err.to_string().contains("state-based"), "{err}");
+        assert!(matches!(Policy::from_blob(&back), Err(BlobError::Agent { .. })));
+        let state =
+            WeightsBlob::from_model(4, &arch, &ObsNormalizer::new(arch.observation_dim), &ActorCritic::new(&arch, -0.5, 3, &device));
+        assert_eq!(state.vision_model(&device).unwrap_err(), BlobError::Agent { found: Agent::State, expected: Agent::Vision });
     }
 
     #[test]

@@ -126,7 +126,7 @@ pub struct ExportModelArgs {
 pub fn export_model(args: ExportModelArgs) -> anyhow::Result<()> {
     let blob = learner::checkpoint::read_policy(&args.policy)?;
     let bytes = match args.format {
-        ExportFormat::Onnx => policy::onnx::actor_model(&blob),
+        ExportFormat::Onnx => policy::onnx::actor_model(&blob)?,
     };
     write_atomic(&args.out, &bytes)?;
     println!(
