@@ -127,28 +127,6 @@ pub struct ActorCritic {
     pub log_std: Param<Tensor<1>>,
 }
 
-/// A parameter tensor of either rank this network uses.
-enum AnyTensor {
-    One(Tensor<1>),
-    Two(Tensor<2>),
-}
-
-impl AnyTensor {
-    fn rank(&self) -> usize {
-        match self {
-            AnyTensor::One(_) => 1,
-            AnyTensor::Two(_) => 2,
-        }
-    }
-
-    fn into_data(self) -> TensorData {
-        match self {
-            AnyTensor::One(t) => t.into_data(),
-            AnyTensor::Two(t) => t.into_data(),
-        }
-    }
-}
-
 /// One exported parameter: its id (so optimiser state can follow it), shape and values.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ExportedParam {
@@ -185,79 +163,49 @@ impl ActorCritic {
         (mean, value)
     }
 
-    /// Every parameter with its id, in the fixed order: actor layers (weight, bias), critic
-    /// layers, log std. Tensors are shared handles, not copies.
-    #[allow(clippy::expect_used, reason = "layers have biases")]
-    fn ordered(&self) -> Vec<(ParamId, AnyTensor)> {
-        let mut out = Vec::new();
-        for layer in self.actor.layers.iter().chain(&self.critic.layers) {
-            out.push((layer.weight.id, AnyTensor::Two(layer.weight.val())));
-            let bias = layer.bias.as_ref().expect("layers have biases");
-            out.push((bias.id, AnyTensor::One(bias.val())));
-        }
-        out.push((self.log_std.id, AnyTensor::One(self.log_std.val())));
-        out
-    }
-
     /// Every parameter's id and rank, in [`ActorCritic::export`] order, without copying values.
     pub fn param_ids(&self) -> Vec<(ParamId, usize)> {
-        self.ordered().into_iter().map(|(id, t)| (id, t.rank())).collect()
+        let mut ids = self.actor.param_ids();
+        ids.extend(self.critic.param_ids());
+        ids.push((self.log_std.id, 1));
+        ids
     }
 
     /// Every parameter's values, in a fixed order: actor layers (weight, bias), critic layers,
     /// log std.
-    #[allow(clippy::expect_used, reason = "float parameters")]
     pub fn export(&self) -> Vec<ExportedParam> {
-        self.ordered()
-            .into_iter()
-            .map(|(id, t)| {
-                let data = t.into_data();
-                let shape = data.shape().to_vec();
-                ExportedParam { id: id.val(), shape, values: data.try_into_vec::<f32>().expect("float parameters") }
-            })
-            .collect()
+        let mut params = self.actor.export();
+        params.extend(self.critic.export());
+        params.push(exported(&self.log_std));
+        params
     }
 
     /// Parameter shapes of `arch`, in [`ActorCritic::export`] order.
     pub fn shapes(arch: &Architecture) -> Vec<Vec<usize>> {
-        let mut shapes = Vec::new();
-        for out in [arch.action_dim, 1] {
-            let mut dims = vec![arch.observation_dim];
-            dims.extend(&arch.hidden);
-            dims.push(out);
-            for w in dims.windows(2) {
-                shapes.push(vec![w[0], w[1]]);
-                shapes.push(vec![w[1]]);
-            }
-        }
+        let dims = |out: usize| [vec![arch.observation_dim], arch.hidden.clone(), vec![out]].concat();
+        let mut shapes = Mlp::shapes(&dims(arch.action_dim));
+        shapes.extend(Mlp::shapes(&dims(1)));
         shapes.push(vec![arch.action_dim]);
         shapes
     }
 
     /// Rebuilds a network of `arch` from [`ActorCritic::export`]'s output, keeping parameter ids.
     pub fn import(arch: &Architecture, params: &[ExportedParam], device: &Device) -> Result<Self, String> {
-        let expected = Self::shapes(arch);
-        let got: Vec<Vec<usize>> = params.iter().map(|p| p.shape.clone()).collect();
-        if expected != got {
-            return Err(format!("parameter shapes {got:?} do not fit the architecture's {expected:?}"));
-        }
-        let load = |p: &ExportedParam| -> Param<Tensor<1>> {
-            let t = Tensor::from_data(TensorData::new(p.values.clone(), [p.values.len()]), device);
-            Param::initialized(ParamId::from(p.id), t).set_require_grad(true)
-        };
-        let load2 = |p: &ExportedParam| -> Param<Tensor<2>> {
-            let t = Tensor::from_data(TensorData::new(p.values.clone(), [p.shape[0], p.shape[1]]), device);
-            Param::initialized(ParamId::from(p.id), t).set_require_grad(true)
-        };
-        let layers_per_mlp = arch.hidden.len() + 1;
-        let mlp = |pairs: &[ExportedParam]| Mlp {
-            layers: pairs.chunks(2).map(|wb| Linear { weight: load2(&wb[0]), bias: Some(load(&wb[1])) }).collect(),
-            negative_slope: arch.negative_slope,
-        };
-        let (actor, rest) = params.split_at(2 * layers_per_mlp);
-        let (critic, log_std) = rest.split_at(2 * layers_per_mlp);
-        Ok(Self { actor: mlp(actor), critic: mlp(critic), log_std: load(&log_std[0]) })
+        check_shapes(&Self::shapes(arch), params)?;
+        let (actor, rest) = params.split_at(2 * (arch.hidden.len() + 1));
+        let (critic, log_std) = rest.split_at(actor.len());
+        Ok(Self {
+            actor: Mlp::import(actor, arch.negative_slope, device),
+            critic: Mlp::import(critic, arch.negative_slope, device),
+            log_std: loaded(&log_std[0], device),
+        })
     }
+}
+
+/// Refuses exported parameters whose shapes are not `expected`.
+pub(crate) fn check_shapes(expected: &[Vec<usize>], params: &[ExportedParam]) -> Result<(), String> {
+    let got: Vec<Vec<usize>> = params.iter().map(|p| p.shape.clone()).collect();
+    if expected == got { Ok(()) } else { Err(format!("parameter shapes {got:?} do not fit the architecture's {expected:?}")) }
 }
 
 #[cfg(test)]

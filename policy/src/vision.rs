@@ -14,7 +14,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::architecture::Architecture;
 use crate::dense::dense;
-use crate::network::{ExportedParam, Mlp, exported, loaded, orthogonal, parameter};
+use crate::network::{ExportedParam, Mlp, check_shapes, exported, loaded, orthogonal, parameter};
 
 /// Side of the camera image (pixels).
 pub const IMAGE_SIDE: usize = 84;
@@ -167,11 +167,7 @@ impl VisionActorCritic {
 
     /// Rebuilds a network of `arch` from [`VisionActorCritic::export`]'s output, keeping ids.
     pub fn import(arch: &Architecture, params: &[ExportedParam], device: &Device) -> Result<Self, String> {
-        let expected = Self::shapes(arch);
-        let got: Vec<Vec<usize>> = params.iter().map(|p| p.shape.clone()).collect();
-        if expected != got {
-            return Err(format!("parameter shapes {got:?} do not fit the vision architecture's {expected:?}"));
-        }
+        check_shapes(&Self::shapes(arch), params)?;
         let (convs, rest) = params.split_at(2 * CONVOLUTIONS.len());
         let convolutions = convs
             .chunks(2)
