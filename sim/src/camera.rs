@@ -3,10 +3,11 @@
 //!
 //! Each pixel is the colour of the nearest gate-frame surface hit by the ray through its
 //! centre: target gate 255, the gate after it 155, every other gate 55, background 0. Rather
-//! than casting every ray against every frame, each frame bar (a box in its gate's frame) is
-//! projected to a pixel bounding box first and only the rays inside it are tested exactly
-//! (slab test); a depth buffer keeps the nearest hit. The culling only skips rays that cannot
-//! hit, so the image is the one a brute-force ray caster gives.
+//! than casting every ray against every frame, each gate's outer box is clipped at the
+//! camera's near plane and projected to a pixel rectangle first, and only the rays inside it
+//! are tested exactly against the frame's four bars (slab tests); a depth buffer keeps the
+//! nearest hit. The culling only skips rays that cannot hit, so the image is the one a
+//! brute-force ray caster gives.
 
 use std::cell::RefCell;
 

@@ -121,6 +121,7 @@ fn grey_index(level: u8) -> u8 {
 /// perturbation) and writes the GIF and, if asked, the strip.
 fn flight(track: &Arc<Track>, args: &RenderArgs) -> anyhow::Result<()> {
     ensure!(args.every > 0, "--every must be at least 1");
+    ensure!(args.strip.is_none() || !args.strip_steps.is_empty(), "--strip needs --strip-steps, e.g. 0,40,80");
     ensure!(args.out.extension().is_some_and(|e| e == "gif"), "--out {}: a flight is written as a .gif", args.out.display());
     let (name, make) = controller_factory(args.controller, args.policy.as_deref())?;
     let mut controller = make();
