@@ -300,3 +300,36 @@ fn sim_render_writes_the_exact_observation_and_an_animated_flight() {
     let o = dronerace(&["sim", "render", "--track", &track_file, "--pose", pose, "--target", "9", "--out", frame.to_str().unwrap()]);
     assert!(!o.status.success() && stderr(&o).contains("--target 9"), "{}", stderr(&o));
 }
+
+#[test]
+fn eval_flies_a_vision_policy_with_the_camera() {
+    let dir = tempfile::tempdir().unwrap();
+    let arch = policy::Architecture { hidden: vec![16, 16], ..policy::Architecture::cpu() };
+    let net = policy::VisionActorCritic::new(&arch, -0.5, 2, &policy::Device::flex());
+    let blob = policy::WeightsBlob::from_vision_model(3, &arch, &policy::ObsNormalizer::new(arch.observation_dim), &net);
+    let path = dir.path().join("vision.bin");
+    std::fs::write(&path, blob.to_bytes()).unwrap();
+    let out = dir.path().join("eval");
+    let o = dronerace(&[
+        "eval",
+        "--controller",
+        "policy",
+        "--policy",
+        path.to_str().unwrap(),
+        "--tracks",
+        &library_file("figure8.toml"),
+        "--runs",
+        "2",
+        "--steps",
+        "40",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("eval.json")).unwrap()).unwrap();
+    assert!(report["controller"].as_str().unwrap().contains("vision-based"), "{}", report["controller"]);
+    assert_eq!(report["tracks"][0]["deployments"].as_array().unwrap().len(), 2);
+    // A vision policy cannot be served or exported as a state-based one: refused by name.
+    let o = dronerace(&["export", "--policy", path.to_str().unwrap(), "--out", dir.path().join("v.onnx").to_str().unwrap()]);
+    assert!(!o.status.success() && stderr(&o).contains("vision-based"), "{}", stderr(&o));
+}

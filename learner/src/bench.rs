@@ -7,7 +7,7 @@ use burn::module::{Module, ParamId};
 use burn::optim::GradientsParams;
 use burn::tensor::Device;
 use burn::tensor::{Tensor, TensorData};
-use policy::vision::{IMAGE_SIDE, PROPRIOCEPTION};
+use policy::vision::IMAGE_SIDE;
 use policy::{ActorCritic, VisionActorCritic};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -121,7 +121,7 @@ pub fn time_gradient_step(profile: &Profile, samples: usize, repeats: usize, dev
 }
 
 /// [`time_gradient_step`] for the vision agent (SPEC §5): the CNN actor on random 84×84
-/// images and proprioception, the MLP critic on the state, the same PPO loss and optimiser.
+/// images and the state's proprioceptive part, the MLP critic on the state, the same PPO loss and optimiser.
 pub fn time_vision_gradient_step(profile: &Profile, samples: usize, repeats: usize, device: &Device) -> StepTiming {
     let arch = &profile.architecture;
     let config = &profile.ppo;
@@ -132,14 +132,12 @@ pub fn time_vision_gradient_step(profile: &Profile, samples: usize, repeats: usi
     let levels = [0.0, 0.0, 0.0, 0.0, 55.0 / 255.0, 155.0 / 255.0, 1.0];
     let pixels: Vec<f32> = (0..samples * IMAGE_SIDE * IMAGE_SIDE).map(|_| levels[rng.random_range(0..levels.len())]).collect();
     let images = Tensor::<4>::from_data(TensorData::new(pixels, [samples, 1, IMAGE_SIDE, IMAGE_SIDE]), device);
-    let proprio: Vec<f32> = (0..samples * PROPRIOCEPTION).map(|_| rng.sample(StandardNormal)).collect();
-    let proprio = Tensor::<2>::from_data(TensorData::new(proprio, [samples, PROPRIOCEPTION]), device);
     let rows: Vec<usize> = (0..samples).collect();
     let ids = model.param_ids();
     let groups = vec![0; ids.len()]; // global clipping, as SB3
     let loss = |model: &VisionActorCritic| {
         let m = batch.minibatch(&rows, device);
-        let (mean, values) = model.forward(images.clone(), proprio.clone(), m.observations());
+        let (mean, values) = model.forward(images.clone(), m.observations());
         ppo_loss(mean, values, model.log_std.val(), m, config).0
     };
     let force = |model: &VisionActorCritic| drop(model.log_std.val().into_data());

@@ -1,4 +1,5 @@
-//! Acting with a policy: batched sampling for actors, the deterministic mean for evaluation.
+//! Acting with a policy: batched sampling for actors, the deterministic mean for evaluation
+//! (state-based, and vision-based with the camera rendered every step).
 
 use std::sync::Arc;
 
@@ -11,6 +12,7 @@ use sim::{Controller, RaceEnv};
 use crate::blob::{BlobError, WeightsBlob};
 use crate::network::ActorCritic;
 use crate::normalizer::ObsNormalizer;
+use crate::vision::{IMAGE_SIDE, VisionActorCritic};
 
 /// ln(2π) / 2, the normalising constant of a Gaussian log-density per dimension.
 pub const HALF_LN_2PI: f64 = 0.918_938_533_204_672_8;
@@ -124,6 +126,69 @@ impl Controller for PolicyController {
 
     fn act(&mut self, env: &RaceEnv) -> [f32; 4] {
         let (mean, _) = self.policy.means_and_values(&env.observation_in(self.policy.observation_frame()));
+        std::array::from_fn(|i| mean[i].clamp(-1.0, 1.0))
+    }
+}
+
+/// A vision policy ready for evaluation: the CNN actor-critic in validation mode, the frozen
+/// normaliser of its state observations, its frame and version.
+#[derive(Debug)]
+pub struct VisionPolicy {
+    model: VisionActorCritic,
+    normalizer: ObsNormalizer,
+    frame: sim::ObservationFrame,
+    version: u64,
+    device: Device,
+}
+
+impl VisionPolicy {
+    /// Loads a vision blob onto the CPU device (a state-based blob is refused).
+    pub fn from_blob(blob: &WeightsBlob) -> Result<Self, BlobError> {
+        let device = Device::flex();
+        let model = blob.vision_model(&device)?.valid();
+        Ok(Self { model, normalizer: blob.normalizer.clone(), frame: blob.architecture.observation_frame, version: blob.version, device })
+    }
+
+    /// Policy version this was built from.
+    pub fn version(&self) -> u64 {
+        self.version
+    }
+
+    /// Action means of one camera image (84×84 bytes, as the renderer writes it) and the raw
+    /// state observation in the policy's frame (its proprioceptive part feeds the actor).
+    #[allow(clippy::expect_used, reason = "float outputs")]
+    pub fn mean_action(&self, image: &[u8], raw_state: &[f32]) -> Vec<f32> {
+        let dim = self.normalizer.dim();
+        let mut state = vec![0.0; dim];
+        self.normalizer.normalize(raw_state, &mut state);
+        let pixels: Vec<f32> = image.iter().map(|&p| f32::from(p) / 255.0).collect();
+        let images = Tensor::<4>::from_data(TensorData::new(pixels, [1, 1, IMAGE_SIDE, IMAGE_SIDE]), &self.device);
+        let states = Tensor::<2>::from_data(TensorData::new(state, [1, dim]), &self.device);
+        let (mean, _) = self.model.forward(images, states);
+        mean.into_data().try_into_vec::<f32>().expect("float outputs")
+    }
+}
+
+/// Flies a [`RaceEnv`] with a vision policy's deterministic mean action: renders the camera
+/// every step (SPEC §5), as evaluation of a vision agent needs.
+pub struct VisionPolicyController {
+    policy: Arc<VisionPolicy>,
+    image: Vec<u8>,
+}
+
+impl VisionPolicyController {
+    /// A controller sharing `policy`.
+    pub fn new(policy: Arc<VisionPolicy>) -> Self {
+        Self { policy, image: vec![0; sim::camera::IMAGE_PIXELS] }
+    }
+}
+
+impl Controller for VisionPolicyController {
+    fn reset(&mut self, _env: &RaceEnv) {}
+
+    fn act(&mut self, env: &RaceEnv) -> [f32; 4] {
+        env.render_camera(&mut self.image);
+        let mean = self.policy.mean_action(&self.image, &env.observation_in(self.policy.frame));
         std::array::from_fn(|i| mean[i].clamp(-1.0, 1.0))
     }
 }

@@ -20,7 +20,8 @@ use crate::network::{ExportedParam, Mlp, check_shapes, exported, loaded, orthogo
 pub const IMAGE_SIDE: usize = 84;
 /// Length of the CNN's embedding.
 pub const EMBEDDING: usize = 128;
-/// Length of the actor's state part: R_WB columns 0–1 (6), v (3), ω (3).
+/// Length of the actor's state part: R_WB columns 0–1 (6), v (3), ω (3) — the first 12
+/// numbers of the state observation (SPEC §5 order), normalised as the critic's are.
 pub const PROPRIOCEPTION: usize = 12;
 /// The three convolutions: (output channels, kernel, stride).
 const CONVOLUTIONS: [(usize, usize, usize); 3] = [(32, 8, 4), (64, 4, 2), (64, 3, 1)];
@@ -107,9 +108,12 @@ impl VisionActorCritic {
         dense(flat, self.embedding.weight.val(), bias, Some(self.negative_slope))
     }
 
-    /// Action means `[batch, action_dim]` and values `[batch]`: the actor from images and
-    /// proprioception `[batch, 12]`, the critic from normalised state observations.
-    pub fn forward(&self, images: Tensor<4>, proprioception: Tensor<2>, states: Tensor<2>) -> (Tensor<2>, Tensor<1>) {
+    /// Action means `[batch, action_dim]` and values `[batch]` from images `[batch, 1, 84, 84]`
+    /// in [0, 1] and normalised state observations `[batch, 40]`: the actor reads the image and
+    /// the state's first 12 numbers (its proprioception), the critic the whole state.
+    pub fn forward(&self, images: Tensor<4>, states: Tensor<2>) -> (Tensor<2>, Tensor<1>) {
+        let batch = states.dims()[0];
+        let proprioception = states.clone().slice([0..batch, 0..PROPRIOCEPTION]);
         let actor_input = Tensor::cat(vec![self.embed(images), proprioception], 1);
         (self.actor.forward(actor_input), self.critic.forward(states).squeeze_dim(1))
     }
@@ -230,9 +234,8 @@ mod tests {
             &device,
         );
         assert_eq!(net.embed(images.clone()).dims(), [batch, EMBEDDING]);
-        let proprio = Tensor::<2>::zeros([batch, PROPRIOCEPTION], &device);
         let states = Tensor::<2>::zeros([batch, arch.observation_dim], &device);
-        let (mean, value) = net.forward(images, proprio, states);
+        let (mean, value) = net.forward(images, states);
         assert_eq!(mean.dims(), [batch, arch.action_dim]);
         assert_eq!(value.dims(), [batch]);
         // 20×20×32×64 + 9×9×64×512 + 7×7×64×576 for the convolutions.
@@ -259,10 +262,9 @@ mod tests {
         assert_eq!(rebuilt.param_ids(), net.param_ids());
         let images =
             Tensor::<4>::from_data(TensorData::new(vec![0.3f32; 2 * IMAGE_SIDE * IMAGE_SIDE], [2, 1, IMAGE_SIDE, IMAGE_SIDE]), &device);
-        let proprio = Tensor::<2>::ones([2, PROPRIOCEPTION], &device);
         let states = Tensor::<2>::ones([2, arch.observation_dim], &device);
-        let (a, _) = net.forward(images.clone(), proprio.clone(), states.clone());
-        let (b, _) = rebuilt.forward(images, proprio, states);
+        let (a, _) = net.forward(images.clone(), states.clone());
+        let (b, _) = rebuilt.forward(images, states);
         assert_eq!(a.into_data(), b.into_data());
         // Each kind refuses the other, naming both.
         let err = back.model(&device).unwrap_err();
@@ -275,6 +277,46 @@ mod tests {
     }
 
     #[test]
+    fn the_vision_controller_renders_the_camera_and_acts_on_it() {
+        use crate::{ObsNormalizer, VisionPolicy, VisionPolicyController, WeightsBlob};
+        use sim::{Controller, EnvConfig, RaceEnv};
+        let arch = Architecture { hidden: vec![16, 16], observation_frame: sim::ObservationFrame::Heading, ..Architecture::paper() };
+        let device = Device::flex();
+        // A policy head with gain 1, so that the image visibly moves the action.
+        let mut net = VisionActorCritic::new(&arch, -0.5, 5, &device);
+        let mut params = net.export();
+        let head = 2 * VisionActorCritic::CONVOLUTION_COUNT + 2 + 2 * arch.hidden.len();
+        params[head].values.iter_mut().for_each(|v| *v *= 100.0);
+        net = VisionActorCritic::import(&arch, &params, &device).unwrap();
+        let blob = WeightsBlob::from_vision_model(1, &arch, &ObsNormalizer::new(arch.observation_dim), &net);
+        let policy = std::sync::Arc::new(VisionPolicy::from_blob(&blob).unwrap());
+        let track = std::sync::Arc::new(
+            sim::Track::new(
+                "two",
+                vec![
+                    sim::Gate::new(sim::nalgebra::Vector3::new(4.0, 0.0, 2.0), 0.0),
+                    sim::Gate::new(sim::nalgebra::Vector3::new(-4.0, 0.0, 2.0), 3.0),
+                ],
+                None,
+                sim::Arena::default(),
+            )
+            .unwrap(),
+        );
+        let env = RaceEnv::new(track, EnvConfig::evaluation(), 0, 0);
+        let mut controller = VisionPolicyController::new(policy.clone());
+        let action = controller.act(&env);
+        // By hand: the camera image and the state, through the same network.
+        let mut image = vec![0u8; sim::camera::IMAGE_PIXELS];
+        env.render_camera(&mut image);
+        assert!(image.contains(&sim::camera::TARGET_COLOUR), "gate 0 is in view from the start");
+        let by_hand = policy.mean_action(&image, &env.observation_in(arch.observation_frame));
+        assert_eq!(action.to_vec(), by_hand.iter().map(|a| a.clamp(-1.0, 1.0)).collect::<Vec<_>>());
+        // A blank image gives another action: the controller really looks.
+        let blank = policy.mean_action(&vec![0u8; sim::camera::IMAGE_PIXELS], &env.observation_in(arch.observation_frame));
+        assert_ne!(blank, by_hand);
+    }
+
+    #[test]
     fn the_image_changes_the_action_and_not_the_value() {
         let arch = Architecture { hidden: vec![16, 16], ..Architecture::paper() };
         let device = Device::flex();
@@ -282,10 +324,9 @@ mod tests {
         let image = |level: f32| {
             Tensor::<4>::from_data(TensorData::new(vec![level; IMAGE_SIDE * IMAGE_SIDE], [1, 1, IMAGE_SIDE, IMAGE_SIDE]), &device)
         };
-        let proprio = Tensor::<2>::zeros([1, PROPRIOCEPTION], &device);
         let states = Tensor::<2>::ones([1, arch.observation_dim], &device);
-        let (m0, v0) = net.forward(image(0.0), proprio.clone(), states.clone());
-        let (m1, v1) = net.forward(image(1.0), proprio, states);
+        let (m0, v0) = net.forward(image(0.0), states.clone());
+        let (m1, v1) = net.forward(image(1.0), states);
         let diff: f32 = (m0 - m1).abs().into_data().try_into_vec::<f32>().unwrap().iter().sum();
         assert!(diff > 0.0, "the actor sees the image");
         assert_eq!(v0.into_data(), v1.into_data(), "the critic reads the state only");

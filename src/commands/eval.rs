@@ -7,7 +7,7 @@ use ::sim::eval::{EvalConfig, evaluate};
 use ::sim::{Controller, ReferencePilot};
 use anyhow::Context;
 use clap::{Args, ValueEnum};
-use policy::{Policy, PolicyController};
+use policy::{Agent, Policy, PolicyController, VisionPolicy, VisionPolicyController};
 
 use super::{load_tracks, write_atomic};
 
@@ -49,16 +49,25 @@ pub struct EvalArgs {
 /// Makes fresh controllers of one kind, with a name for reports.
 pub type ControllerFactory = Box<dyn Fn() -> Box<dyn Controller> + Sync>;
 
-/// The reference pilot, or the mean action of the policy at `policy` (a checkpoint or blob).
+/// The reference pilot, or the mean action of the policy at `policy` (a checkpoint or blob;
+/// a vision policy renders its camera every step).
 pub fn controller_factory(kind: ControllerKind, policy: Option<&Path>) -> anyhow::Result<(String, ControllerFactory)> {
     Ok(match kind {
         ControllerKind::Pilot => ("pilot".into(), Box::new(|| Box::new(ReferencePilot::default()))),
         ControllerKind::Policy => {
             let path = policy.context("--controller policy needs --policy CHECKPOINT")?;
             let blob = learner::checkpoint::read_policy(path)?;
-            let policy = Arc::new(Policy::from_blob(&blob)?);
-            let name = format!("policy v{} ({})", blob.version, path.display());
-            (name, Box::new(move || Box::new(PolicyController::new(policy.clone()))))
+            let name = format!("policy v{} ({}, {})", blob.version, path.display(), blob.architecture.agent);
+            match blob.architecture.agent {
+                Agent::State => {
+                    let policy = Arc::new(Policy::from_blob(&blob)?);
+                    (name, Box::new(move || Box::new(PolicyController::new(policy.clone()))))
+                }
+                Agent::Vision => {
+                    let policy = Arc::new(VisionPolicy::from_blob(&blob)?);
+                    (name, Box::new(move || Box::new(VisionPolicyController::new(policy.clone()))))
+                }
+            }
         }
     })
 }
