@@ -46,12 +46,17 @@ pub fn dense(x: Tensor<2>, weight: Tensor<2>, bias: Tensor<1>, leaky_slope: Opti
     dense_by_burn_ops(x, weight, bias, leaky_slope)
 }
 
+/// LeakyReLU with negative slope `s` as `s·z + (1 − s)·relu(z)`: burn's own `leaky_relu` is a
+/// branchy mask under autodiff.
+pub fn leaky_relu<const D: usize>(z: Tensor<D>, s: f64) -> Tensor<D> {
+    z.clone().mul_scalar(s) + relu(z).mul_scalar(1.0 - s)
+}
+
 /// The same layer through burn's ops (devices other than flex, and the tests' reference).
-/// LeakyReLU is `s·z + (1 − s)·relu(z)`: burn's own `leaky_relu` is a branchy mask under autodiff.
 pub fn dense_by_burn_ops(x: Tensor<2>, weight: Tensor<2>, bias: Tensor<1>, leaky_slope: Option<f64>) -> Tensor<2> {
     let z = x.matmul(weight) + bias.unsqueeze_dim(0);
     match leaky_slope {
-        Some(s) => z.clone().mul_scalar(s) + relu(z).mul_scalar(1.0 - s),
+        Some(s) => leaky_relu(z, s),
         None => z,
     }
 }

@@ -95,6 +95,13 @@ impl Policy {
         (to_vec(mean.into_data()), to_vec(value.into_data()))
     }
 
+    /// The deterministic actions evaluation takes for raw observations (`n × obs_dim`): the
+    /// action means clipped to [-1, 1].
+    pub fn deterministic_actions(&self, raw: &[f32]) -> Vec<f32> {
+        let (means, _) = self.means_and_values(raw);
+        means.into_iter().map(|a| a.clamp(-1.0, 1.0)).collect()
+    }
+
     /// Samples actions for a batch, with their log-probabilities and the values.
     pub fn act(&self, raw: &[f32], rng: &mut impl Rng) -> Acting {
         let (means, values) = self.means_and_values(raw);
@@ -125,8 +132,8 @@ impl Controller for PolicyController {
     fn reset(&mut self, _env: &RaceEnv) {}
 
     fn act(&mut self, env: &RaceEnv) -> [f32; 4] {
-        let (mean, _) = self.policy.means_and_values(&env.observation_in(self.policy.observation_frame()));
-        std::array::from_fn(|i| mean[i].clamp(-1.0, 1.0))
+        let action = self.policy.deterministic_actions(&env.observation_in(self.policy.observation_frame()));
+        std::array::from_fn(|i| action[i])
     }
 }
 

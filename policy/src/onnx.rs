@@ -228,7 +228,7 @@ pub fn actor_model(blob: &WeightsBlob) -> Result<Vec<u8>, BlobError> {
         input: vec![batch_of("observation", arch.observation_dim)],
         output: vec![batch_of("action", arch.action_dim)],
     };
-    let frame = serde_json::to_string(&arch.observation_frame).unwrap_or_default();
+    let frame = arch.observation_frame.name();
     Ok(ModelProto {
         ir_version: IR_VERSION,
         producer_name: "dronerace".into(),

@@ -7,13 +7,12 @@
 use burn::module::{Module, Param, ParamId};
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::Conv2d;
-use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::architecture::Architecture;
-use crate::dense::dense;
+use crate::dense::{dense, leaky_relu};
 use crate::network::{ExportedParam, Mlp, check_shapes, exported, loaded, orthogonal, parameter};
 
 /// Side of the camera image (pixels).
@@ -27,11 +26,6 @@ pub const PROPRIOCEPTION: usize = 12;
 const CONVOLUTIONS: [(usize, usize, usize); 3] = [(32, 8, 4), (64, 4, 2), (64, 3, 1)];
 /// Flattened length after the convolutions: 64 channels × 7 × 7 for an 84×84 image.
 pub const CONV_OUTPUT: usize = 64 * 7 * 7;
-
-/// `s·z + (1 − s)·relu(z)`: LeakyReLU from ops that stay cheap under autodiff.
-fn leaky<const D: usize>(z: Tensor<D>, slope: f64) -> Tensor<D> {
-    z.clone().mul_scalar(slope) + relu(z).mul_scalar(1.0 - slope)
-}
 
 /// The vision actor-critic.
 #[derive(Module, Debug)]
@@ -100,7 +94,7 @@ impl VisionActorCritic {
     pub fn embed(&self, images: Tensor<4>) -> Tensor<2> {
         let mut x = images;
         for conv in &self.convolutions {
-            x = leaky(conv.forward(x), self.negative_slope);
+            x = leaky_relu(conv.forward(x), self.negative_slope);
         }
         let batch = x.dims()[0];
         let flat = x.reshape([batch, CONV_OUTPUT]);

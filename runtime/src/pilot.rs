@@ -78,8 +78,7 @@ impl PilotService {
         if let Some(i) = observation.iter().position(|x| !x.is_finite()) {
             return Err(Status::invalid_argument(format!("observation[{i}] is {}, not a finite number", observation[i])));
         }
-        let (mean, _) = self.policy.means_and_values(observation);
-        Ok(ActResponse { action: mean.iter().map(|a| a.clamp(-1.0, 1.0)).collect(), policy_version: self.policy.version() })
+        Ok(ActResponse { action: self.policy.deterministic_actions(observation), policy_version: self.policy.version() })
     }
 }
 
@@ -88,12 +87,10 @@ type ActionStream = Pin<Box<dyn Stream<Item = Result<ActResponse, Status>> + Sen
 #[tonic::async_trait]
 impl Pilot for PilotService {
     async fn describe(&self, _: Request<DescribeRequest>) -> Result<Response<PilotDescription>, Status> {
-        let frame =
-            serde_json::to_value(self.policy.observation_frame()).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default();
         Ok(Response::new(PilotDescription {
             observation_dim: self.policy.observation_dim() as u32,
             action_dim: self.policy.action_dim() as u32,
-            observation_frame: frame,
+            observation_frame: self.policy.observation_frame().name().into(),
             policy_version: self.policy.version(),
         }))
     }

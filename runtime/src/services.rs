@@ -143,8 +143,6 @@ pub fn learner(args: LearnerArgs) -> anyhow::Result<()> {
         Transport::Grpc => {
             let shared = Arc::new(LearnerBoard::default());
             let (service, link) = LearnerService::with_rollouts(shared.clone());
-            // Serve only once the process holds its restored state: a Status answered earlier
-            // would report iteration 0 for a resumed run.
             let process = LearnerProcess::start(run, checkpoint.as_ref(), link, shared, settings)?;
             let server = serve_learner(&rt, args.listen, &security, service, stop.clone())?;
             drive(process, resumed, &args, &stop, tasks.as_ref())?;
@@ -155,8 +153,6 @@ pub fn learner(args: LearnerArgs) -> anyhow::Result<()> {
             let link = ShmLearnerLink::open(&shm)?;
             let shared = Arc::new(LearnerBoard::default());
             let service = LearnerService::status_only(shared.clone());
-            // Serve only once the process holds its restored state: a Status answered earlier
-            // would report iteration 0 for a resumed run.
             let process = LearnerProcess::start(run, checkpoint.as_ref(), link, shared, settings)?;
             let server = serve_learner(&rt, args.listen, &security, service, stop.clone())?;
             drive(process, resumed, &args, &stop, tasks.as_ref())?;
@@ -168,6 +164,8 @@ pub fn learner(args: LearnerArgs) -> anyhow::Result<()> {
 
 type ServerTask = tokio::task::JoinHandle<Result<(), tonic::transport::Error>>;
 
+/// Serves the learner's gRPC services. Call it only once the learner process holds its
+/// restored state: a Status answered earlier would report iteration 0 for a resumed run.
 fn serve_learner(
     rt: &tokio::runtime::Runtime,
     addr: SocketAddr,

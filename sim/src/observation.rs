@@ -33,6 +33,15 @@ pub enum ObservationFrame {
 }
 
 impl ObservationFrame {
+    /// The frame's name as run configs spell it: `world`, `heading` or `body`.
+    pub fn name(self) -> &'static str {
+        match self {
+            ObservationFrame::World => "world",
+            ObservationFrame::Heading => "heading",
+            ObservationFrame::Body => "body",
+        }
+    }
+
     /// The rotation that takes world vectors into this frame for a drone with attitude `body`.
     fn rotation_from_world(self, body: &BodyState) -> Matrix3<f64> {
         match self {

@@ -139,11 +139,11 @@ pub fn export_model(args: ExportModelArgs) -> anyhow::Result<()> {
     };
     write_atomic(&args.out, &bytes)?;
     println!(
-        "wrote {} (policy v{}: {} raw observations in the {:?} frame -> {} actions in [-1, 1], {} bytes)",
+        "wrote {} (policy v{}: {} raw observations in the {} frame -> {} actions in [-1, 1], {} bytes)",
         args.out.display(),
         blob.version,
         blob.architecture.observation_dim,
-        blob.architecture.observation_frame,
+        blob.architecture.observation_frame.name(),
         blob.architecture.action_dim,
         bytes.len()
     );

@@ -12,6 +12,7 @@ use anyhow::{Context, bail, ensure};
 use clap::Args;
 
 use super::eval::{ControllerKind, controller_factory};
+use super::sim::parse_numbers;
 use super::write_atomic;
 
 /// Arguments of `dronerace sim render`.
@@ -76,14 +77,7 @@ fn single_frame(track: &Track, pose: &str, target: usize, out: &Path) -> anyhow:
 
 /// Parses `x,y,z,qw,qx,qy,qz`; the quaternion is normalised, but must not be zero.
 fn parse_pose(text: &str) -> anyhow::Result<(Vector3<f64>, UnitQuaternion<f64>)> {
-    let values: Vec<f64> = text
-        .split(',')
-        .enumerate()
-        .map(|(i, f)| match f.trim().parse::<f64>() {
-            Ok(x) if x.is_finite() => Ok(x),
-            _ => bail!("field {}: {:?} is not a finite number", i + 1, f.trim()),
-        })
-        .collect::<anyhow::Result<_>>()?;
+    let values = parse_numbers(text)?;
     let [x, y, z, qw, qx, qy, qz] = values[..] else {
         bail!("expected x,y,z,qw,qx,qy,qz (7 numbers), found {}", values.len());
     };
@@ -127,7 +121,6 @@ fn flight(track: &Arc<Track>, args: &RenderArgs) -> anyhow::Result<()> {
     let mut controller = make();
     let config = EnvConfig { randomization: ::sim::RandomizationParams::none(), ..EnvConfig::evaluation() };
     let mut env = RaceEnv::new(track.clone(), config, 0, 0);
-    env.reset();
     controller.reset(&env);
     let mut camera = vec![0u8; IMAGE_PIXELS];
     let mut trajectory = vec![env.body().position];
@@ -148,14 +141,10 @@ fn flight(track: &Arc<Track>, args: &RenderArgs) -> anyhow::Result<()> {
         let action = controller.act(&env);
         let outcome = env.step(&action);
         trajectory.push(env.body().position);
-        if outcome.terminated {
-            ending = "crash";
-            env.render_camera(&mut camera);
-            gif_frames.push(compose(&camera, track, env.target_gate(), &trajectory));
-            break;
-        }
-        if env.stats().laps >= args.laps {
-            ending = "laps done";
+        let ended = if outcome.terminated { Some("crash") } else { (env.stats().laps >= args.laps).then_some("laps done") };
+        if let Some(why) = ended {
+            // The last frame shows where the flight ended, whatever --every says.
+            ending = why;
             env.render_camera(&mut camera);
             gif_frames.push(compose(&camera, track, env.target_gate(), &trajectory));
             break;
@@ -271,7 +260,7 @@ mod tests {
         assert_eq!(p, Vector3::new(1.0, 2.0, 3.0));
         assert!((q.w - 1.0).abs() < 1e-12, "normalised");
         assert!(parse_pose("1,2,3,1,0,0").unwrap_err().to_string().contains("7 numbers"));
-        assert!(parse_pose("1,2,x,1,0,0,0").unwrap_err().to_string().contains("field 3"));
+        assert!(parse_pose("1,2,x,1,0,0,0").unwrap_err().to_string().contains("column 3"));
         assert!(parse_pose("1,2,3,0,0,0,0").unwrap_err().to_string().contains("zero"));
     }
 }

@@ -101,7 +101,8 @@ fn parse_start(text: &str) -> anyhow::Result<Pose> {
     Ok(Pose { position: Vector3::new(x, y, z), yaw: yaw_deg.to_radians() })
 }
 
-fn parse_numbers(text: &str) -> anyhow::Result<Vec<f64>> {
+/// Comma-separated finite numbers; a bad one is named by its column.
+pub(super) fn parse_numbers(text: &str) -> anyhow::Result<Vec<f64>> {
     text.split(',')
         .enumerate()
         .map(|(i, field)| {
