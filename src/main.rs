@@ -37,6 +37,9 @@ enum Command {
     Experiment(commands::experiment::ExperimentCommand),
     /// Train a policy with PPO: task controller, learner and actors as processes on this machine.
     Train(commands::train::TrainArgs),
+    /// Distil a vision policy from a state-based teacher (DAgger): the student flies on camera
+    /// images, the teacher labels every state it visits.
+    Distill(commands::distill::DistillArgs),
     /// Serve the task controller (tracks and switching of every environment) over gRPC.
     Taskctl(runtime::services::TaskctlArgs),
     /// Run the learner process (PPO; takes rollouts, publishes weights).
@@ -84,6 +87,7 @@ fn main() -> std::process::ExitCode {
         Command::Sim(c) => commands::sim::run(c),
         Command::Train(a) => commands::train::run(a),
         Command::Experiment(c) => commands::experiment::run(c),
+        Command::Distill(a) => commands::distill::run(a),
         Command::Taskctl(a) => runtime::services::taskctl(a),
         Command::Learner(a) => runtime::services::learner(a),
         Command::Actor(a) => runtime::services::actor(a),

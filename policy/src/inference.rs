@@ -161,19 +161,36 @@ impl VisionPolicy {
         self.version
     }
 
+    /// Frame of the state observations this policy reads.
+    pub fn observation_frame(&self) -> sim::ObservationFrame {
+        self.frame
+    }
+
     /// Action means of one camera image (84×84 bytes, as the renderer writes it) and the raw
     /// state observation in the policy's frame (its proprioceptive part feeds the actor).
-    #[allow(clippy::expect_used, reason = "float outputs")]
     pub fn mean_action(&self, image: &[u8], raw_state: &[f32]) -> Vec<f32> {
+        self.mean_actions(image, raw_state)
+    }
+
+    /// Action means of a batch: `n` camera images (`n × 84 × 84` bytes) and their raw state
+    /// observations (`n × 40`), one row of means per image.
+    #[allow(clippy::expect_used, reason = "float outputs")]
+    pub fn mean_actions(&self, images: &[u8], raw_states: &[f32]) -> Vec<f32> {
         let dim = self.normalizer.dim();
-        let mut state = vec![0.0; dim];
-        self.normalizer.normalize(raw_state, &mut state);
-        let pixels: Vec<f32> = image.iter().map(|&p| f32::from(p) / 255.0).collect();
-        let images = Tensor::<4>::from_data(TensorData::new(pixels, [1, 1, IMAGE_SIDE, IMAGE_SIDE]), &self.device);
-        let states = Tensor::<2>::from_data(TensorData::new(state, [1, dim]), &self.device);
+        let n = raw_states.len() / dim;
+        assert_eq!(images.len(), n * IMAGE_SIDE * IMAGE_SIDE, "one image per state row");
+        let mut states = vec![0.0; raw_states.len()];
+        self.normalizer.normalize(raw_states, &mut states);
+        let images = Tensor::<4>::from_data(TensorData::new(pixels_to_unit(images), [n, 1, IMAGE_SIDE, IMAGE_SIDE]), &self.device);
+        let states = Tensor::<2>::from_data(TensorData::new(states, [n, dim]), &self.device);
         let (mean, _) = self.model.forward(images, states);
         mean.into_data().try_into_vec::<f32>().expect("float outputs")
     }
+}
+
+/// Camera bytes as the network reads them: scaled to [0, 1].
+pub fn pixels_to_unit(image: &[u8]) -> Vec<f32> {
+    image.iter().map(|&p| f32::from(p) / 255.0).collect()
 }
 
 /// Flies a [`RaceEnv`] with a vision policy's deterministic mean action: renders the camera
@@ -198,6 +215,24 @@ impl Controller for VisionPolicyController {
         let mean = self.policy.mean_action(&self.image, &env.observation_in(self.policy.frame));
         std::array::from_fn(|i| mean[i].clamp(-1.0, 1.0))
     }
+}
+
+/// Makes a fresh evaluation controller per deployment (evaluation runs them in parallel).
+pub type ControllerFactory = Box<dyn Fn() -> Box<dyn Controller> + Sync>;
+
+/// Controllers flying `blob`'s deterministic policy, whichever agent it holds: the state-based
+/// one reads the state observation, the vision-based one renders its camera every step.
+pub fn controller_factory(blob: &WeightsBlob) -> Result<ControllerFactory, BlobError> {
+    Ok(match blob.architecture.agent {
+        crate::Agent::State => {
+            let policy = Arc::new(Policy::from_blob(blob)?);
+            Box::new(move || Box::new(PolicyController::new(policy.clone())))
+        }
+        crate::Agent::Vision => {
+            let policy = Arc::new(VisionPolicy::from_blob(blob)?);
+            Box::new(move || Box::new(VisionPolicyController::new(policy.clone())))
+        }
+    })
 }
 
 #[cfg(test)]

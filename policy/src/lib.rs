@@ -17,7 +17,10 @@ pub use architecture::{Agent, Architecture};
 pub use blob::{BlobError, WeightsBlob};
 /// The burn device networks are built on (the CPU).
 pub use burn::tensor::Device;
-pub use inference::{Acting, HALF_LN_2PI, Policy, PolicyController, VisionPolicy, VisionPolicyController, gaussian_log_prob};
+pub use inference::{
+    Acting, ControllerFactory, HALF_LN_2PI, Policy, PolicyController, VisionPolicy, VisionPolicyController, controller_factory,
+    gaussian_log_prob, pixels_to_unit,
+};
 pub use network::ActorCritic;
 pub use normalizer::ObsNormalizer;
 pub use rollout::{EpisodeRecord, RolloutChunk, RolloutWireError};

@@ -106,10 +106,14 @@ impl VisionActorCritic {
     /// in [0, 1] and normalised state observations `[batch, 40]`: the actor reads the image and
     /// the state's first 12 numbers (its proprioception), the critic the whole state.
     pub fn forward(&self, images: Tensor<4>, states: Tensor<2>) -> (Tensor<2>, Tensor<1>) {
+        (self.actor_mean(images, states.clone()), self.critic.forward(states).squeeze_dim(1))
+    }
+
+    /// The actor's half of [`VisionActorCritic::forward`]: action means only.
+    pub fn actor_mean(&self, images: Tensor<4>, states: Tensor<2>) -> Tensor<2> {
         let batch = states.dims()[0];
-        let proprioception = states.clone().slice([0..batch, 0..PROPRIOCEPTION]);
-        let actor_input = Tensor::cat(vec![self.embed(images), proprioception], 1);
-        (self.actor.forward(actor_input), self.critic.forward(states).squeeze_dim(1))
+        let proprioception = states.slice([0..batch, 0..PROPRIOCEPTION]);
+        self.actor.forward(Tensor::cat(vec![self.embed(images), proprioception], 1))
     }
 
     /// Every parameter's id and rank: convolutions (weight, bias), embedding, actor layers,

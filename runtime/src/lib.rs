@@ -2,11 +2,13 @@
 //! (`metrics`), validation during training (`validation`), the actor's and the learner's
 //! process loops (`actor_process`, `learner_process`), training in one process by turns of
 //! those same loops over an in-memory link (`trainer`), experiment files (`experiment`), the
-//! progress line (`progress`), the three processes' commands and servers (`services`) and the
-//! supervisor of `dronerace train` (`supervisor`).
+//! progress line (`progress`), the three processes' commands and servers (`services`), the
+//! supervisor of `dronerace train` (`supervisor`) and the vision student's distillation
+//! (`distill`).
 
 pub mod actor_process;
 pub mod chaos;
+pub mod distill;
 pub mod experiment;
 pub mod learner_process;
 pub mod metrics;

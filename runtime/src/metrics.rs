@@ -131,13 +131,20 @@ pub struct MetricsWriter {
 }
 
 impl MetricsWriter {
-    /// Opens (or continues) `metrics.csv` and starts a new event file in `dir`.
+    /// Opens (or continues) `metrics.csv` and starts a new event file in `dir`, with the
+    /// columns of [`MetricsRow`].
     pub fn open(dir: &Path) -> std::io::Result<Self> {
+        let names: Vec<&str> = MetricsRow::default().columns().iter().map(|(name, _)| *name).collect();
+        Self::open_with_columns(dir, &names)
+    }
+
+    /// [`MetricsWriter::open`] for rows of other columns (e.g. distillation's); `names` is the
+    /// CSV header after `iteration,env_steps,wall_seconds`.
+    pub fn open_with_columns(dir: &Path, names: &[&str]) -> std::io::Result<Self> {
         let csv_path = dir.join("metrics.csv");
         let fresh = !csv_path.exists();
         let mut csv = OpenOptions::new().create(true).append(true).open(&csv_path)?;
         if fresh {
-            let names: Vec<&str> = MetricsRow::default().columns().iter().map(|(name, _)| *name).collect();
             writeln!(csv, "iteration,env_steps,wall_seconds,{}", names.join(","))?;
         }
         let stamp = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default().as_secs();
@@ -148,7 +155,12 @@ impl MetricsWriter {
 
     /// One iteration's row.
     pub fn write(&mut self, iteration: u64, env_steps: u64, wall_seconds: f64, row: &MetricsRow) -> std::io::Result<()> {
-        let columns = row.columns();
+        self.write_columns(iteration, env_steps, wall_seconds, &row.columns())
+    }
+
+    /// One row of `(column, value)` pairs in the order the writer was opened with (NaN: empty
+    /// cell, no TensorBoard scalar).
+    pub fn write_columns(&mut self, iteration: u64, env_steps: u64, wall_seconds: f64, columns: &[(&str, f64)]) -> std::io::Result<()> {
         let cells: Vec<String> = columns.iter().map(|(_, v)| if v.is_nan() { String::new() } else { format!("{v}") }).collect();
         writeln!(self.csv, "{iteration},{env_steps},{wall_seconds:.3},{}", cells.join(","))?;
         self.csv.flush()?;

@@ -30,6 +30,38 @@ pub enum TrackSource {
     },
 }
 
+impl TrackSource {
+    /// A task controller for `envs` environments on these tracks, generating with `generator`
+    /// and switching with `switching`.
+    pub fn task_controller(
+        &self,
+        envs: usize,
+        generator: TrackGenerator,
+        switching: SwitchParams,
+        seed: u64,
+    ) -> Result<TaskController, TrainError> {
+        Ok(match self {
+            TrackSource::Generated => TaskController::new(envs, generator, switching, seed)?,
+            TrackSource::Library { names } => {
+                let library = racetracks::library().map_err(|e| TrainError::Config(e.to_string()))?;
+                let mut chosen = Vec::new();
+                for name in names {
+                    let track = library
+                        .iter()
+                        .find(|t| t.name.eq_ignore_ascii_case(name))
+                        .ok_or_else(|| TrainError::Config(format!("tracks.names: no library track {name:?}")))?;
+                    chosen.push(Arc::new(track.clone()));
+                }
+                if chosen.is_empty() {
+                    return Err(TrainError::Config("tracks.names: name at least one library track".into()));
+                }
+                let tracks = (0..envs).map(|i| chosen[i % chosen.len()].clone()).collect();
+                TaskController::with_tracks(tracks, generator, switching, seed)?
+            }
+        })
+    }
+}
+
 /// A training run's configuration (`dronerace train --config FILE`); every field optional.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -104,25 +136,7 @@ impl TrainConfig {
 
     /// The task controller for `envs` environments this config describes.
     pub fn task_controller(&self, envs: usize) -> Result<TaskController, TrainError> {
-        Ok(match &self.tracks {
-            TrackSource::Generated => TaskController::new(envs, self.generator, self.switching, self.seed)?,
-            TrackSource::Library { names } => {
-                let library = racetracks::library().map_err(|e| TrainError::Config(e.to_string()))?;
-                let mut chosen = Vec::new();
-                for name in names {
-                    let track = library
-                        .iter()
-                        .find(|t| t.name.eq_ignore_ascii_case(name))
-                        .ok_or_else(|| TrainError::Config(format!("tracks.names: no library track {name:?}")))?;
-                    chosen.push(Arc::new(track.clone()));
-                }
-                if chosen.is_empty() {
-                    return Err(TrainError::Config("tracks.names: name at least one library track".into()));
-                }
-                let tracks = (0..envs).map(|i| chosen[i % chosen.len()].clone()).collect();
-                TaskController::with_tracks(tracks, self.generator, self.switching, self.seed)?
-            }
-        })
+        self.tracks.task_controller(envs, self.generator, self.switching, self.seed)
     }
 
     /// The learner a new run of this configuration starts with: fresh, or from `init_from`.

@@ -6,7 +6,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use policy::{BlobError, Policy, PolicyController, WeightsBlob};
+use policy::{BlobError, WeightsBlob};
 use serde::{Deserialize, Serialize};
 use sim::Track;
 use sim::eval::{EvalConfig, EvalReport, evaluate};
@@ -69,12 +69,13 @@ impl Validator {
         iteration.is_multiple_of(self.every)
     }
 
-    /// Flies `blob`'s deterministic policy on every validation track.
+    /// Flies `blob`'s deterministic policy on every validation track (a vision policy with
+    /// its camera).
     pub fn evaluate(&self, blob: &WeightsBlob) -> Result<Validation, BlobError> {
         let started = Instant::now();
-        let policy = Arc::new(Policy::from_blob(blob)?);
+        let make = policy::controller_factory(blob)?;
         let name = format!("policy v{}", blob.version);
-        let report = evaluate(&name, &self.tracks, &|| Box::new(PolicyController::new(policy.clone())), &self.config);
+        let report = evaluate(&name, &self.tracks, make.as_ref(), &self.config);
         Ok(Validation { report, seconds: started.elapsed().as_secs_f64() })
     }
 

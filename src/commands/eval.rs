@@ -1,13 +1,12 @@
 //! `dronerace eval`: the evaluation harness of SPEC §9 for any controller.
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
+use ::sim::ReferencePilot;
 use ::sim::eval::{EvalConfig, evaluate};
-use ::sim::{Controller, ReferencePilot};
 use anyhow::Context;
 use clap::{Args, ValueEnum};
-use policy::{Agent, Policy, PolicyController, VisionPolicy, VisionPolicyController};
+use policy::ControllerFactory;
 
 use super::{load_tracks, write_atomic};
 
@@ -46,11 +45,8 @@ pub struct EvalArgs {
     out: PathBuf,
 }
 
-/// Makes fresh controllers of one kind, with a name for reports.
-pub type ControllerFactory = Box<dyn Fn() -> Box<dyn Controller> + Sync>;
-
 /// The reference pilot, or the mean action of the policy at `policy` (a checkpoint or blob;
-/// a vision policy renders its camera every step).
+/// a vision policy renders its camera every step), with a name for reports.
 pub fn controller_factory(kind: ControllerKind, policy: Option<&Path>) -> anyhow::Result<(String, ControllerFactory)> {
     Ok(match kind {
         ControllerKind::Pilot => ("pilot".into(), Box::new(|| Box::new(ReferencePilot::default()))),
@@ -58,16 +54,7 @@ pub fn controller_factory(kind: ControllerKind, policy: Option<&Path>) -> anyhow
             let path = policy.context("--controller policy needs --policy CHECKPOINT")?;
             let blob = learner::checkpoint::read_policy(path)?;
             let name = format!("policy v{} ({}, {})", blob.version, path.display(), blob.architecture.agent);
-            match blob.architecture.agent {
-                Agent::State => {
-                    let policy = Arc::new(Policy::from_blob(&blob)?);
-                    (name, Box::new(move || Box::new(PolicyController::new(policy.clone()))))
-                }
-                Agent::Vision => {
-                    let policy = Arc::new(VisionPolicy::from_blob(&blob)?);
-                    (name, Box::new(move || Box::new(VisionPolicyController::new(policy.clone()))))
-                }
-            }
+            (name, policy::controller_factory(&blob)?)
         }
     })
 }

@@ -1,5 +1,6 @@
 //! One module per subcommand: argument types and the glue that calls the crates.
 
+pub mod distill;
 pub mod eval;
 pub mod experiment;
 pub mod render;

@@ -1,0 +1,400 @@
+//! Teacher–student distillation of a vision policy by DAgger (Ross, Gordon and Bagnell 2011):
+//! the aggregated data set of visited states, each labelled with the state-based teacher's mean
+//! action, and the student's supervised regression on it. The loop that flies the student and
+//! fills the data set is `runtime::distill`.
+//!
+//! A sample keeps the camera's pose (track, target gate, position, attitude), not its image:
+//! the renderer is deterministic, so a minibatch's images are rendered again when it is trained
+//! on (~10 µs an image, against ~1 ms for the CNN's gradient on it). A sample then takes ~250
+//! bytes instead of 7 kB, so a data set of a million samples and its checkpoint stay small.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::tensor::{Bytes, Device, Tensor, TensorData};
+use policy::vision::IMAGE_SIDE;
+use policy::{Agent, Architecture, ObsNormalizer, VisionActorCritic, WeightsBlob, pixels_to_unit};
+use rand::Rng;
+use rayon::prelude::*;
+use sim::camera::IMAGE_PIXELS;
+use sim::nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use sim::{ACTION_DIM, RaceEnv, STATE_OBS_DIM, Track};
+
+use crate::learner::LearnerError;
+
+/// The frame of a serialised data set.
+const DATASET_FRAME: frames::FrameKind = frames::FrameKind { magic: b"DRDAGGER", format: 1, name: "distillation data set" };
+
+/// One visited state: where the camera was, the raw state observation and the teacher's label.
+#[derive(Clone, Debug, PartialEq)]
+struct Sample {
+    /// Index into the data set's track table.
+    track: u32,
+    /// Target gate (the renderer colours it brightest).
+    target: u32,
+    position: [f64; 3],
+    /// Attitude quaternion (w, x, y, z).
+    attitude: [f64; 4],
+    /// Raw state observation (SPEC §5 order, in the teacher's frame).
+    state: [f32; STATE_OBS_DIM],
+    /// Teacher's deterministic action.
+    label: [f32; ACTION_DIM],
+}
+
+impl Sample {
+    fn render(&self, tracks: &[Arc<Track>], out: &mut [u8]) {
+        let [w, x, y, z] = self.attitude;
+        let rotation = UnitQuaternion::new_unchecked(Quaternion::new(w, x, y, z)).to_rotation_matrix().into_inner();
+        let position = Vector3::from(self.position);
+        sim::camera::render(&tracks[self.track as usize], self.target as usize, &position, &rotation, out);
+    }
+}
+
+/// DAgger's aggregated data set, capped by reservoir sampling: once full, the `n`-th sample
+/// seen replaces a random one with probability `capacity / n`, so the set stays a uniform
+/// sample of every state visited so far (DAgger aggregates all of them).
+#[derive(Debug, Default)]
+pub struct DistillDataset {
+    tracks: Vec<Arc<Track>>,
+    /// Track table index by the address of the `Arc` the environments hold (the table keeps
+    /// every `Arc` alive, so an address is never reused for another track).
+    track_index: HashMap<usize, u32>,
+    samples: Vec<Sample>,
+    capacity: usize,
+    seen: u64,
+}
+
+impl DistillDataset {
+    /// An empty data set holding at most `capacity` samples.
+    pub fn new(capacity: usize) -> Self {
+        Self { capacity: capacity.max(1), ..Self::default() }
+    }
+
+    /// Samples held.
+    pub fn len(&self) -> usize {
+        self.samples.len()
+    }
+
+    /// True when no sample is held.
+    pub fn is_empty(&self) -> bool {
+        self.samples.is_empty()
+    }
+
+    /// Samples offered so far (held or not).
+    pub fn seen(&self) -> u64 {
+        self.seen
+    }
+
+    /// Offers the state `env` is in, its raw observation `state` and the teacher's `label`.
+    pub fn offer(&mut self, env: &RaceEnv, state: &[f32], label: &[f32], rng: &mut impl Rng) {
+        self.seen += 1;
+        let slot = if self.samples.len() < self.capacity {
+            None
+        } else {
+            match rng.random_range(0..self.seen) {
+                j if j < self.capacity as u64 => Some(j as usize),
+                _ => return,
+            }
+        };
+        let body = env.body();
+        let a = body.attitude;
+        let sample = Sample {
+            track: self.track_id(env.track()),
+            target: env.target_gate() as u32,
+            position: body.position.into(),
+            attitude: [a.w, a.i, a.j, a.k],
+            state: std::array::from_fn(|i| state[i]),
+            label: std::array::from_fn(|i| label[i]),
+        };
+        match slot {
+            Some(j) => self.samples[j] = sample,
+            None => self.samples.push(sample),
+        }
+    }
+
+    fn track_id(&mut self, track: &Arc<Track>) -> u32 {
+        let key = Arc::as_ptr(track) as usize;
+        if let Some(&id) = self.track_index.get(&key) {
+            return id;
+        }
+        let id = self.tracks.len() as u32;
+        self.tracks.push(track.clone());
+        self.track_index.insert(key, id);
+        id
+    }
+
+    /// The camera images of samples `rows` (`rows.len() × 84 × 84` bytes), rendered again.
+    pub fn images(&self, rows: &[usize]) -> Vec<u8> {
+        let mut out = vec![0u8; rows.len() * IMAGE_PIXELS];
+        out.par_chunks_mut(IMAGE_PIXELS).zip(rows.par_iter()).for_each(|(image, &row)| self.samples[row].render(&self.tracks, image));
+        out
+    }
+
+    /// Raw state observations of samples `rows`, row after row.
+    pub fn states(&self, rows: &[usize]) -> Vec<f32> {
+        rows.iter().flat_map(|&r| self.samples[r].state).collect()
+    }
+
+    /// Teacher labels of samples `rows`, row after row.
+    pub fn labels(&self, rows: &[usize]) -> Vec<f32> {
+        rows.iter().flat_map(|&r| self.samples[r].label).collect()
+    }
+
+    /// The data set as bytes (a `frames` frame): capacity, count seen, the tracks (JSON), the
+    /// samples.
+    #[allow(clippy::expect_used, reason = "tracks serialise")]
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let tracks: Vec<&Track> = self.tracks.iter().map(Arc::as_ref).collect();
+        let tracks = serde_json::to_vec(&tracks).expect("tracks serialise");
+        let mut body = Vec::with_capacity(32 + tracks.len() + self.samples.len() * 256);
+        body.extend_from_slice(&(self.capacity as u64).to_le_bytes());
+        body.extend_from_slice(&self.seen.to_le_bytes());
+        body.extend_from_slice(&(tracks.len() as u64).to_le_bytes());
+        body.extend_from_slice(&tracks);
+        body.extend_from_slice(&(self.samples.len() as u64).to_le_bytes());
+        for s in &self.samples {
+            body.extend_from_slice(&s.track.to_le_bytes());
+            body.extend_from_slice(&s.target.to_le_bytes());
+            for v in s.position.iter().chain(&s.attitude) {
+                body.extend_from_slice(&v.to_le_bytes());
+            }
+            frames::put_f32s(&mut body, &s.state);
+            frames::put_f32s(&mut body, &s.label);
+        }
+        DATASET_FRAME.encode(&body)
+    }
+
+    /// Reads [`DistillDataset::to_bytes`]' output; errors say what is wrong.
+    pub fn from_bytes(bytes: &[u8]) -> Result<Self, LearnerError> {
+        let body = DATASET_FRAME.decode(bytes).map_err(|e| LearnerError::State(e.to_string()))?;
+        let bad = |what: String| LearnerError::State(format!("distillation data set: {what}"));
+        let short = |t: frames::Truncated| bad(format!("ends {} bytes short at byte {}", t.needed, t.at));
+        let mut r = frames::Reader::new(body, 0);
+        let capacity = r.u64().map_err(short)? as usize;
+        let seen = r.u64().map_err(short)?;
+        let json_len = r.u64().map_err(short)? as usize;
+        let tracks: Vec<Track> = serde_json::from_slice(r.take(json_len).map_err(short)?).map_err(|e| bad(format!("track table: {e}")))?;
+        let tracks: Vec<Arc<Track>> = tracks.into_iter().map(Arc::new).collect();
+        let count = r.u64().map_err(short)? as usize;
+        let mut samples = Vec::with_capacity(r.capacity_for(count, 8 + 7 * 8 + (STATE_OBS_DIM + ACTION_DIM) * 4));
+        for i in 0..count {
+            let track = r.u32().map_err(short)?;
+            let target = r.u32().map_err(short)?;
+            let mut pose = [0f64; 7];
+            for v in &mut pose {
+                *v = r.f64().map_err(short)?;
+            }
+            let state = r.f32s(STATE_OBS_DIM).map_err(short)?;
+            let label = r.f32s(ACTION_DIM).map_err(short)?;
+            let gates = tracks.get(track as usize).map(|t| t.gates.len()).ok_or_else(|| bad(format!("sample {i}: no track {track}")))?;
+            if target as usize >= gates {
+                return Err(bad(format!("sample {i}: target gate {target} of a {gates}-gate track")));
+            }
+            samples.push(Sample {
+                track,
+                target,
+                position: [pose[0], pose[1], pose[2]],
+                attitude: [pose[3], pose[4], pose[5], pose[6]],
+                state: std::array::from_fn(|k| state[k]),
+                label: std::array::from_fn(|k| label[k]),
+            });
+        }
+        if r.remaining() != 0 || samples.len() > capacity.max(1) {
+            return Err(bad(format!("{} bytes after {count} samples, capacity {capacity}", r.remaining())));
+        }
+        let track_index = tracks.iter().enumerate().map(|(i, t)| (Arc::as_ptr(t) as usize, i as u32)).collect();
+        Ok(Self { tracks, track_index, samples, capacity: capacity.max(1), seen })
+    }
+}
+
+/// The vision student under supervised training: its CNN actor regresses the teacher's
+/// actions; its critic is the teacher's (same state input), so that vision PPO can start from
+/// the student; its normaliser is the teacher's, frozen.
+pub struct Student {
+    /// Always `Some` between calls; taken while burn's optimiser consumes and returns it.
+    model: Option<VisionActorCritic>,
+    optimizer: ModuleOptimizer,
+    architecture: Architecture,
+    normalizer: ObsNormalizer,
+    version: u64,
+    device: Device,
+}
+
+/// Adam for the regression (ε as SPEC §10; no weight decay).
+fn student_adam() -> ModuleOptimizer {
+    AdamConfig::new().with_epsilon(1e-5).init()
+}
+
+impl Student {
+    /// A fresh student of the teacher's shape: the teacher's hidden widths, frame and
+    /// normaliser, a new CNN and actor (seeded), the teacher's critic, log std
+    /// `initial_log_std` (SPEC §10's VB column: 0).
+    pub fn new(teacher: &WeightsBlob, initial_log_std: f64, seed: u64) -> Result<Self, LearnerError> {
+        teacher.check_agent(Agent::State).map_err(|e| LearnerError::State(format!("teacher: {e}")))?;
+        let device = Device::flex().autodiff();
+        let architecture = Architecture { agent: Agent::Vision, ..teacher.architecture.clone() };
+        let mut model = VisionActorCritic::new(&architecture, initial_log_std, seed, &device);
+        model.critic = teacher.model(&device).map_err(|e| LearnerError::State(format!("teacher: {e}")))?.critic;
+        Ok(Self { model: Some(model), optimizer: student_adam(), architecture, normalizer: teacher.normalizer.clone(), version: 0, device })
+    }
+
+    /// Restores a student from its weights blob and optimiser state ([`Student::weights`],
+    /// [`Student::optimizer_state`]).
+    pub fn restore(weights: &[u8], optimizer: &[u8]) -> Result<Self, LearnerError> {
+        let blob = WeightsBlob::from_bytes(weights).map_err(|e| LearnerError::State(e.to_string()))?;
+        let device = Device::flex().autodiff();
+        let model = blob.vision_model(&device).map_err(|e| LearnerError::State(e.to_string()))?.train();
+        let optimizer = student_adam()
+            .from_bytes(Bytes::from_bytes_vec(optimizer.to_vec()))
+            .map_err(|e| LearnerError::State(format!("student optimiser: {e:?}")))?;
+        Ok(Self {
+            model: Some(model),
+            optimizer,
+            architecture: blob.architecture.clone(),
+            normalizer: blob.normalizer,
+            version: blob.version,
+            device,
+        })
+    }
+
+    #[allow(clippy::expect_used, reason = "the model is present between calls")]
+    fn model(&self) -> &VisionActorCritic {
+        self.model.as_ref().expect("the model is present between calls")
+    }
+
+    /// Gradient steps taken so far (the blob's version).
+    pub fn version(&self) -> u64 {
+        self.version
+    }
+
+    /// The student as a vision weights blob.
+    pub fn weights(&self) -> WeightsBlob {
+        WeightsBlob::from_vision_model(self.version, &self.architecture, &self.normalizer, self.model())
+    }
+
+    /// The optimiser's moments, for exact resume.
+    #[allow(clippy::expect_used, reason = "optimiser state serialises")]
+    pub fn optimizer_state(&self) -> Vec<u8> {
+        self.optimizer.into_bytes().expect("optimiser state serialises").to_vec()
+    }
+
+    /// One gradient step of the mean squared error between the student's action means and the
+    /// teacher's labels on samples `rows` of `data`; returns the loss before the step.
+    #[allow(clippy::expect_used, reason = "the model is present between calls; float outputs")]
+    pub fn train_step(&mut self, data: &DistillDataset, rows: &[usize], learning_rate: f64) -> f64 {
+        let n = rows.len();
+        let mut states = vec![0.0; n * STATE_OBS_DIM];
+        self.normalizer.normalize(&data.states(rows), &mut states);
+        let images =
+            Tensor::<4>::from_data(TensorData::new(pixels_to_unit(&data.images(rows)), [n, 1, IMAGE_SIDE, IMAGE_SIDE]), &self.device);
+        let states = Tensor::<2>::from_data(TensorData::new(states, [n, STATE_OBS_DIM]), &self.device);
+        let labels = Tensor::<2>::from_data(TensorData::new(data.labels(rows), [n, ACTION_DIM]), &self.device);
+        let model = self.model.take().expect("the model is present between calls");
+        let loss = (model.actor_mean(images, states) - labels).powi_scalar(2).mean();
+        let value = f64::from(loss.clone().into_data().try_into_vec::<f32>().expect("float outputs")[0]);
+        let grads = GradientsParams::from_grads(loss.backward(), &model);
+        self.model = Some(self.optimizer.step(learning_rate, model, grads));
+        self.version += 1;
+        value
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use sim::{EnvConfig, Gate};
+
+    fn track() -> Arc<Track> {
+        let gates = vec![Gate::new(Vector3::new(4.0, 0.0, 2.0), 0.0), Gate::new(Vector3::new(-4.0, 0.0, 2.0), 3.0)];
+        Arc::new(Track::new("two", gates, None, sim::Arena::default()).unwrap())
+    }
+
+    #[test]
+    fn the_reservoir_keeps_its_cap_and_a_uniform_sample_and_the_bytes_round_trip() {
+        let mut data = DistillDataset::new(100);
+        let mut rng = ChaCha8Rng::seed_from_u64(0);
+        let mut env = RaceEnv::new(track(), EnvConfig::default(), 0, 0);
+        for i in 0..1000 {
+            // The label numbers the sample, so the survivors tell which were kept.
+            data.offer(&env, &env.observation_in(sim::ObservationFrame::Heading), &[i as f32, 0.0, 0.0, 0.0], &mut rng);
+            env.step(&[0.1, 0.0, 0.0, 0.0]);
+            if env.stats().crash.is_some() || env.stats().length >= 200 {
+                env.reset();
+            }
+        }
+        assert_eq!((data.len(), data.seen()), (100, 1000));
+        assert_eq!(data.tracks.len(), 1, "one track, one table entry");
+        let kept: Vec<f32> = data.labels(&(0..100).collect::<Vec<_>>()).chunks(4).map(|l| l[0]).collect();
+        let late = kept.iter().filter(|&&i| i >= 500.0).count();
+        // Uniform over 1000 offers: ~50 of the 100 from the second half (binomial sd 5).
+        assert!((30..=70).contains(&late), "{late} of 100 from the second half");
+        let back = DistillDataset::from_bytes(&data.to_bytes()).unwrap();
+        assert_eq!((back.samples.clone(), back.seen, back.capacity), (data.samples.clone(), 1000, 100));
+        assert_eq!(back.images(&[0, 57, 99]), data.images(&[0, 57, 99]), "the same images are rendered again");
+        let mut bytes = data.to_bytes();
+        bytes.truncate(bytes.len() - 9);
+        assert!(DistillDataset::from_bytes(&bytes).is_err());
+    }
+
+    #[test]
+    fn a_sample_renders_the_image_its_environment_showed() {
+        let mut data = DistillDataset::new(10);
+        let mut env = RaceEnv::new(track(), EnvConfig::default(), 3, 1);
+        for _ in 0..20 {
+            env.step(&[0.2, 0.1, 0.0, 0.3]);
+        }
+        data.offer(&env, &[0.0; STATE_OBS_DIM], &[0.0; 4], &mut ChaCha8Rng::seed_from_u64(0));
+        let mut shown = vec![0u8; IMAGE_PIXELS];
+        env.render_camera(&mut shown);
+        assert!(shown.iter().any(|&p| p > 0), "a gate is in view");
+        assert_eq!(data.images(&[0]), shown);
+    }
+
+    #[test]
+    fn regression_brings_the_students_actions_to_the_teachers() {
+        // A tiny problem: 32 states on a two-gate track, labels from a fixed teacher.
+        let arch = Architecture { hidden: vec![32, 32], ..Architecture::paper() };
+        let teacher_net = policy::ActorCritic::new(&arch, -0.5, 7, &Device::flex());
+        let teacher = WeightsBlob::from_model(1, &arch, &ObsNormalizer::new(arch.observation_dim), &teacher_net);
+        let teacher_policy = policy::Policy::from_blob(&teacher).unwrap();
+        let mut data = DistillDataset::new(64);
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let mut env = RaceEnv::new(track(), EnvConfig::default(), 1, 0);
+        for _ in 0..32 {
+            let state = env.observation_in(arch.observation_frame);
+            // Labels scaled up so that the student's initial near-zero head is far from them.
+            let label: Vec<f32> = teacher_policy.deterministic_actions(&state).iter().map(|a| (a * 40.0).clamp(-1.0, 1.0)).collect();
+            data.offer(&env, &state, &label, &mut rng);
+            env.step(&[0.3, 0.2, -0.1, 0.2]);
+        }
+        let mut student = Student::new(&teacher, 0.0, 2).unwrap();
+        let rows: Vec<usize> = (0..data.len()).collect();
+        let first = student.train_step(&data, &rows, 1e-3);
+        let mut last = first;
+        for _ in 0..60 {
+            last = student.train_step(&data, &rows, 1e-3);
+        }
+        assert!(first > 0.05, "the fresh student is far from the labels: {first}");
+        assert!(last < 0.25 * first, "loss {first} → {last}");
+        // The student's blob flies with the same actions the training saw.
+        let blob = student.weights();
+        assert_eq!((blob.version, blob.architecture.agent), (61, Agent::Vision));
+        let vision = policy::VisionPolicy::from_blob(&blob).unwrap();
+        let means = vision.mean_actions(&data.images(&rows), &data.states(&rows));
+        let mse: f32 = means.iter().zip(data.labels(&rows)).map(|(m, l)| (m - l).powi(2)).sum::<f32>() / means.len() as f32;
+        assert!(f64::from(mse) < 0.3 * first, "{mse}");
+        // The critic is the teacher's: same values on the same states.
+        let states = Tensor::<2>::from_data(TensorData::new(data.states(&rows[..4]), [4, STATE_OBS_DIM]), &Device::flex());
+        let teacher_values = teacher_net.forward(states.clone()).1.into_data();
+        let student_values = blob.vision_model(&Device::flex()).unwrap().critic.forward(states).squeeze_dim::<1>(1).into_data();
+        assert_eq!(teacher_values, student_values);
+        // Exact resume: restored weights and moments take the same next step.
+        let mut restored = Student::restore(&blob.to_bytes(), &student.optimizer_state()).unwrap();
+        assert_eq!(restored.train_step(&data, &rows, 1e-3), student.train_step(&data, &rows, 1e-3));
+        assert_eq!(restored.weights(), student.weights());
+    }
+}

@@ -1,0 +1,460 @@
+//! `dronerace distill`: a vision student learns to race from a state-based teacher by DAgger.
+//! Each round the environments fly `steps_per_round` steps — every step by the teacher with
+//! probability β = `teacher_decay`^round, else by the student (round 0: the teacher alone) —
+//! while the teacher labels every visited state with its mean action; the labelled states join
+//! the data set (`learner::distill`), the task controller switches tracks on the round's
+//! rewards as in training, and the student takes `updates_per_round` regression steps on
+//! minibatches drawn from the whole data set. Like `train`: a progress line and `train.log`,
+//! `metrics.csv` and TensorBoard events, validation on the held-out validation tracks
+//! (`best.bin`), periodic checkpoints holding everything (teacher, student, optimiser, data set,
+//! environments, curriculum, random state), and resume that continues bit for bit.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use anyhow::{Context, bail, ensure};
+use learner::checkpoint::{Checkpoint, CheckpointDir, read_policy};
+use learner::distill::{DistillDataset, Student};
+use policy::{Agent, Policy, VisionPolicy, WeightsBlob};
+use racetracks::TrackGenerator;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use sim::{ACTION_DIM, EnvConfig, RaceEnv, RandomizationParams, RewardParams, STATE_OBS_DIM, VecEnv};
+use taskctl::{LocalTasks, SwitchParams, TaskController, TaskService};
+
+use crate::TrackSource;
+use crate::metrics::{MetricsWriter, append_validation};
+use crate::progress::ProgressLog;
+use crate::validation::{EvalSettings, Validator};
+
+/// The student's name in the task controller.
+const ACTOR: &str = "distill";
+
+/// `dronerace distill --config FILE`: every field optional except the teacher.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DistillConfig {
+    /// The state-based teacher: a checkpoint or weights blob.
+    pub teacher: PathBuf,
+    /// Seed of everything (student init, environments, curriculum, sampling).
+    pub seed: u64,
+    /// Parallel environments. Default 32.
+    pub envs: usize,
+    /// Steps every environment flies per round. Default 100.
+    pub steps_per_round: usize,
+    /// Rounds of the whole run. Default 60.
+    pub rounds: u64,
+    /// β of round r is `teacher_decay`^r: the share of steps the teacher flies. Default 0.5.
+    pub teacher_decay: f64,
+    /// Samples the data set keeps (reservoir sampling beyond). Default 1,000,000 (~250 MB).
+    pub capacity: usize,
+    /// Regression steps per round. Default 40.
+    pub updates_per_round: usize,
+    /// Samples per regression step. Default 256.
+    pub minibatch: usize,
+    /// Adam's learning rate, constant. Default 5e-4.
+    pub learning_rate: f64,
+    /// The student's log standard deviation, for vision PPO started from it (SPEC §10 VB: 0).
+    pub initial_log_std: f64,
+    /// Tracks the student flies (default generated, as in training).
+    pub tracks: TrackSource,
+    /// Track generator.
+    pub generator: TrackGenerator,
+    /// Task switching, once per round. Default adaptive with α = 100 (SPEC §8's VB column) and
+    /// a window of 5 rounds: a round is 100 steps, not the 250 of a PPO rollout, and a whole
+    /// distillation has only tens of them.
+    pub switching: SwitchParams,
+    /// Environments: the VB column of SPEC §3's randomisation and the VB reward (rewards only
+    /// steer switching here). The observation frame is always the teacher's.
+    pub env: EnvConfig,
+    /// Rounds between checkpoints. Default 5.
+    pub checkpoint_every: u64,
+    /// Periodic checkpoints kept. Default 3.
+    pub keep_checkpoints: usize,
+    /// Validation of the student during distillation (`every` counts rounds). Default every 10
+    /// rounds, 10 validation tracks × 4 deployments.
+    pub eval: EvalSettings,
+}
+
+impl Default for DistillConfig {
+    fn default() -> Self {
+        Self {
+            teacher: PathBuf::new(),
+            seed: 0,
+            envs: 32,
+            steps_per_round: 100,
+            rounds: 60,
+            teacher_decay: 0.5,
+            capacity: 1_000_000,
+            updates_per_round: 40,
+            minibatch: 256,
+            learning_rate: 5e-4,
+            initial_log_std: 0.0,
+            tracks: TrackSource::Generated,
+            generator: TrackGenerator::default(),
+            switching: SwitchParams { window: 5, alpha: 100.0, ..SwitchParams::default() },
+            env: EnvConfig {
+                randomization: RandomizationParams::vision_based(),
+                reward: RewardParams::vision_based(),
+                ..EnvConfig::default()
+            },
+            checkpoint_every: 5,
+            keep_checkpoints: 3,
+            eval: EvalSettings { every: 10, tracks: 10, runs: 4, ..EvalSettings::default() },
+        }
+    }
+}
+
+impl DistillConfig {
+    /// Reads a config file; errors name the file and the field.
+    pub fn read(path: &Path) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        toml::from_str(&text).with_context(|| format!("{}", path.display()))
+    }
+
+    fn check(&self) -> anyhow::Result<()> {
+        ensure!(!self.teacher.as_os_str().is_empty(), "teacher: name the state-based policy to learn from (--teacher)");
+        ensure!(
+            self.envs > 0 && self.steps_per_round > 0 && self.minibatch > 0 && self.capacity > 0,
+            "envs, steps_per_round, minibatch and capacity must be ≥ 1"
+        );
+        ensure!((0.0..=1.0).contains(&self.teacher_decay), "teacher_decay: {} is not in [0, 1]", self.teacher_decay);
+        ensure!(self.learning_rate > 0.0, "learning_rate: {} must be positive", self.learning_rate);
+        Ok(())
+    }
+}
+
+/// What a round did, for the progress line and the metrics.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RoundSummary {
+    /// Rounds done.
+    pub round: u64,
+    /// Share of steps the teacher flew.
+    pub teacher_share: f64,
+    /// Samples offered to the data set so far.
+    pub samples_seen: u64,
+    /// Samples it holds.
+    pub dataset: usize,
+    /// Mean regression loss of the round's steps (NaN when none were taken).
+    pub loss: f64,
+    /// Episodes that ended this round.
+    pub episodes: usize,
+    /// Their mean completed laps.
+    pub laps_per_episode: f64,
+    /// Fraction of them that crashed.
+    pub crash_rate: f64,
+    /// Seconds flying (and rendering, labelling) and regressing.
+    pub fly_seconds: f64,
+    /// Seconds of the regression steps.
+    pub fit_seconds: f64,
+    /// Validation S_pw and success, when the round was validated.
+    pub validation: Option<(f64, f64)>,
+}
+
+/// Counters and random state saved in the checkpoint's `distiller` section.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct Progress {
+    round: u64,
+    rollout: u64,
+    wall_seconds: f64,
+    best_validation: Option<f64>,
+    rng: ChaCha8Rng,
+    envs: Vec<RaceEnv>,
+}
+
+/// A distillation run in its directory.
+pub struct Distiller {
+    config: DistillConfig,
+    dir: PathBuf,
+    teacher_bytes: Vec<u8>,
+    teacher: Policy,
+    student: Student,
+    data: DistillDataset,
+    env: VecEnv,
+    tasks: LocalTasks,
+    progress: Progress,
+    checkpoints: CheckpointDir,
+    metrics: MetricsWriter,
+    validator: Option<Validator>,
+}
+
+/// `metrics.csv` columns after `iteration,env_steps,wall_seconds` (iteration = round,
+/// env_steps = samples seen).
+const COLUMNS: [&str; 9] = [
+    "distill/loss",
+    "distill/teacher_share",
+    "distill/dataset",
+    "charts/laps_per_episode",
+    "charts/crash_rate",
+    "eval/S_pw",
+    "eval/success",
+    "eval/mean_lap",
+    "eval/seconds",
+];
+
+impl Distiller {
+    /// Starts a new distillation in `dir` (which must not hold checkpoints already); the
+    /// config, with the teacher's observation frame filled in, is written to `dir/config.toml`.
+    pub fn start(mut config: DistillConfig, dir: &Path) -> anyhow::Result<Self> {
+        config.check()?;
+        let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
+        ensure!(
+            checkpoints.latest().is_none(),
+            "{} already holds checkpoints: resume it (--resume), or choose another run directory",
+            dir.display()
+        );
+        let teacher_blob = read_policy(&config.teacher).with_context(|| format!("teacher {}", config.teacher.display()))?;
+        if teacher_blob.architecture.agent != Agent::State {
+            bail!("teacher {}: a {} policy; the teacher must be state-based", config.teacher.display(), teacher_blob.architecture.agent);
+        }
+        config.env.observation_frame = teacher_blob.architecture.observation_frame;
+        let text = toml::to_string(&config).context("serialising the config")?;
+        racetracks::files::write_atomic(&dir.join("config.toml"), text.as_bytes())
+            .with_context(|| format!("writing {}", dir.join("config.toml").display()))?;
+        let tasks = LocalTasks::new(config.tracks.task_controller(config.envs, config.generator, config.switching, config.seed)?, None);
+        let registration = tasks.register(ACTOR, config.envs)?;
+        let env = VecEnv::new(registration.tracks, config.env, config.seed).with_images();
+        let student = Student::new(&teacher_blob, config.initial_log_std, config.seed)?;
+        let progress = Progress {
+            round: 0,
+            rollout: registration.next_rollout,
+            wall_seconds: 0.0,
+            best_validation: None,
+            rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0xDA66_E400),
+            envs: Vec::new(),
+        };
+        let data = DistillDataset::new(config.capacity);
+        Self::assemble(config, dir, teacher_blob.to_bytes(), student, data, env, tasks, progress, checkpoints)
+    }
+
+    /// Continues the distillation in `dir` from its newest checkpoint.
+    pub fn resume(dir: &Path) -> anyhow::Result<Self> {
+        let config = DistillConfig::read(&dir.join("config.toml"))?;
+        let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
+        let path = checkpoints.latest().with_context(|| format!("{} has no checkpoint to resume from", dir.display()))?;
+        let c = Checkpoint::read(&path)?;
+        let section = |name: &str| c.get(name).with_context(|| format!("{}", path.display()));
+        let student = Student::restore(section("weights")?, section("optimizer")?).with_context(|| format!("{}", path.display()))?;
+        let data = DistillDataset::from_bytes(section("dataset")?).with_context(|| format!("{}", path.display()))?;
+        let mut progress: Progress =
+            serde_json::from_slice(section("distiller")?).with_context(|| format!("{}: distiller section", path.display()))?;
+        let tasks = LocalTasks::new(TaskController::from_snapshot_bytes(section("taskctl")?, &path)?, None);
+        let env = VecEnv::from_envs(std::mem::take(&mut progress.envs)).with_images();
+        let teacher_bytes = section("teacher")?.to_vec();
+        Self::assemble(config, dir, teacher_bytes, student, data, env, tasks, progress, checkpoints)
+    }
+
+    #[allow(clippy::too_many_arguments, reason = "the parts of a run, built by start and resume alike")]
+    fn assemble(
+        config: DistillConfig,
+        dir: &Path,
+        teacher_bytes: Vec<u8>,
+        student: Student,
+        data: DistillDataset,
+        env: VecEnv,
+        tasks: LocalTasks,
+        progress: Progress,
+        checkpoints: CheckpointDir,
+    ) -> anyhow::Result<Self> {
+        let teacher = Policy::from_blob(&WeightsBlob::from_bytes(&teacher_bytes)?)?;
+        let metrics = MetricsWriter::open_with_columns(dir, &COLUMNS).with_context(|| format!("opening metrics in {}", dir.display()))?;
+        let validator = Validator::new(&config.eval)?;
+        Ok(Self {
+            config,
+            dir: dir.to_path_buf(),
+            teacher_bytes,
+            teacher,
+            student,
+            data,
+            env,
+            tasks,
+            progress,
+            checkpoints,
+            metrics,
+            validator,
+        })
+    }
+
+    /// Rounds done.
+    pub fn round(&self) -> u64 {
+        self.progress.round
+    }
+
+    /// True once every round is done.
+    pub fn finished(&self) -> bool {
+        self.progress.round >= self.config.rounds
+    }
+
+    /// The student now.
+    pub fn student(&self) -> WeightsBlob {
+        self.student.weights()
+    }
+
+    /// The run directory.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Seconds the run took so far, over every sitting.
+    pub fn wall_seconds(&self) -> f64 {
+        self.progress.wall_seconds
+    }
+
+    /// One round: fly and label, switch tracks, regress; validate, log and checkpoint when due.
+    pub fn round_step(&mut self) -> anyhow::Result<RoundSummary> {
+        let started = Instant::now();
+        let beta = self.config.teacher_decay.powi(self.progress.round.min(i32::MAX as u64) as i32);
+        // Round 0 is the teacher's alone: the student's actions would not be used.
+        let student = if beta < 1.0 { Some(VisionPolicy::from_blob(&self.student.weights())?) } else { None };
+        let n = self.env.len();
+        let mut rewards = vec![0.0f64; n];
+        let (mut episodes, mut laps, mut crashes, mut teacher_steps) = (0usize, 0u64, 0usize, 0usize);
+        for _ in 0..self.config.steps_per_round {
+            let labels = self.teacher.deterministic_actions(&self.env.observations);
+            let student_actions = student.as_ref().map(|s| s.mean_actions(&self.env.images, &self.env.observations));
+            let mut actions = labels.clone();
+            for i in 0..n {
+                let state = &self.env.observations[i * STATE_OBS_DIM..(i + 1) * STATE_OBS_DIM];
+                let rows = i * ACTION_DIM..(i + 1) * ACTION_DIM;
+                self.data.offer(&self.env.envs()[i], state, &labels[rows.clone()], &mut self.progress.rng);
+                match &student_actions {
+                    Some(s) if self.progress.rng.random::<f64>() >= beta => {
+                        for (a, m) in actions[rows.clone()].iter_mut().zip(&s[rows]) {
+                            *a = m.clamp(-1.0, 1.0);
+                        }
+                    }
+                    _ => teacher_steps += 1,
+                }
+            }
+            self.env.step(&actions);
+            for (total, r) in rewards.iter_mut().zip(&self.env.rewards) {
+                *total += f64::from(*r);
+            }
+            for f in &self.env.finished {
+                episodes += 1;
+                laps += u64::from(f.stats.laps);
+                crashes += usize::from(f.stats.crash.is_some());
+            }
+        }
+        for (env, track) in self.tasks.report(ACTOR, self.progress.rollout, &rewards)? {
+            self.env.set_track(env, track);
+        }
+        self.progress.rollout += 1;
+        let fly_seconds = started.elapsed().as_secs_f64();
+        let fit_started = Instant::now();
+        let mut loss_sum = 0.0;
+        let batch = self.config.minibatch.min(self.data.len());
+        for _ in 0..self.config.updates_per_round {
+            let rows = rand::seq::index::sample(&mut self.progress.rng, self.data.len(), batch).into_vec();
+            loss_sum += self.student.train_step(&self.data, &rows, self.config.learning_rate);
+        }
+        let fit_seconds = fit_started.elapsed().as_secs_f64();
+        self.progress.round += 1;
+        let round = self.progress.round;
+        let validation = match &self.validator {
+            Some(v) if v.due(round) || round == self.config.rounds => Some(v.evaluate(&self.student.weights())?),
+            _ => None,
+        };
+        if let Some(v) = &validation {
+            append_validation(&self.dir, round, self.data.seen(), &v.report)?;
+            if self.progress.best_validation.is_none_or(|best| v.report.s_pw > best) {
+                self.progress.best_validation = Some(v.report.s_pw);
+                let mut best = Checkpoint::default();
+                best.put("weights", self.student.weights().to_bytes());
+                best.write(&self.checkpoints.best())?;
+            }
+        }
+        self.progress.wall_seconds += started.elapsed().as_secs_f64();
+        let summary = RoundSummary {
+            round,
+            teacher_share: teacher_steps as f64 / (n * self.config.steps_per_round) as f64,
+            samples_seen: self.data.seen(),
+            dataset: self.data.len(),
+            loss: if self.config.updates_per_round > 0 { loss_sum / self.config.updates_per_round as f64 } else { f64::NAN },
+            episodes,
+            laps_per_episode: if episodes > 0 { laps as f64 / episodes as f64 } else { f64::NAN },
+            crash_rate: if episodes > 0 { crashes as f64 / episodes as f64 } else { f64::NAN },
+            fly_seconds,
+            fit_seconds,
+            validation: validation.as_ref().map(|v| (v.report.s_pw, v.report.success_rate)),
+        };
+        let eval = |f: &dyn Fn(&crate::Validation) -> f64| validation.as_ref().map_or(f64::NAN, f);
+        let values = [
+            summary.loss,
+            summary.teacher_share,
+            summary.dataset as f64,
+            summary.laps_per_episode,
+            summary.crash_rate,
+            eval(&|v| v.report.s_pw),
+            eval(&|v| v.report.success_rate),
+            eval(&|v| v.report.mean_lap.unwrap_or(f64::NAN)),
+            eval(&|v| v.seconds),
+        ];
+        let row: Vec<(&str, f64)> = COLUMNS.iter().copied().zip(values).collect();
+        self.metrics.write_columns(round, summary.samples_seen, self.progress.wall_seconds, &row)?;
+        if round.is_multiple_of(self.config.checkpoint_every.max(1)) && round < self.config.rounds {
+            self.checkpoint()?;
+        }
+        Ok(summary)
+    }
+
+    /// Writes a periodic checkpoint of everything.
+    #[allow(clippy::expect_used, reason = "environments and counters serialise")]
+    pub fn checkpoint(&mut self) -> anyhow::Result<PathBuf> {
+        let mut c = Checkpoint::default();
+        c.put("teacher", self.teacher_bytes.clone());
+        c.put("weights", self.student.weights().to_bytes());
+        c.put("optimizer", self.student.optimizer_state());
+        c.put("dataset", self.data.to_bytes());
+        c.put("taskctl", self.tasks.read(TaskController::to_snapshot_bytes));
+        self.progress.envs = self.env.envs().to_vec();
+        c.put("distiller", serde_json::to_vec(&self.progress).expect("environments and counters serialise"));
+        self.progress.envs.clear();
+        Ok(self.checkpoints.save(&c, self.progress.round)?)
+    }
+}
+
+/// The progress line of one round.
+pub fn progress_line(s: &RoundSummary, rounds: u64) -> String {
+    let validation =
+        s.validation.map_or(String::new(), |(s_pw, success)| format!(" | validation S_pw {s_pw:.4}, success {:.0} %", 100.0 * success));
+    let episodes = match s.episodes {
+        0 => "no episode ended".to_string(),
+        n => format!("{n} episodes: laps/ep {:.2}, crashed {:.0} %", s.laps_per_episode, 100.0 * s.crash_rate),
+    };
+    format!(
+        "round {:>4}/{rounds} | {:>9} samples (kept {:>8}) | teacher {:>3.0} % | loss {:.4} | {episodes} | fly {:.1} s, fit {:.1} s{validation}",
+        s.round,
+        s.samples_seen,
+        s.dataset,
+        100.0 * s.teacher_share,
+        s.loss,
+        s.fly_seconds,
+        s.fit_seconds,
+    )
+}
+
+/// Distils until every round is done, `rounds` more are done, or `stop` is raised; then
+/// checkpoints. A new run starts from `config` in `dir`; `resume` continues the one there.
+#[allow(clippy::print_stderr, reason = "the command's own terminal output")]
+pub fn run(dir: &Path, config: Option<DistillConfig>, rounds: Option<u64>, stop: &AtomicBool) -> anyhow::Result<WeightsBlob> {
+    let mut distiller = match config {
+        Some(config) => {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+            Distiller::start(config, dir)?
+        }
+        None => Distiller::resume(dir)?,
+    };
+    let mut log = ProgressLog::open(dir)?;
+    let first = distiller.round();
+    eprintln!("distilling in {} (from round {first})", dir.display());
+    while !distiller.finished() && !stop.load(Ordering::SeqCst) && rounds.is_none_or(|n| distiller.round() - first < n) {
+        let s = distiller.round_step()?;
+        log.line(&progress_line(&s, distiller.config.rounds))?;
+    }
+    let path = distiller.checkpoint()?;
+    eprintln!("checkpoint written to {} ({:.0} s of distillation so far)", path.display(), distiller.wall_seconds());
+    Ok(distiller.student())
+}

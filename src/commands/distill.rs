@@ -1,0 +1,68 @@
+//! `dronerace distill`: a vision student learns from a state-based teacher by DAgger
+//! (`runtime::distill`).
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::Args;
+use runtime::distill::DistillConfig;
+
+/// Arguments of `dronerace distill`.
+#[derive(Args)]
+pub struct DistillArgs {
+    /// The state-based teacher: a checkpoint or weights blob (overrides the config).
+    #[arg(long)]
+    teacher: Option<PathBuf>,
+    /// TOML configuration (every field optional; see runtime::distill::DistillConfig).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Run directory.
+    #[arg(long, default_value = "runs/vision-student")]
+    out: PathBuf,
+    /// Continue the distillation in this directory from its newest checkpoint.
+    #[arg(long, conflicts_with_all = ["teacher", "config", "rounds_total", "seed"])]
+    resume: Option<PathBuf>,
+    /// Rounds of the whole run (overrides the config).
+    #[arg(long = "total-rounds", id = "rounds_total")]
+    total_rounds: Option<u64>,
+    /// Seed (overrides the config).
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Stop after this many rounds of this sitting (a checkpoint is written on the way out).
+    #[arg(long)]
+    rounds: Option<u64>,
+    /// Also write the final student as a weights blob here (e.g. policies/vision-student.bin).
+    #[arg(long)]
+    save: Option<PathBuf>,
+}
+
+/// Runs the distillation and reports where the student is.
+pub fn run(args: DistillArgs) -> anyhow::Result<()> {
+    let stop = runtime::services::stop_flag()?;
+    let (dir, config) = match &args.resume {
+        Some(dir) => (dir.clone(), None),
+        None => {
+            let mut config = match &args.config {
+                Some(path) => DistillConfig::read(path)?,
+                None => DistillConfig::default(),
+            };
+            if let Some(teacher) = &args.teacher {
+                config.teacher = teacher.clone();
+            }
+            if let Some(rounds) = args.total_rounds {
+                config.rounds = rounds;
+            }
+            if let Some(seed) = args.seed {
+                config.seed = seed;
+            }
+            (args.out.clone(), Some(config))
+        }
+    };
+    let student = runtime::distill::run(&dir, config, args.rounds, &stop)?;
+    if let Some(path) = &args.save {
+        super::write_atomic(path, &student.to_bytes()).with_context(|| format!("saving the student to {}", path.display()))?;
+        println!("student (version {}) written to {}", student.version, path.display());
+    }
+    println!("best student by validation S_pw: {}", dir.join("checkpoints/best.bin").display());
+    Ok(())
+}

@@ -1,0 +1,98 @@
+//! Distillation end to end: an interrupted DAgger run resumes bit for bit, the teacher's share
+//! of the flying follows β = decay^round, and the command refuses a teacher that cannot teach.
+
+// Test code: a panic is how a failure is reported.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::print_stdout, clippy::print_stderr)]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use policy::WeightsBlob;
+use runtime::EvalSettings;
+use runtime::distill::{DistillConfig, Distiller};
+
+/// The shipped generalist: a real teacher, so the student sees real flights.
+fn teacher() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("policies/generalist.bin")
+}
+
+fn tiny_config() -> DistillConfig {
+    let mut config = DistillConfig {
+        teacher: teacher(),
+        seed: 5,
+        envs: 4,
+        steps_per_round: 16,
+        rounds: 4,
+        updates_per_round: 2,
+        minibatch: 16,
+        checkpoint_every: 2,
+        eval: EvalSettings { every: 2, tracks: 1, runs: 1, steps: 100, ..EvalSettings::default() },
+        ..DistillConfig::default()
+    };
+    config.switching.window = 2;
+    config
+}
+
+/// The student's bytes with burn's process-unique parameter ids blanked.
+fn student(d: &Distiller) -> Vec<u8> {
+    let mut blob: WeightsBlob = d.student();
+    blob.params.iter_mut().for_each(|p| p.id = 0);
+    blob.to_bytes()
+}
+
+#[test]
+fn an_interrupted_distillation_resumes_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    let (straight, resumed) = (dir.path().join("straight"), dir.path().join("resumed"));
+    std::fs::create_dir_all(&straight).unwrap();
+    std::fs::create_dir_all(&resumed).unwrap();
+
+    let mut a = Distiller::start(tiny_config(), &straight).unwrap();
+    let shares: Vec<f64> = (0..4).map(|_| a.round_step().unwrap().teacher_share).collect();
+    // β = 0.5^round of 64 steps per round: all of round 0, then about half, a quarter, an eighth.
+    assert_eq!(shares[0], 1.0);
+    assert!(shares[1] > 0.25 && shares[1] < 0.75 && shares[3] < shares[1], "{shares:?}");
+
+    let mut b = Distiller::start(tiny_config(), &resumed).unwrap();
+    b.round_step().unwrap();
+    b.round_step().unwrap(); // the checkpoint of round 2 is written here
+    let before = student(&b);
+    drop(b); // the process "dies"
+    let mut b = Distiller::resume(&resumed).unwrap();
+    assert_eq!(b.round(), 2);
+    assert!(student(&b) == before, "the checkpoint restores the student bit for bit");
+    b.round_step().unwrap();
+    let last = b.round_step().unwrap();
+    assert_eq!(last.samples_seen, 4 * 4 * 16);
+    assert!(student(&b) == student(&a), "data set, environments, curriculum and optimiser continue exactly");
+    assert!(b.finished());
+    // A row per round in metrics.csv, and the validated student kept as best.bin.
+    let rows = std::fs::read_to_string(resumed.join("metrics.csv")).unwrap().lines().count();
+    assert_eq!(rows, 1 + 4);
+    let best = learner::checkpoint::read_policy(&resumed.join("checkpoints/best.bin")).unwrap();
+    assert_eq!(best.architecture.agent, policy::Agent::Vision);
+}
+
+fn dronerace(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_dronerace")).args(args).output().expect("run dronerace")
+}
+
+#[test]
+fn the_command_refuses_a_teacher_that_cannot_teach() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    // No teacher at all.
+    let o = dronerace(&["distill", "--out", out.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--teacher"), "{}", String::from_utf8_lossy(&o.stderr));
+    // A vision policy cannot label states: the error names the file and why.
+    let vision = dir.path().join("vision.bin");
+    let student = Distiller::start(tiny_config(), &dir.path().join("first")).unwrap().student();
+    std::fs::write(&vision, student.to_bytes()).unwrap();
+    let o = dronerace(&["distill", "--teacher", vision.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("vision.bin") && err.contains("state-based"), "{err}");
+    // A file that is no policy.
+    let o = dronerace(&["distill", "--teacher", dir.path().join("missing.bin").to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("missing.bin"));
+}
