@@ -23,6 +23,7 @@ fn tiny_config() -> DistillConfig {
         envs: 4,
         steps_per_round: 16,
         rounds: 4,
+        teacher_decay: 0.5,
         updates_per_round: 2,
         minibatch: 16,
         checkpoint_every: 2,

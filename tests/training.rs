@@ -225,3 +225,95 @@ fn a_few_seconds_of_training_measurably_improve_the_mean_return() {
     eprintln!("mean returns per iteration: {returns:.2?}");
     assert!(last > first + 1.0, "mean return {first:.2} → {last:.2}: {returns:.2?}");
 }
+
+/// A tiny vision run: SPEC's VB defaults, with small networks and rollouts so it runs in seconds.
+fn tiny_vision_config() -> TrainConfig {
+    let text = "agent = \"vision\"\nname = \"tiny-vision\"\nenvs = 4\nhidden = [16, 16]\ntotal_env_steps = 10000\nseed = 2\ncheckpoint_every = 2\n\n[ppo]\nn_steps = 16\nbatch_size = 32\nn_epochs = 1\n\n[switching]\nwindow = 2\n\n[eval]\nevery = 0\n";
+    TrainConfig::from_toml(text).unwrap()
+}
+
+#[test]
+fn a_vision_config_takes_the_vb_columns_for_whatever_it_does_not_set() {
+    let config = tiny_vision_config();
+    assert_eq!(config.agent, policy::Agent::Vision);
+    let ppo = config.ppo.unwrap();
+    // Set by the file.
+    assert_eq!((ppo.n_steps, ppo.batch_size, ppo.n_epochs), (16, 32, 1));
+    // Not set: SPEC §10's VB column, §3's VB randomisation, §8's α = 100.
+    assert_eq!((ppo.initial_log_std, ppo.learning_rate_start), (0.0, 2e-4));
+    assert_eq!(config.env.randomization, sim::RandomizationParams::vision_based());
+    assert_eq!(config.env.reward, sim::RewardParams::vision_based());
+    assert_eq!(config.switching.alpha, 100.0);
+    assert_eq!(config.resolved_profile().unwrap().architecture.agent, policy::Agent::Vision);
+    // A state-based file is read as before.
+    let state = TrainConfig::from_toml("envs = 4\n").unwrap();
+    assert_eq!((state.agent, state.switching.alpha, state.ppo), (policy::Agent::State, 1000.0, None));
+}
+
+#[test]
+fn a_vision_agent_trains_on_its_camera_images_and_resumes_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    let (straight, resumed) = (dir.path().join("straight"), dir.path().join("resumed"));
+    std::fs::create_dir_all(&straight).unwrap();
+    std::fs::create_dir_all(&resumed).unwrap();
+    let mut a = Trainer::start(tiny_vision_config(), &straight).unwrap();
+    for _ in 0..3 {
+        a.iteration_step().unwrap();
+    }
+    let blob = a.learner().weights();
+    assert_eq!((blob.architecture.agent, blob.version), (policy::Agent::Vision, 3));
+    let mut b = Trainer::start(tiny_vision_config(), &resumed).unwrap();
+    b.iteration_step().unwrap();
+    b.iteration_step().unwrap();
+    drop(b);
+    let mut b = Trainer::resume(&resumed).unwrap();
+    b.iteration_step().unwrap();
+    assert!(weights(&b) == weights(&a), "the CNN, its optimiser and the camera-equipped environments continue exactly");
+    // The learner refuses a rollout without the camera images its agent acted on.
+    let mut learner = tiny_vision_config().initial_learner().unwrap();
+    let mut chunk = policy::RolloutChunk::zeroed(0, 0, 4, 16, sim::STATE_OBS_DIM, sim::ACTION_DIM);
+    let err = learner.train(std::slice::from_ref(&chunk)).unwrap_err();
+    assert!(err.to_string().contains("without its camera images"), "{err}");
+    chunk.images = vec![0; chunk.transitions() * sim::camera::IMAGE_PIXELS];
+    learner.train(std::slice::from_ref(&chunk)).unwrap();
+    // … and a state-based learner refuses images.
+    let mut state_learner = TrainConfig { hidden: Some(vec![8]), envs: Some(4), ..TrainConfig::default() }.initial_learner().unwrap();
+    let err = state_learner.train(std::slice::from_ref(&chunk)).unwrap_err();
+    assert!(err.to_string().contains("camera images in a state-based"), "{err}");
+}
+
+#[test]
+fn a_vision_run_trains_over_grpc_and_its_policy_is_evaluated_with_its_camera() {
+    let dir = tempfile::tempdir().unwrap();
+    let (run, config) = (dir.path().join("run"), dir.path().join("vision.toml"));
+    std::fs::write(&config, toml::to_string(&tiny_vision_config()).unwrap()).unwrap();
+    let o = dronerace(&[
+        "train",
+        "--config",
+        config.to_str().unwrap(),
+        "--out",
+        run.to_str().unwrap(),
+        "--iterations",
+        "2",
+        "--transport",
+        "grpc",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = dronerace(&[
+        "eval",
+        "--controller",
+        "policy",
+        "--policy",
+        run.join("checkpoints/ckpt-000000002.bin").to_str().unwrap(),
+        "--tracks",
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tracks/figure8.toml").to_str().unwrap(),
+        "--runs",
+        "1",
+        "--steps",
+        "50",
+        "--out",
+        dir.path().join("eval").to_str().unwrap(),
+    ]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success() && out.contains("policy v2") && out.contains("vision-based"), "{out}");
+}

@@ -4,7 +4,7 @@
 
 use std::sync::Arc;
 
-use policy::{BlobError, EpisodeRecord, Policy, RolloutChunk, WeightsBlob};
+use policy::{ActingPolicy, BlobError, EpisodeRecord, RolloutChunk, WeightsBlob};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -52,7 +52,7 @@ pub struct ActorState {
 pub struct Actor {
     first_env: usize,
     env: VecEnv,
-    policy: Option<Policy>,
+    policy: Option<ActingPolicy>,
     rng: ChaCha8Rng,
 }
 
@@ -92,17 +92,21 @@ impl Actor {
 
     /// Version of the current policy.
     pub fn policy_version(&self) -> Option<u64> {
-        self.policy.as_ref().map(Policy::version)
+        self.policy.as_ref().map(ActingPolicy::version)
     }
 
-    /// Adopts new weights; later rollouts are tagged with their version.
+    /// Adopts new weights; later rollouts are tagged with their version. A vision policy turns
+    /// the environments' cameras on (its rollouts carry the images it acted on).
     pub fn set_weights(&mut self, blob: &WeightsBlob) -> Result<(), ActorError> {
-        let policy = Policy::from_blob(blob)?;
+        let policy = ActingPolicy::from_blob(blob)?;
         if let Some(env) = self.env.envs().first() {
             let (reads, writes) = (policy.observation_frame(), env.config().observation_frame);
             if reads != writes {
                 return Err(ActorError::FrameMismatch { reads, writes });
             }
+        }
+        if policy.sees_images() {
+            self.env.enable_images();
         }
         self.policy = Some(policy);
         Ok(())
@@ -146,11 +150,16 @@ impl Actor {
             truncation_values: Vec::with_capacity(steps * n),
             last_values: Vec::new(),
             episodes: Vec::new(),
+            images: Vec::new(),
         };
         let dim = self.env.observation_dim();
+        let images = policy.sees_images();
         for _ in 0..steps {
-            let acting = policy.act(&self.env.observations, &mut self.rng);
+            let acting = policy.act(&self.env.observations, &self.env.images, &mut self.rng);
             chunk.observations.extend_from_slice(&self.env.observations);
+            if images {
+                chunk.images.extend_from_slice(&self.env.images);
+            }
             self.env.step(&acting.actions);
             chunk.actions.extend(acting.actions);
             chunk.log_probs.extend(acting.log_probs);
@@ -163,8 +172,7 @@ impl Actor {
             let mut bootstrap = vec![0.0; n];
             if !truncated.is_empty() {
                 let rows: Vec<f32> = truncated.iter().flat_map(|&e| self.env.final_observations[e * dim..(e + 1) * dim].to_vec()).collect();
-                let (_, values) = policy.means_and_values(&rows);
-                for (&e, v) in truncated.iter().zip(values) {
+                for (&e, v) in truncated.iter().zip(policy.values(&rows)) {
                     bootstrap[e] = v;
                 }
             }
@@ -178,7 +186,7 @@ impl Actor {
                 crashed: f.stats.crash.is_some(),
             }));
         }
-        chunk.last_values = policy.means_and_values(&self.env.observations).1;
+        chunk.last_values = policy.values(&self.env.observations);
         Ok(chunk)
     }
 }

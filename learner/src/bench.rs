@@ -6,7 +6,7 @@ use std::time::Instant;
 use burn::module::{Module, ParamId};
 use burn::optim::GradientsParams;
 use burn::tensor::Device;
-use burn::tensor::{Tensor, TensorData};
+use burn::tensor::Tensor;
 use policy::vision::IMAGE_SIDE;
 use policy::{ActorCritic, VisionActorCritic};
 use rand::{Rng, SeedableRng};
@@ -15,7 +15,7 @@ use rand_distr::StandardNormal;
 
 use crate::config::Profile;
 use crate::learner::adam;
-use crate::ppo::update::{TrainingBatch, clip_grad_norm, clip_groups, minibatch_loss, ppo_loss};
+use crate::ppo::update::{PpoNetwork, TrainingBatch, clip_grad_norm, clip_groups, minibatch_loss};
 
 /// Median times of the three stages (seconds) and the implied rate.
 #[derive(Clone, Copy, Debug)]
@@ -55,6 +55,7 @@ fn gaussian_batch(samples: usize, observation_dim: usize, action_dim: usize, rng
         advantages: data(samples),
         returns: data(samples),
         old_values: data(samples),
+        images: Vec::new(),
     }
 }
 
@@ -108,7 +109,7 @@ pub fn time_gradient_step(profile: &Profile, samples: usize, repeats: usize, dev
     let batch = gaussian_batch(samples, arch.observation_dim, arch.action_dim, &mut ChaCha8Rng::seed_from_u64(0));
     let rows: Vec<usize> = (0..samples).collect();
     let ids = model.param_ids();
-    let (groups, _) = clip_groups(ids.len(), config);
+    let (groups, _) = clip_groups(ids.len(), PpoNetwork::critic_param_count(&model), config);
     let loss = |model: &ActorCritic| minibatch_loss(model, batch.minibatch(&rows, device), config).0;
     let force = |model: &ActorCritic| drop(model.log_std.val().into_data());
     let (forward, backward, optimizer) = time_steps(profile, model, (&ids, &groups), repeats, loss, force);
@@ -127,19 +128,14 @@ pub fn time_vision_gradient_step(profile: &Profile, samples: usize, repeats: usi
     let config = &profile.ppo;
     let model = VisionActorCritic::new(arch, config.initial_log_std, 0, device);
     let mut rng = ChaCha8Rng::seed_from_u64(0);
-    let batch = gaussian_batch(samples, arch.observation_dim, arch.action_dim, &mut rng);
+    let mut batch = gaussian_batch(samples, arch.observation_dim, arch.action_dim, &mut rng);
     // Images as the renderer makes them: mostly background, gate pixels in three grey levels.
-    let levels = [0.0, 0.0, 0.0, 0.0, 55.0 / 255.0, 155.0 / 255.0, 1.0];
-    let pixels: Vec<f32> = (0..samples * IMAGE_SIDE * IMAGE_SIDE).map(|_| levels[rng.random_range(0..levels.len())]).collect();
-    let images = Tensor::<4>::from_data(TensorData::new(pixels, [samples, 1, IMAGE_SIDE, IMAGE_SIDE]), device);
+    let levels = [0, 0, 0, 0, 55, 155, 255];
+    batch.images = (0..samples * IMAGE_SIDE * IMAGE_SIDE).map(|_| levels[rng.random_range(0..levels.len())]).collect();
     let rows: Vec<usize> = (0..samples).collect();
     let ids = model.param_ids();
-    let groups = vec![0; ids.len()]; // global clipping, as SB3
-    let loss = |model: &VisionActorCritic| {
-        let m = batch.minibatch(&rows, device);
-        let (mean, values) = model.forward(images.clone(), m.observations());
-        ppo_loss(mean, values, model.log_std.val(), m, config).0
-    };
+    let (groups, _) = clip_groups(ids.len(), PpoNetwork::critic_param_count(&model), config);
+    let loss = |model: &VisionActorCritic| minibatch_loss(model, batch.minibatch(&rows, device), config).0;
     let force = |model: &VisionActorCritic| drop(model.log_std.val().into_data());
     let (forward, backward, optimizer) = time_steps(profile, model, (&ids, &groups), repeats, loss, force);
     let flops = 2.0 * 3.0 * (VisionActorCritic::macs_per_sample(arch) * samples) as f64;

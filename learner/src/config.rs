@@ -65,6 +65,12 @@ impl Default for PpoConfig {
 }
 
 impl PpoConfig {
+    /// The vision-based column of SPEC §10: initial log std 0, learning rate 2e-4 → 1e-5,
+    /// minibatch 24,000, 4 epochs; the rest as the state-based column.
+    pub fn vision_based() -> Self {
+        Self { batch_size: 24_000, n_epochs: 4, learning_rate_start: 2e-4, initial_log_std: 0.0, ..Self::default() }
+    }
+
     /// Learning rate once `progress` ∈ [0, 1] of the run's environment steps are done.
     pub fn learning_rate(&self, progress: f64) -> f64 {
         let p = progress.clamp(0.0, 1.0);

@@ -4,7 +4,7 @@ use burn::module::Module;
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::tensor::{Bytes, Device};
-use policy::{ActorCritic, ObsNormalizer, RolloutChunk, WeightsBlob};
+use policy::{ActorCritic, Agent, ObsNormalizer, RolloutChunk, VisionActorCritic, WeightsBlob};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -53,12 +53,38 @@ struct Counters {
     rng: ChaCha8Rng,
 }
 
+/// The network being trained, whichever agent.
+enum Network {
+    State(ActorCritic),
+    Vision(VisionActorCritic),
+}
+
+impl Network {
+    /// A fresh network of `profile`'s agent.
+    fn new(profile: &Profile, seed: u64, device: &Device) -> Self {
+        let (arch, log_std) = (&profile.architecture, profile.ppo.initial_log_std);
+        match arch.agent {
+            Agent::State => Self::State(ActorCritic::new(arch, log_std, seed, device)),
+            Agent::Vision => Self::Vision(VisionActorCritic::new(arch, log_std, seed, device)),
+        }
+    }
+
+    /// The network in `blob`, in training mode.
+    fn from_blob(blob: &WeightsBlob, device: &Device) -> Result<Self, LearnerError> {
+        let state = |e: policy::BlobError| LearnerError::State(e.to_string());
+        Ok(match blob.architecture.agent {
+            Agent::State => Self::State(blob.model(device).map_err(state)?.train()),
+            Agent::Vision => Self::Vision(blob.vision_model(device).map_err(state)?.train()),
+        })
+    }
+}
+
 /// PPO learner state: network, optimiser, normaliser, counters.
 pub struct Learner {
     counters: Counters,
     device: Device,
     /// Always `Some` between calls; taken while burn's optimiser consumes and returns it.
-    model: Option<ActorCritic>,
+    model: Option<Network>,
     optimizer: ModuleOptimizer,
 }
 
@@ -66,7 +92,7 @@ impl Learner {
     /// A fresh learner for a run of `total_env_steps` (the learning-rate schedule's length).
     pub fn new(profile: Profile, total_env_steps: u64, seed: u64) -> Self {
         let device = Device::flex().autodiff();
-        let model = Some(ActorCritic::new(&profile.architecture, profile.ppo.initial_log_std, seed, &device));
+        let model = Some(Network::new(&profile, seed, &device));
         let counters = Counters {
             version: 0,
             env_steps: 0,
@@ -84,7 +110,7 @@ impl Learner {
     pub fn from_policy(profile: Profile, total_env_steps: u64, seed: u64, blob: &WeightsBlob) -> Result<Self, LearnerError> {
         blob.check_architecture(&profile.architecture).map_err(|e| LearnerError::State(e.to_string()))?;
         let mut learner = Self::new(profile, total_env_steps, seed);
-        learner.model = Some(blob.model(&learner.device).map_err(|e| LearnerError::State(e.to_string()))?.train());
+        learner.model = Some(Network::from_blob(blob, &learner.device)?);
         learner.counters.normalizer = blob.normalizer.clone();
         // `new`'s optimiser holds no moments yet, so it starts afresh for the imported ids.
         Ok(learner)
@@ -105,15 +131,14 @@ impl Learner {
         &self.counters.profile
     }
 
-    #[allow(clippy::expect_used, reason = "the model is present between calls")]
-    fn model(&self) -> &ActorCritic {
-        self.model.as_ref().expect("the model is present between calls")
-    }
-
     /// Weights of the current version, for actors and checkpoints.
+    #[allow(clippy::expect_used, reason = "the model is present between calls")]
     pub fn weights(&self) -> WeightsBlob {
         let c = &self.counters;
-        WeightsBlob::from_model(c.version, &c.profile.architecture, &c.normalizer, self.model())
+        match self.model.as_ref().expect("the model is present between calls") {
+            Network::State(m) => WeightsBlob::from_model(c.version, &c.profile.architecture, &c.normalizer, m),
+            Network::Vision(m) => WeightsBlob::from_vision_model(c.version, &c.profile.architecture, &c.normalizer, m),
+        }
     }
 
     /// One PPO iteration on admitted chunks (their versions were checked where they arrived,
@@ -151,13 +176,23 @@ impl Learner {
             batch.old_values.extend_from_slice(&chunk.values);
             batch.advantages.extend(advantages.advantages);
             batch.returns.extend(advantages.returns);
+            batch.images.extend_from_slice(&chunk.images);
             transitions += chunk.transitions();
         }
         let c = &mut self.counters;
         let progress = (c.env_steps + transitions as u64) as f64 / c.total_env_steps.max(1) as f64;
         let learning_rate = ppo.learning_rate(progress);
-        let model = self.model.take().expect("the model is present between calls");
-        let (model, stats) = update(model, &mut self.optimizer, &batch, &ppo, learning_rate, &mut c.rng, &self.device);
+        let (optimizer, device) = (&mut self.optimizer, &self.device);
+        let (model, stats) = match self.model.take().expect("the model is present between calls") {
+            Network::State(m) => {
+                let (m, stats) = update(m, optimizer, &batch, &ppo, learning_rate, &mut c.rng, device);
+                (Network::State(m), stats)
+            }
+            Network::Vision(m) => {
+                let (m, stats) = update(m, optimizer, &batch, &ppo, learning_rate, &mut c.rng, device);
+                (Network::Vision(m), stats)
+            }
+        };
         self.model = Some(model);
         for chunk in chunks {
             c.normalizer.update(&chunk.observations);
@@ -169,7 +204,12 @@ impl Learner {
 
     fn check(&self, chunk: &RolloutChunk) -> Result<(), LearnerError> {
         let arch = &self.counters.profile.architecture;
-        chunk.check(arch.observation_dim, arch.action_dim).map_err(LearnerError::Malformed)
+        chunk.check(arch.observation_dim, arch.action_dim).map_err(LearnerError::Malformed)?;
+        match (arch.agent, chunk.images.is_empty()) {
+            (Agent::Vision, true) => Err(LearnerError::Malformed("a vision agent's rollout without its camera images".into())),
+            (Agent::State, false) => Err(LearnerError::Malformed("camera images in a state-based agent's rollout".into())),
+            _ => Ok(()),
+        }
     }
 
     /// A checkpoint holding [`Learner::save_state`] (sections `weights`, `optimizer`, `learner`).
@@ -202,7 +242,7 @@ impl Learner {
         let blob = WeightsBlob::from_bytes(weights).map_err(|e| LearnerError::State(e.to_string()))?;
         blob.check_architecture(&counters.profile.architecture).map_err(|e| LearnerError::State(e.to_string()))?;
         let device = Device::flex().autodiff();
-        let model = Some(blob.model(&device).map_err(|e| LearnerError::State(e.to_string()))?.train());
+        let model = Some(Network::from_blob(&blob, &device)?);
         let optimizer = adam(&counters.profile)
             .from_bytes(Bytes::from_bytes_vec(optimizer.to_vec()))
             .map_err(|e| LearnerError::State(format!("optimiser: {e:?}")))?;

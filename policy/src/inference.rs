@@ -105,15 +105,21 @@ impl Policy {
     /// Samples actions for a batch, with their log-probabilities and the values.
     pub fn act(&self, raw: &[f32], rng: &mut impl Rng) -> Acting {
         let (means, values) = self.means_and_values(raw);
-        let dim = self.action_dim();
-        let mut actions = means.clone();
-        for (i, a) in actions.iter_mut().enumerate() {
-            let eps: f32 = rng.sample(StandardNormal);
-            *a += self.log_std[i % dim].exp() * eps;
-        }
-        let log_probs = actions.chunks(dim).zip(means.chunks(dim)).map(|(a, m)| gaussian_log_prob(a, m, &self.log_std)).collect();
-        Acting { actions, log_probs, values }
+        sample(&means, values, &self.log_std, rng)
     }
+}
+
+/// Samples around action means `means` (rows of `log_std.len()`) with the state-independent
+/// standard deviation `exp(log_std)`: the unclipped actions and their log-probabilities.
+fn sample(means: &[f32], values: Vec<f32>, log_std: &[f32], rng: &mut impl Rng) -> Acting {
+    let dim = log_std.len();
+    let mut actions = means.to_vec();
+    for (i, a) in actions.iter_mut().enumerate() {
+        let eps: f32 = rng.sample(StandardNormal);
+        *a += log_std[i % dim].exp() * eps;
+    }
+    let log_probs = actions.chunks(dim).zip(means.chunks(dim)).map(|(a, m)| gaussian_log_prob(a, m, log_std)).collect();
+    Acting { actions, log_probs, values }
 }
 
 /// Flies a [`RaceEnv`] with a policy's deterministic mean action (evaluation).
@@ -143,6 +149,7 @@ impl Controller for PolicyController {
 pub struct VisionPolicy {
     model: VisionActorCritic,
     normalizer: ObsNormalizer,
+    log_std: Vec<f32>,
     frame: sim::ObservationFrame,
     version: u64,
     device: Device,
@@ -153,7 +160,9 @@ impl VisionPolicy {
     pub fn from_blob(blob: &WeightsBlob) -> Result<Self, BlobError> {
         let device = Device::flex();
         let model = blob.vision_model(&device)?.valid();
-        Ok(Self { model, normalizer: blob.normalizer.clone(), frame: blob.architecture.observation_frame, version: blob.version, device })
+        let log_std = blob.params.last().map(|p| p.values.clone()).unwrap_or_default();
+        let frame = blob.architecture.observation_frame;
+        Ok(Self { model, normalizer: blob.normalizer.clone(), log_std, frame, version: blob.version, device })
     }
 
     /// Policy version this was built from.
@@ -176,15 +185,99 @@ impl VisionPolicy {
     /// observations (`n × 40`), one row of means per image.
     #[allow(clippy::expect_used, reason = "float outputs")]
     pub fn mean_actions(&self, images: &[u8], raw_states: &[f32]) -> Vec<f32> {
+        let (images, states) = self.inputs(images, raw_states);
+        self.model.actor_mean(images, states).into_data().try_into_vec::<f32>().expect("float outputs")
+    }
+
+    /// The critic's values of raw state observations (`n × 40`): it reads the state only.
+    #[allow(clippy::expect_used, reason = "float outputs")]
+    pub fn values(&self, raw_states: &[f32]) -> Vec<f32> {
+        let states = self.states(raw_states);
+        self.model.critic.forward(states).into_data().try_into_vec::<f32>().expect("float outputs")
+    }
+
+    /// Samples actions for a batch of images and raw states, with log-probabilities and values.
+    #[allow(clippy::expect_used, reason = "float outputs")]
+    pub fn act(&self, images: &[u8], raw_states: &[f32], rng: &mut impl Rng) -> Acting {
+        let (images, states) = self.inputs(images, raw_states);
+        let (means, values) = self.model.forward(images, states);
+        let means = means.into_data().try_into_vec::<f32>().expect("float outputs");
+        sample(&means, values.into_data().try_into_vec::<f32>().expect("float outputs"), &self.log_std, rng)
+    }
+
+    /// Normalised states `[n, 40]` of raw ones.
+    fn states(&self, raw_states: &[f32]) -> Tensor<2> {
         let dim = self.normalizer.dim();
-        let n = raw_states.len() / dim;
-        assert_eq!(images.len(), n * IMAGE_SIDE * IMAGE_SIDE, "one image per state row");
         let mut states = vec![0.0; raw_states.len()];
         self.normalizer.normalize(raw_states, &mut states);
+        Tensor::<2>::from_data(TensorData::new(states, [raw_states.len() / dim, dim]), &self.device)
+    }
+
+    /// The network's inputs: images `[n, 1, 84, 84]` in [0, 1] and normalised states.
+    fn inputs(&self, images: &[u8], raw_states: &[f32]) -> (Tensor<4>, Tensor<2>) {
+        let n = raw_states.len() / self.normalizer.dim();
+        assert_eq!(images.len(), n * IMAGE_SIDE * IMAGE_SIDE, "one image per state row");
         let images = Tensor::<4>::from_data(TensorData::new(pixels_to_unit(images), [n, 1, IMAGE_SIDE, IMAGE_SIDE]), &self.device);
-        let states = Tensor::<2>::from_data(TensorData::new(states, [n, dim]), &self.device);
-        let (mean, _) = self.model.forward(images, states);
-        mean.into_data().try_into_vec::<f32>().expect("float outputs")
+        (images, self.states(raw_states))
+    }
+}
+
+/// The policy an actor samples from, whichever agent the weights hold: the state-based one
+/// reads the state observation, the vision one the camera image and the state's
+/// proprioceptive part; both critics read the state.
+#[derive(Debug)]
+pub enum ActingPolicy {
+    /// State-based.
+    State(Policy),
+    /// Vision-based.
+    Vision(VisionPolicy),
+}
+
+impl ActingPolicy {
+    /// The policy of `blob`, by the agent it records.
+    pub fn from_blob(blob: &WeightsBlob) -> Result<Self, BlobError> {
+        Ok(match blob.architecture.agent {
+            crate::Agent::State => Self::State(Policy::from_blob(blob)?),
+            crate::Agent::Vision => Self::Vision(VisionPolicy::from_blob(blob)?),
+        })
+    }
+
+    /// Policy version.
+    pub fn version(&self) -> u64 {
+        match self {
+            Self::State(p) => p.version(),
+            Self::Vision(p) => p.version(),
+        }
+    }
+
+    /// Frame of the state observations it reads.
+    pub fn observation_frame(&self) -> sim::ObservationFrame {
+        match self {
+            Self::State(p) => p.observation_frame(),
+            Self::Vision(p) => p.observation_frame(),
+        }
+    }
+
+    /// True when it acts on camera images.
+    pub fn sees_images(&self) -> bool {
+        matches!(self, Self::Vision(_))
+    }
+
+    /// Samples actions for raw state observations (`n × 40`) and, for a vision policy, their
+    /// camera images (`n × 84 × 84`; ignored by a state-based one).
+    pub fn act(&self, raw_states: &[f32], images: &[u8], rng: &mut impl Rng) -> Acting {
+        match self {
+            Self::State(p) => p.act(raw_states, rng),
+            Self::Vision(p) => p.act(images, raw_states, rng),
+        }
+    }
+
+    /// The critic's values of raw state observations.
+    pub fn values(&self, raw_states: &[f32]) -> Vec<f32> {
+        match self {
+            Self::State(p) => p.means_and_values(raw_states).1,
+            Self::Vision(p) => p.values(raw_states),
+        }
     }
 }
 

@@ -10,6 +10,7 @@ pub mod network;
 pub mod normalizer;
 pub mod onnx;
 pub mod rollout;
+pub mod run_length;
 pub mod safetensors;
 pub mod vision;
 
@@ -18,8 +19,8 @@ pub use blob::{BlobError, WeightsBlob};
 /// The burn device networks are built on (the CPU).
 pub use burn::tensor::Device;
 pub use inference::{
-    Acting, ControllerFactory, HALF_LN_2PI, Policy, PolicyController, VisionPolicy, VisionPolicyController, controller_factory,
-    gaussian_log_prob, pixels_to_unit,
+    Acting, ActingPolicy, ControllerFactory, HALF_LN_2PI, Policy, PolicyController, VisionPolicy, VisionPolicyController,
+    controller_factory, gaussian_log_prob, pixels_to_unit,
 };
 pub use network::ActorCritic;
 pub use normalizer::ObsNormalizer;

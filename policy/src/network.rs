@@ -60,7 +60,7 @@ impl Mlp {
     }
 
     /// Each layer's weight (rank 2) and bias (rank 1) id, in order.
-    pub(crate) fn param_ids(&self) -> Vec<(ParamId, usize)> {
+    pub fn param_ids(&self) -> Vec<(ParamId, usize)> {
         self.layers.iter().flat_map(|l| [(l.weight.id, 2)].into_iter().chain(l.bias.as_ref().map(|b| (b.id, 1)))).collect()
     }
 

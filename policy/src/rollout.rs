@@ -6,13 +6,15 @@
 //! action_dim u32; observations, actions, log_probs, values, rewards as f32; terminated,
 //! truncated as one byte each; truncation_values f32, last_values f32[envs]; episode count u32
 //! and per episode env u64, return f64, length u32, laps u32, fastest lap f64 (NaN for none),
-//! crashed u8.
+//! crashed u8; then the camera images of a vision agent's rollout (`[step][env]`, 84×84 bytes
+//! each) run-length coded (`run_length`): code length u64 (0: no images), code.
 
 use frames::{FrameError, FrameKind, Reader, Truncated, put_f32s};
 use serde::{Deserialize, Serialize};
+use sim::camera::IMAGE_PIXELS;
 
 /// The rollout chunk's frame.
-const FRAME: FrameKind = FrameKind { magic: b"DRCHUNK\0", format: 2, name: "dronerace rollout chunk" };
+const FRAME: FrameKind = FrameKind { magic: b"DRCHUNK\0", format: 3, name: "dronerace rollout chunk" };
 
 /// Encoded rollout bytes that cannot be used.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -88,6 +90,10 @@ pub struct RolloutChunk {
     pub last_values: Vec<f32>,
     /// Episodes that ended in this rollout.
     pub episodes: Vec<EpisodeRecord>,
+    /// Camera images at decision time (`transitions × 84 × 84` bytes) of a vision agent's
+    /// rollout; empty for a state-based one.
+    #[serde(default)]
+    pub images: Vec<u8>,
 }
 
 impl RolloutChunk {
@@ -119,6 +125,7 @@ impl RolloutChunk {
             truncation_values: vec![0.0; t],
             last_values: vec![0.0; envs],
             episodes: Vec::new(),
+            images: Vec::new(),
         }
     }
 
@@ -146,6 +153,9 @@ impl RolloutChunk {
             if got != want {
                 return Err(format!("{name} has {got} values, expected {want}"));
             }
+        }
+        if !self.images.is_empty() && self.images.len() != t * IMAGE_PIXELS {
+            return Err(format!("images has {} bytes, expected none or {}", self.images.len(), t * IMAGE_PIXELS));
         }
         let arrays = [
             ("observations", &self.observations),
@@ -192,6 +202,10 @@ impl RolloutChunk {
             out.extend_from_slice(&e.fastest_lap.unwrap_or(f64::NAN).to_le_bytes());
             out.push(u8::from(e.crashed));
         }
+        let mut code = Vec::new();
+        crate::run_length::encode(&self.images, &mut code);
+        out.extend_from_slice(&(code.len() as u64).to_le_bytes());
+        out.extend_from_slice(&code);
         FRAME.encode(&out)
     }
 
@@ -247,8 +261,16 @@ impl RolloutChunk {
                 crashed,
             });
         }
+        let code_len = usize::try_from(r.u64()?).map_err(|_| RolloutWireError::Malformed("image code length overflows".into()))?;
+        let code = r.take(code_len)?;
+        let images = match code_len {
+            0 => Vec::new(),
+            _ => crate::run_length::decode(code, t * IMAGE_PIXELS).ok_or_else(|| {
+                RolloutWireError::Malformed(format!("the image code does not decode to {t} images of {IMAGE_PIXELS} bytes"))
+            })?,
+        };
         if r.remaining() != 0 {
-            return Err(RolloutWireError::Malformed(format!("{} bytes after the episodes", r.remaining())));
+            return Err(RolloutWireError::Malformed(format!("{} bytes after the images", r.remaining())));
         }
         Ok(Self {
             policy_version,
@@ -265,6 +287,7 @@ impl RolloutChunk {
             truncation_values,
             last_values,
             episodes,
+            images,
         })
     }
 }
@@ -295,6 +318,7 @@ mod tests {
                 EpisodeRecord { env: 10, episode_return: 3.25, length: 17, laps: 1, fastest_lap: Some(4.5), crashed: true },
                 EpisodeRecord { env: 11, episode_return: -1.0, length: 1500, laps: 0, fastest_lap: None, crashed: false },
             ],
+            images: Vec::new(),
         }
     }
 
@@ -302,6 +326,18 @@ mod tests {
     fn wire_format_round_trips_exactly() {
         let c = chunk();
         assert_eq!(RolloutChunk::from_bytes(&c.to_bytes()).unwrap(), c);
+        // With a vision agent's images: a bar of gate pixels in every image.
+        let mut v = chunk();
+        v.images = vec![0; v.transitions() * IMAGE_PIXELS];
+        for (i, image) in v.images.chunks_mut(IMAGE_PIXELS).enumerate() {
+            image[100 + i..140 + i].fill(155);
+        }
+        v.check(5, 2).unwrap();
+        let bytes = v.to_bytes();
+        assert!(bytes.len() < c.to_bytes().len() + v.transitions() * 20, "images are run-length coded");
+        assert_eq!(RolloutChunk::from_bytes(&bytes).unwrap(), v);
+        v.images.pop();
+        assert!(v.check(5, 2).unwrap_err().contains("images"));
     }
 
     #[test]

@@ -46,13 +46,14 @@ pub struct DistillConfig {
     pub steps_per_round: usize,
     /// Rounds of the whole run. Default 60.
     pub rounds: u64,
-    /// β of round r is `teacher_decay`^r: the share of steps the teacher flies. Default 0.5.
+    /// β of round r is `teacher_decay`^r: the share of steps the teacher flies. Default 0.8.
     pub teacher_decay: f64,
     /// Samples the data set keeps (reservoir sampling beyond). Default 1,000,000 (~250 MB).
     pub capacity: usize,
-    /// Regression steps per round. Default 40.
+    /// Regression steps per round. Default 160.
     pub updates_per_round: usize,
-    /// Samples per regression step. Default 256.
+    /// Samples per regression step. Default 64: the CNN learns from more, smaller steps faster
+    /// than from fewer large ones at the same cost (~2 ms a sample on one core).
     pub minibatch: usize,
     /// Adam's learning rate, constant. Default 5e-4.
     pub learning_rate: f64,
@@ -86,10 +87,10 @@ impl Default for DistillConfig {
             envs: 32,
             steps_per_round: 100,
             rounds: 60,
-            teacher_decay: 0.5,
+            teacher_decay: 0.8,
             capacity: 1_000_000,
-            updates_per_round: 40,
-            minibatch: 256,
+            updates_per_round: 160,
+            minibatch: 64,
             learning_rate: 5e-4,
             initial_log_std: 0.0,
             tracks: TrackSource::Generated,

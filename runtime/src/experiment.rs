@@ -136,7 +136,7 @@ impl Experiment {
         table.insert("name".into(), toml::Value::String(format!("{}-seed-{seed}", variant.name)));
         // Through text, so that toml's error shows the offending line and key.
         let text = toml::to_string(&table).map_err(|e| format!("variant {:?}: {e}", variant.name))?;
-        let config: TrainConfig = toml::from_str(&text).map_err(|e| format!("variant {:?}: {e}", variant.name))?;
+        let config = TrainConfig::from_toml(&text).map_err(|e| format!("variant {:?}: {e}", variant.name))?;
         config.resolved_profile().map_err(|e| format!("variant {:?}: {e}", variant.name))?;
         Ok(config)
     }

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use policy::RolloutChunk;
+use policy::{Agent, RolloutChunk};
 use racetracks::TrackGenerator;
 use serde::{Deserialize, Serialize};
 use sim::EnvConfig;
@@ -101,6 +101,10 @@ pub struct TrainConfig {
     /// Start from this trained policy (checkpoint or weights blob) instead of a fresh network:
     /// fine-tuning. Its architecture must match the profile's.
     pub init_from: Option<PathBuf>,
+    /// Kind of agent: `state` (default) or `vision` (SPEC §5's camera and CNN). A config file
+    /// with `agent = "vision"` starts from [`TrainConfig::vision`], so everything it does not
+    /// set takes its VB column.
+    pub agent: Agent,
 }
 
 impl Default for TrainConfig {
@@ -123,15 +127,48 @@ impl Default for TrainConfig {
             network: Default::default(),
             eval: Default::default(),
             init_from: None,
+            agent: Agent::State,
         }
     }
 }
 
 impl TrainConfig {
+    /// The vision agent's defaults: SPEC's VB columns for PPO (§10), randomisation (§3), reward
+    /// (§6) and the switching sensitivity α = 100 (§8); the rest as the state-based defaults.
+    pub fn vision() -> Self {
+        let mut config = Self { name: "vision".into(), agent: Agent::Vision, ppo: Some(PpoConfig::vision_based()), ..Self::default() };
+        config.env.randomization = sim::RandomizationParams::vision_based();
+        config.env.reward = sim::RewardParams::vision_based();
+        config.switching.alpha = 100.0;
+        config
+    }
+
+    /// The defaults of `agent`.
+    pub fn defaults_for(agent: Agent) -> Self {
+        match agent {
+            Agent::State => Self::default(),
+            Agent::Vision => Self::vision(),
+        }
+    }
+
+    /// Parses a run config: the text's values over the defaults of the agent it names.
+    pub fn from_toml(text: &str) -> Result<Self, String> {
+        // Parsed once as is, so that errors show the offending line and key.
+        let config: Self = toml::from_str(text).map_err(|e| e.to_string())?;
+        if config.agent == Agent::State {
+            return Ok(config);
+        }
+        let file: toml::Table = toml::from_str(text).map_err(|e| e.to_string())?;
+        let defaults = toml::to_string(&Self::defaults_for(config.agent)).map_err(|e| e.to_string())?;
+        let mut table: toml::Table = toml::from_str(&defaults).map_err(|e| e.to_string())?;
+        crate::experiment::merge(&mut table, &file);
+        toml::from_str(&toml::to_string(&table).map_err(|e| e.to_string())?).map_err(|e| e.to_string())
+    }
+
     /// Reads a config file; errors name the file and the field.
     pub fn read(path: &Path) -> Result<Self, TrainError> {
         let text = std::fs::read_to_string(path).map_err(|source| TrainError::Io { file: path.to_path_buf(), source })?;
-        toml::from_str(&text).map_err(|e| TrainError::Config(format!("{}: {e}", path.display())))
+        Self::from_toml(&text).map_err(|e| TrainError::Config(format!("{}: {e}", path.display())))
     }
 
     /// The task controller for `envs` environments this config describes.
@@ -167,6 +204,7 @@ impl TrainConfig {
         }
         // The network reads observations in the frame the environments write them.
         profile.architecture.observation_frame = self.env.observation_frame;
+        profile.architecture.agent = self.agent;
         if profile.envs == 0 || profile.ppo.n_steps == 0 || profile.ppo.batch_size == 0 || profile.ppo.n_epochs == 0 {
             return Err(TrainError::Config("envs, ppo.n_steps, ppo.batch_size and ppo.n_epochs must be ≥ 1".into()));
         }

@@ -54,9 +54,16 @@ impl VecEnv {
 
     /// Renders a camera image for every environment after every step from now on.
     pub fn with_images(mut self) -> Self {
-        self.images = vec![0; self.envs.len() * IMAGE_PIXELS];
-        self.render_all_images();
+        self.enable_images();
         self
+    }
+
+    /// [`VecEnv::with_images`] in place: renders the current images at once.
+    pub fn enable_images(&mut self) {
+        if self.images.is_empty() {
+            self.images = vec![0; self.envs.len() * IMAGE_PIXELS];
+            self.render_all_images();
+        }
     }
 
     /// Number of environments.

@@ -48,6 +48,19 @@ pub struct TrainArgs {
     /// Run everything in this one process (no services; for debugging and tests).
     #[arg(long, conflicts_with_all = ["actors"])]
     in_process: bool,
+    /// `state` (default) or `vision`: the agent of a new run, with its defaults (a config file
+    /// names its agent itself, `agent = "vision"`).
+    #[arg(long, conflicts_with_all = ["config", "resume"])]
+    agent: Option<String>,
+}
+
+/// The agent a command-line flag names.
+fn parse_agent(name: &str) -> anyhow::Result<policy::Agent> {
+    match name {
+        "state" => Ok(policy::Agent::State),
+        "vision" => Ok(policy::Agent::Vision),
+        other => anyhow::bail!("--agent: {other:?} is neither state nor vision"),
+    }
 }
 
 /// The run directory and its config: a new one (written to `<dir>/config.toml`), or the one
@@ -57,9 +70,10 @@ fn prepare(args: &TrainArgs) -> anyhow::Result<(PathBuf, TrainConfig, bool)> {
         let config = TrainConfig::read(&dir.join("config.toml"))?;
         return Ok((dir.clone(), config, true));
     }
-    let mut config = match &args.config {
-        Some(path) => TrainConfig::read(path)?,
-        None => TrainConfig::default(),
+    let mut config = match (&args.config, &args.agent) {
+        (Some(path), _) => TrainConfig::read(path)?,
+        (None, Some(agent)) => TrainConfig::defaults_for(parse_agent(agent)?),
+        (None, None) => TrainConfig::default(),
     };
     if let Some(p) = &args.profile {
         config.profile = p.clone();
@@ -126,10 +140,9 @@ pub fn bench(args: LearnerBenchArgs) -> anyhow::Result<()> {
         profile.architecture.hidden = hidden;
     }
     let device = learner::bench::device(&args.backend).map_err(|e| anyhow::anyhow!("--backend: {e}"))?;
-    let t = match args.agent.as_str() {
-        "state" => learner::bench::time_gradient_step(&profile, args.samples, args.repeats, &device),
-        "vision" => learner::bench::time_vision_gradient_step(&profile, args.samples, args.repeats, &device),
-        other => anyhow::bail!("--agent: {other:?} is neither state nor vision"),
+    let t = match parse_agent(&args.agent)? {
+        policy::Agent::State => learner::bench::time_gradient_step(&profile, args.samples, args.repeats, &device),
+        policy::Agent::Vision => learner::bench::time_vision_gradient_step(&profile, args.samples, args.repeats, &device),
     };
     println!(
         "{} {} profile {:?}, {} samples, {} backend, {} threads: forward {:.1} ms, backward {:.1} ms, optimiser {:.1} ms, {:.1} GFLOP/s (forward+backward)",

@@ -2,10 +2,11 @@
 //! (clipped surrogate and value loss) → backward → gradient-norm clipping → Adam with L2 weight
 //! decay (SB3 semantics), with named statistics (`UpdateStats`).
 
-use burn::module::ParamId;
+use burn::module::{Module, ParamId};
 use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor, TensorData};
-use policy::ActorCritic;
+use policy::vision::IMAGE_SIDE;
+use policy::{ActorCritic, VisionActorCritic};
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -28,6 +29,8 @@ pub struct TrainingBatch {
     pub returns: Vec<f32>,
     /// Values when taken (for explained variance).
     pub old_values: Vec<f32>,
+    /// Camera images, `n × 84 × 84` bytes, for a vision agent; empty otherwise.
+    pub images: Vec<u8>,
 }
 
 impl TrainingBatch {
@@ -69,6 +72,7 @@ pub struct UpdateStats {
 
 /// One minibatch on the device: rows of a [`TrainingBatch`], advantages normalised over it.
 pub struct Minibatch {
+    images: Option<Tensor<4>>,
     observations: Tensor<2>,
     actions: Tensor<2>,
     old_log_probs: Tensor<1>,
@@ -80,6 +84,60 @@ impl Minibatch {
     /// Its normalised observations (the state-based networks' input, the vision critic's).
     pub fn observations(&self) -> Tensor<2> {
         self.observations.clone()
+    }
+
+    /// Its camera images `[b, 1, 84, 84]` in [0, 1], when the batch has images.
+    pub fn images(&self) -> Option<Tensor<4>> {
+        self.images.clone()
+    }
+}
+
+/// What the PPO update needs of a network, whichever agent it is.
+pub trait PpoNetwork: Module {
+    /// Action means `[b, action_dim]` and values `[b]` on a minibatch.
+    fn outputs(&self, m: &Minibatch) -> (Tensor<2>, Tensor<1>);
+    /// The log standard deviation parameter.
+    fn log_std(&self) -> Tensor<1>;
+    /// Every parameter's id and rank, in export order.
+    fn param_ids(&self) -> Vec<(ParamId, usize)>;
+    /// Number of the critic's parameters, which come last before the log std in that order.
+    fn critic_param_count(&self) -> usize;
+}
+
+impl PpoNetwork for ActorCritic {
+    fn outputs(&self, m: &Minibatch) -> (Tensor<2>, Tensor<1>) {
+        self.forward(m.observations())
+    }
+
+    fn log_std(&self) -> Tensor<1> {
+        self.log_std.val()
+    }
+
+    fn param_ids(&self) -> Vec<(ParamId, usize)> {
+        ActorCritic::param_ids(self)
+    }
+
+    fn critic_param_count(&self) -> usize {
+        self.critic.param_ids().len()
+    }
+}
+
+impl PpoNetwork for VisionActorCritic {
+    #[allow(clippy::expect_used, reason = "the learner admits a vision agent's chunks only with their images")]
+    fn outputs(&self, m: &Minibatch) -> (Tensor<2>, Tensor<1>) {
+        self.forward(m.images().expect("a vision agent's minibatch has images"), m.observations())
+    }
+
+    fn log_std(&self) -> Tensor<1> {
+        self.log_std.val()
+    }
+
+    fn param_ids(&self) -> Vec<(ParamId, usize)> {
+        VisionActorCritic::param_ids(self)
+    }
+
+    fn critic_param_count(&self) -> usize {
+        self.critic.param_ids().len()
     }
 }
 
@@ -94,7 +152,13 @@ impl TrainingBatch {
         let b = rows.len();
         let mut advantages = take(&self.advantages, 1);
         normalize_advantages(&mut advantages);
+        let pixels = IMAGE_SIDE * IMAGE_SIDE;
+        let images = (!self.images.is_empty()).then(|| {
+            let bytes: Vec<u8> = rows.iter().flat_map(|&i| self.images[i * pixels..(i + 1) * pixels].iter().copied()).collect();
+            Tensor::<4>::from_data(TensorData::new(policy::pixels_to_unit(&bytes), [b, 1, IMAGE_SIDE, IMAGE_SIDE]), device)
+        });
         Minibatch {
+            images,
             observations: Tensor::<2>::from_data(TensorData::new(take(&self.observations, obs_dim), [b, obs_dim]), device),
             actions: Tensor::<2>::from_data(TensorData::new(take(&self.actions, act_dim), [b, act_dim]), device),
             old_log_probs: Tensor::<1>::from_data(TensorData::new(take(&self.old_log_probs, 1), [b]), device),
@@ -120,9 +184,9 @@ pub struct LossParts {
 /// differentiated — and its parts (CleanRL's `ppo_continuous_action.py`, without the entropy
 /// term: a state-independent Gaussian's entropy does not depend on the data, and SPEC's
 /// ent_coef is 0).
-pub fn minibatch_loss(model: &ActorCritic, m: Minibatch, config: &PpoConfig) -> (Tensor<1>, LossParts) {
-    let (mean, values) = model.forward(m.observations.clone());
-    ppo_loss(mean, values, model.log_std.val(), m, config)
+pub fn minibatch_loss<N: PpoNetwork>(model: &N, m: Minibatch, config: &PpoConfig) -> (Tensor<1>, LossParts) {
+    let (mean, values) = model.outputs(&m);
+    ppo_loss(mean, values, model.log_std(), m, config)
 }
 
 /// [`minibatch_loss`] from a network's outputs on the minibatch — action means, values and the
@@ -176,19 +240,19 @@ impl UpdateStats {
 /// One PPO update of `model` on `batch`: `n_epochs` × shuffled minibatches of
 /// [`minibatch_loss`] → backward → gradient-norm clipping → Adam step. Returns the updated
 /// model and its statistics.
-pub fn update(
-    mut model: ActorCritic,
+pub fn update<N: PpoNetwork>(
+    mut model: N,
     optimizer: &mut ModuleOptimizer,
     batch: &TrainingBatch,
     config: &PpoConfig,
     learning_rate: f64,
     rng: &mut ChaCha8Rng,
     device: &Device,
-) -> (ActorCritic, UpdateStats) {
+) -> (N, UpdateStats) {
     let mut stats = UpdateStats::default();
     let mut indices: Vec<usize> = (0..batch.len()).collect();
     let ids = model.param_ids();
-    let (groups, critic) = clip_groups(ids.len(), config);
+    let (groups, critic) = clip_groups(ids.len(), model.critic_param_count(), config);
     for _ in 0..config.n_epochs {
         indices.shuffle(rng);
         for rows in indices.chunks(config.batch_size.min(batch.len())) {
@@ -201,15 +265,15 @@ pub fn update(
     }
     stats.average();
     stats.explained_variance = explained_variance(&batch.old_values, &batch.returns);
-    stats.log_std = f64::from(scalar(model.log_std.val().mean()));
+    stats.log_std = f64::from(scalar(model.log_std().mean()));
     (model, stats)
 }
 
-/// The clipping group of each of `params` parameters in export order (actor layers, critic
-/// layers — as many as the actor's — then the log std): all 0 (SB3's global clipping), or the
-/// critic's 1 with `clip_per_network`; and the critic's index range.
-pub fn clip_groups(params: usize, config: &PpoConfig) -> (Vec<usize>, std::ops::Range<usize>) {
-    let critic = (params - 1) / 2..params - 1;
+/// The clipping group of each of `params` parameters in export order (the actor's, then the
+/// critic's `critic_params`, then the log std): all 0 (SB3's global clipping), or the critic's
+/// 1 with `clip_per_network`; and the critic's index range.
+pub fn clip_groups(params: usize, critic_params: usize, config: &PpoConfig) -> (Vec<usize>, std::ops::Range<usize>) {
+    let critic = params - 1 - critic_params..params - 1;
     let groups = (0..params).map(|i| usize::from(config.clip_per_network && critic.contains(&i))).collect();
     (groups, critic)
 }
