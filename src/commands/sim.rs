@@ -64,12 +64,14 @@ pub enum BenchObs {
 }
 
 /// Action source of `sim bench`.
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
 pub enum BenchActions {
     /// Uniform in [-1, 1]⁴.
     Random,
     /// The hover command.
     Hover,
+    /// The reference pilot racing each track: the images a racing policy sees.
+    Pilot,
 }
 
 /// Runs a simulator subcommand.
@@ -150,24 +152,46 @@ fn bench(envs: usize, threads: Option<usize>, steps: usize, kind: BenchActions, 
     let hover = ::sim::quadrotor::Command::hover().to_action(&::sim::QuadrotorParams::default()).map(|a| a as f32);
     let actions: Vec<Vec<f32>> = match kind {
         BenchActions::Random => (0..64).map(|_| (0..envs * 4).map(|_| rng.random_range(-1.0..1.0)).collect()).collect(),
-        BenchActions::Hover => vec![hover.repeat(envs)],
+        BenchActions::Hover | BenchActions::Pilot => vec![hover.repeat(envs)],
     };
-    let (seconds, episodes) = pool.install(|| {
+    let mut pilots: Vec<::sim::ReferencePilot> = (0..envs).map(|_| ::sim::ReferencePilot::default()).collect();
+    let (seconds, episodes, mut coded) = pool.install(|| {
         let config = match kind {
-            BenchActions::Random => EnvConfig::default(),
+            BenchActions::Random | BenchActions::Pilot => EnvConfig::default(),
             BenchActions::Hover => EnvConfig { randomization: ::sim::RandomizationParams::none(), ..EnvConfig::default() },
         };
         let mut env = VecEnv::new(tracks, config, 0);
         if obs == BenchObs::Vision {
             env = env.with_images();
         }
-        let mut episodes = 0;
-        let started = std::time::Instant::now();
+        let (mut episodes, mut seconds, mut coded) = (0, 0.0, Vec::new());
+        let mut pilot_actions = vec![0.0f32; envs * 4];
         for k in 0..steps {
-            env.step(&actions[k % actions.len()]);
+            let mut step_actions = &actions[k % actions.len()];
+            if kind == BenchActions::Pilot {
+                // The pilot's own time is not the simulator's: it stays outside the timing.
+                for (i, (pilot, row)) in pilots.iter_mut().zip(pilot_actions.chunks_mut(4)).enumerate() {
+                    if env.envs()[i].stats().length == 0 {
+                        ::sim::Controller::reset(pilot, &env.envs()[i]);
+                    }
+                    row.copy_from_slice(&::sim::Controller::act(pilot, &env.envs()[i]));
+                }
+                step_actions = &pilot_actions;
+            }
+            let started = std::time::Instant::now();
+            env.step(step_actions);
+            seconds += started.elapsed().as_secs_f64();
             episodes += env.finished.len();
+            // What the images cost on the wire, run-length coded as rollout chunks carry them.
+            if !env.images.is_empty() && k % 10 == 0 {
+                for image in env.images.chunks(::sim::camera::IMAGE_PIXELS) {
+                    let mut code = Vec::new();
+                    policy::run_length::encode(image, &mut code);
+                    coded.push(code.len());
+                }
+            }
         }
-        (started.elapsed().as_secs_f64(), episodes)
+        (seconds, episodes, coded)
     });
     let rate = (envs * steps) as f64 / seconds;
     println!(
@@ -175,5 +199,16 @@ fn bench(envs: usize, threads: Option<usize>, steps: usize, kind: BenchActions, 
          {episodes} episodes ended, {seconds:.2} s",
         rate / threads as f64
     );
+    if !coded.is_empty() {
+        coded.sort_unstable();
+        let mean = coded.iter().sum::<usize>() as f64 / coded.len() as f64;
+        println!(
+            "images run-length coded (as rollout chunks carry them): mean {mean:.0} bytes, median {}, p99 {} of {} ({} images sampled)",
+            coded[coded.len() / 2],
+            coded[coded.len() * 99 / 100],
+            ::sim::camera::IMAGE_PIXELS,
+            coded.len()
+        );
+    }
     Ok(())
 }
