@@ -35,20 +35,17 @@ fn weights(trainer: &Trainer) -> Vec<u8> {
     blob.to_bytes()
 }
 
-#[test]
-fn resuming_from_a_checkpoint_gives_the_same_next_iteration_weights() {
-    let dir = tempfile::tempdir().unwrap();
-    let straight = dir.path().join("straight");
-    let resumed = dir.path().join("resumed");
+/// Three iterations straight, and two, a "death" after the checkpoint of iteration 2, a resume
+/// and one more, in sibling directories of a temporary one.
+fn straight_and_resumed(config: fn() -> TrainConfig, dir: &Path) -> (Trainer, Trainer) {
+    let (straight, resumed) = (dir.join("straight"), dir.join("resumed"));
     std::fs::create_dir_all(&straight).unwrap();
     std::fs::create_dir_all(&resumed).unwrap();
-
-    let mut a = Trainer::start(tiny_config(), &straight).unwrap();
+    let mut a = Trainer::start(config(), &straight).unwrap();
     for _ in 0..3 {
         a.iteration_step().unwrap();
     }
-
-    let mut b = Trainer::start(tiny_config(), &resumed).unwrap();
+    let mut b = Trainer::start(config(), &resumed).unwrap();
     for _ in 0..2 {
         b.iteration_step().unwrap();
     }
@@ -58,13 +55,19 @@ fn resuming_from_a_checkpoint_gives_the_same_next_iteration_weights() {
     assert_eq!(b.iteration(), 2);
     assert!(weights(&b) == before, "the checkpoint restores the weights bit for bit");
     b.iteration_step().unwrap();
+    (a, b)
+}
 
+#[test]
+fn resuming_from_a_checkpoint_gives_the_same_next_iteration_weights() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = straight_and_resumed(tiny_config, dir.path());
     assert_eq!(b.learner().version(), a.learner().version());
     assert_eq!(b.learner().env_steps(), a.learner().env_steps());
     assert!(weights(&b) == weights(&a), "the next iteration's weights equal an uninterrupted run's");
     assert_eq!(b.tasks().switch_history(0).unwrap(), a.tasks().switch_history(0).unwrap());
     // metrics.csv continues where it stopped: a header and one row per iteration.
-    let rows = std::fs::read_to_string(resumed.join("metrics.csv")).unwrap().lines().count();
+    let rows = std::fs::read_to_string(dir.path().join("resumed/metrics.csv")).unwrap().lines().count();
     assert_eq!(rows, 1 + 2 + 1);
 }
 
@@ -253,21 +256,9 @@ fn a_vision_config_takes_the_vb_columns_for_whatever_it_does_not_set() {
 #[test]
 fn a_vision_agent_trains_on_its_camera_images_and_resumes_bit_for_bit() {
     let dir = tempfile::tempdir().unwrap();
-    let (straight, resumed) = (dir.path().join("straight"), dir.path().join("resumed"));
-    std::fs::create_dir_all(&straight).unwrap();
-    std::fs::create_dir_all(&resumed).unwrap();
-    let mut a = Trainer::start(tiny_vision_config(), &straight).unwrap();
-    for _ in 0..3 {
-        a.iteration_step().unwrap();
-    }
+    let (a, b) = straight_and_resumed(tiny_vision_config, dir.path());
     let blob = a.learner().weights();
     assert_eq!((blob.architecture.agent, blob.version), (policy::Agent::Vision, 3));
-    let mut b = Trainer::start(tiny_vision_config(), &resumed).unwrap();
-    b.iteration_step().unwrap();
-    b.iteration_step().unwrap();
-    drop(b);
-    let mut b = Trainer::resume(&resumed).unwrap();
-    b.iteration_step().unwrap();
     assert!(weights(&b) == weights(&a), "the CNN, its optimiser and the camera-equipped environments continue exactly");
     // The learner refuses a rollout without the camera images its agent acted on.
     let mut learner = tiny_vision_config().initial_learner().unwrap();

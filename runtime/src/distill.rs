@@ -227,7 +227,10 @@ impl Distiller {
             envs: Vec::new(),
         };
         let data = DistillDataset::new(config.capacity);
-        Self::assemble(config, dir, teacher_blob.to_bytes(), student, data, env, tasks, progress, checkpoints)
+        let teacher_bytes = teacher_blob.to_bytes();
+        let (teacher, metrics, validator) = Self::around(&config, dir, &teacher_bytes)?;
+        let dir = dir.to_path_buf();
+        Ok(Self { config, dir, teacher_bytes, teacher, student, data, env, tasks, progress, checkpoints, metrics, validator })
     }
 
     /// Continues the distillation in `dir` from its newest checkpoint.
@@ -244,38 +247,17 @@ impl Distiller {
         let tasks = LocalTasks::new(TaskController::from_snapshot_bytes(section("taskctl")?, &path)?, None);
         let env = VecEnv::from_envs(std::mem::take(&mut progress.envs)).with_images();
         let teacher_bytes = section("teacher")?.to_vec();
-        Self::assemble(config, dir, teacher_bytes, student, data, env, tasks, progress, checkpoints)
+        let (teacher, metrics, validator) = Self::around(&config, dir, &teacher_bytes)?;
+        let dir = dir.to_path_buf();
+        Ok(Self { config, dir, teacher_bytes, teacher, student, data, env, tasks, progress, checkpoints, metrics, validator })
     }
 
-    #[allow(clippy::too_many_arguments, reason = "the parts of a run, built by start and resume alike")]
-    fn assemble(
-        config: DistillConfig,
-        dir: &Path,
-        teacher_bytes: Vec<u8>,
-        student: Student,
-        data: DistillDataset,
-        env: VecEnv,
-        tasks: LocalTasks,
-        progress: Progress,
-        checkpoints: CheckpointDir,
-    ) -> anyhow::Result<Self> {
-        let teacher = Policy::from_blob(&WeightsBlob::from_bytes(&teacher_bytes)?)?;
+    /// What start and resume build alike from the config and the teacher's bytes: the teacher,
+    /// the metrics files and the validator.
+    fn around(config: &DistillConfig, dir: &Path, teacher_bytes: &[u8]) -> anyhow::Result<(Policy, MetricsWriter, Option<Validator>)> {
+        let teacher = Policy::from_blob(&WeightsBlob::from_bytes(teacher_bytes)?)?;
         let metrics = MetricsWriter::open_with_columns(dir, &COLUMNS).with_context(|| format!("opening metrics in {}", dir.display()))?;
-        let validator = Validator::new(&config.eval)?;
-        Ok(Self {
-            config,
-            dir: dir.to_path_buf(),
-            teacher_bytes,
-            teacher,
-            student,
-            data,
-            env,
-            tasks,
-            progress,
-            checkpoints,
-            metrics,
-            validator,
-        })
+        Ok((teacher, metrics, Validator::new(&config.eval)?))
     }
 
     /// Rounds done.
