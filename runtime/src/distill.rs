@@ -112,7 +112,7 @@ impl DistillConfig {
     /// Reads a config file; errors name the file and the field.
     pub fn read(path: &Path) -> anyhow::Result<Self> {
         let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        toml::from_str(&text).with_context(|| format!("{}", path.display()))
+        crate::overrides::parse_over(&Self::default(), &text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
     }
 
     fn check(&self) -> anyhow::Result<()> {

@@ -24,6 +24,7 @@ use policy::{Policy, PolicyController};
 use serde::{Deserialize, Serialize};
 use sim::eval::{EvalConfig, EvalReport, OutcomeCounts, evaluate};
 
+use crate::overrides::merge;
 use crate::run::{IterationSummary, TrainConfig, TrainError};
 use crate::trainer::Trainer;
 use learner::checkpoint::CheckpointDir;
@@ -144,18 +145,6 @@ impl Experiment {
     /// The run directory of `variant` with `seed` under `out`.
     pub fn run_dir(out: &Path, variant: &str, seed: u64) -> PathBuf {
         out.join(variant).join(format!("seed-{seed}"))
-    }
-}
-
-/// Merges `overrides` into `table`: tables key by key, anything else replaced.
-pub fn merge(table: &mut toml::Table, overrides: &toml::Table) {
-    for (key, value) in overrides {
-        match (table.get_mut(key), value) {
-            (Some(toml::Value::Table(existing)), toml::Value::Table(inner)) => merge(existing, inner),
-            _ => {
-                table.insert(key.clone(), value.clone());
-            }
-        }
     }
 }
 

@@ -1,7 +1,8 @@
 //! The training runtime: the run configuration and run directory (`run`), metrics files
 //! (`metrics`), validation during training (`validation`), the actor's and the learner's
 //! process loops (`actor_process`, `learner_process`), training in one process by turns of
-//! those same loops over an in-memory link (`trainer`), experiment files (`experiment`), the
+//! those same loops over an in-memory link (`trainer`), experiment files (`experiment`), config
+//! files as overrides of a config's own defaults (`overrides`), the
 //! progress line (`progress`), the three processes' commands and servers (`services`), the
 //! supervisor of `dronerace train` (`supervisor`) and the vision student's distillation
 //! (`distill`).
@@ -12,6 +13,7 @@ pub mod distill;
 pub mod experiment;
 pub mod learner_process;
 pub mod metrics;
+pub mod overrides;
 pub mod pilot;
 pub mod progress;
 pub mod run;

@@ -153,16 +153,11 @@ impl TrainConfig {
 
     /// Parses a run config: the text's values over the defaults of the agent it names.
     pub fn from_toml(text: &str) -> Result<Self, String> {
-        // Parsed once as is, so that errors show the offending line and key.
         let config: Self = toml::from_str(text).map_err(|e| e.to_string())?;
-        if config.agent == Agent::State {
-            return Ok(config);
+        match config.agent {
+            Agent::State => Ok(config),
+            agent => crate::overrides::parse_over(&Self::defaults_for(agent), text),
         }
-        let file: toml::Table = toml::from_str(text).map_err(|e| e.to_string())?;
-        let defaults = toml::to_string(&Self::defaults_for(config.agent)).map_err(|e| e.to_string())?;
-        let mut table: toml::Table = toml::from_str(&defaults).map_err(|e| e.to_string())?;
-        crate::experiment::merge(&mut table, &file);
-        toml::from_str(&toml::to_string(&table).map_err(|e| e.to_string())?).map_err(|e| e.to_string())
     }
 
     /// Reads a config file; errors name the file and the field.
