@@ -154,6 +154,15 @@ pub struct RoundSummary {
     pub validation: Option<(f64, f64)>,
 }
 
+/// What one round's flying counted.
+#[derive(Debug, Default)]
+struct Flight {
+    episodes: usize,
+    laps: u64,
+    crashes: usize,
+    teacher_steps: usize,
+}
+
 /// Counters and random state saved in the checkpoint's `distiller` section.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 struct Progress {
@@ -288,51 +297,10 @@ impl Distiller {
     /// One round: fly and label, switch tracks, regress; validate, log and checkpoint when due.
     pub fn round_step(&mut self) -> anyhow::Result<RoundSummary> {
         let started = Instant::now();
-        let beta = self.config.teacher_decay.powi(self.progress.round.min(i32::MAX as u64) as i32);
-        // Round 0 is the teacher's alone: the student's actions would not be used.
-        let student = if beta < 1.0 { Some(VisionPolicy::from_blob(&self.student.weights())?) } else { None };
-        let n = self.env.len();
-        let mut rewards = vec![0.0f64; n];
-        let (mut episodes, mut laps, mut crashes, mut teacher_steps) = (0usize, 0u64, 0usize, 0usize);
-        for _ in 0..self.config.steps_per_round {
-            let labels = self.teacher.deterministic_actions(&self.env.observations);
-            let student_actions = student.as_ref().map(|s| s.mean_actions(&self.env.images, &self.env.observations));
-            let mut actions = labels.clone();
-            for i in 0..n {
-                let state = &self.env.observations[i * STATE_OBS_DIM..(i + 1) * STATE_OBS_DIM];
-                let rows = i * ACTION_DIM..(i + 1) * ACTION_DIM;
-                self.data.offer(&self.env.envs()[i], state, &labels[rows.clone()], &mut self.progress.rng);
-                match &student_actions {
-                    Some(s) if self.progress.rng.random::<f64>() >= beta => {
-                        for (a, m) in actions[rows.clone()].iter_mut().zip(&s[rows]) {
-                            *a = m.clamp(-1.0, 1.0);
-                        }
-                    }
-                    _ => teacher_steps += 1,
-                }
-            }
-            self.env.step(&actions);
-            for (total, r) in rewards.iter_mut().zip(&self.env.rewards) {
-                *total += f64::from(*r);
-            }
-            for f in &self.env.finished {
-                episodes += 1;
-                laps += u64::from(f.stats.laps);
-                crashes += usize::from(f.stats.crash.is_some());
-            }
-        }
-        for (env, track) in self.tasks.report(ACTOR, self.progress.rollout, &rewards)? {
-            self.env.set_track(env, track);
-        }
-        self.progress.rollout += 1;
+        let flight = self.fly()?;
         let fly_seconds = started.elapsed().as_secs_f64();
         let fit_started = Instant::now();
-        let mut loss_sum = 0.0;
-        let batch = self.config.minibatch.min(self.data.len());
-        for _ in 0..self.config.updates_per_round {
-            let rows = rand::seq::index::sample(&mut self.progress.rng, self.data.len(), batch).into_vec();
-            loss_sum += self.student.train_step(&self.data, &rows, self.config.learning_rate);
-        }
+        let loss = self.regress();
         let fit_seconds = fit_started.elapsed().as_secs_f64();
         self.progress.round += 1;
         let round = self.progress.round;
@@ -350,15 +318,17 @@ impl Distiller {
             }
         }
         self.progress.wall_seconds += started.elapsed().as_secs_f64();
+        let steps = self.env.len() * self.config.steps_per_round;
+        let per_episode = |count: f64| if flight.episodes > 0 { count / flight.episodes as f64 } else { f64::NAN };
         let summary = RoundSummary {
             round,
-            teacher_share: teacher_steps as f64 / (n * self.config.steps_per_round) as f64,
+            teacher_share: flight.teacher_steps as f64 / steps as f64,
             samples_seen: self.data.seen(),
             dataset: self.data.len(),
-            loss: if self.config.updates_per_round > 0 { loss_sum / self.config.updates_per_round as f64 } else { f64::NAN },
-            episodes,
-            laps_per_episode: if episodes > 0 { laps as f64 / episodes as f64 } else { f64::NAN },
-            crash_rate: if episodes > 0 { crashes as f64 / episodes as f64 } else { f64::NAN },
+            loss,
+            episodes: flight.episodes,
+            laps_per_episode: per_episode(flight.laps as f64),
+            crash_rate: per_episode(flight.crashes as f64),
             fly_seconds,
             fit_seconds,
             validation: validation.as_ref().map(|v| (v.report.s_pw, v.report.success_rate)),
@@ -381,6 +351,63 @@ impl Distiller {
             self.checkpoint()?;
         }
         Ok(summary)
+    }
+
+    /// Flies every environment `steps_per_round` steps — each step by the teacher with
+    /// probability β = decay^round, else by the student — offering every visited state with the
+    /// teacher's label to the data set; then reports the round's rewards to the task controller
+    /// and applies its switches.
+    fn fly(&mut self) -> anyhow::Result<Flight> {
+        let beta = self.config.teacher_decay.powi(self.progress.round.min(i32::MAX as u64) as i32);
+        // Round 0 is the teacher's alone: the student's actions would not be used.
+        let student = if beta < 1.0 { Some(VisionPolicy::from_blob(&self.student.weights())?) } else { None };
+        let n = self.env.len();
+        let mut rewards = vec![0.0f64; n];
+        let mut flight = Flight::default();
+        for _ in 0..self.config.steps_per_round {
+            let labels = self.teacher.deterministic_actions(&self.env.observations);
+            let student_actions = student.as_ref().map(|s| s.mean_actions(&self.env.images, &self.env.observations));
+            let mut actions = labels.clone();
+            for i in 0..n {
+                let state = &self.env.observations[i * STATE_OBS_DIM..(i + 1) * STATE_OBS_DIM];
+                let rows = i * ACTION_DIM..(i + 1) * ACTION_DIM;
+                self.data.offer(&self.env.envs()[i], state, &labels[rows.clone()], &mut self.progress.rng);
+                match &student_actions {
+                    Some(s) if self.progress.rng.random::<f64>() >= beta => {
+                        for (a, m) in actions[rows.clone()].iter_mut().zip(&s[rows]) {
+                            *a = m.clamp(-1.0, 1.0);
+                        }
+                    }
+                    _ => flight.teacher_steps += 1,
+                }
+            }
+            self.env.step(&actions);
+            for (total, r) in rewards.iter_mut().zip(&self.env.rewards) {
+                *total += f64::from(*r);
+            }
+            for f in &self.env.finished {
+                flight.episodes += 1;
+                flight.laps += u64::from(f.stats.laps);
+                flight.crashes += usize::from(f.stats.crash.is_some());
+            }
+        }
+        for (env, track) in self.tasks.report(ACTOR, self.progress.rollout, &rewards)? {
+            self.env.set_track(env, track);
+        }
+        self.progress.rollout += 1;
+        Ok(flight)
+    }
+
+    /// The round's regression steps on minibatches drawn from the whole data set; their mean
+    /// loss (NaN when there are none).
+    fn regress(&mut self) -> f64 {
+        let batch = self.config.minibatch.min(self.data.len());
+        let mut loss_sum = 0.0;
+        for _ in 0..self.config.updates_per_round {
+            let rows = rand::seq::index::sample(&mut self.progress.rng, self.data.len(), batch).into_vec();
+            loss_sum += self.student.train_step(&self.data, &rows, self.config.learning_rate);
+        }
+        if self.config.updates_per_round > 0 { loss_sum / self.config.updates_per_round as f64 } else { f64::NAN }
     }
 
     /// Writes a periodic checkpoint of everything.
