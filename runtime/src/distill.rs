@@ -115,6 +115,12 @@ impl DistillConfig {
         crate::overrides::parse_over(&Self::default(), &text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
     }
 
+    /// Writes the config as TOML, atomically.
+    pub fn write(&self, path: &Path) -> anyhow::Result<()> {
+        let text = toml::to_string(self).context("serialising the config")?;
+        racetracks::files::write_atomic(path, text.as_bytes()).with_context(|| format!("writing {}", path.display()))
+    }
+
     fn check(&self) -> anyhow::Result<()> {
         ensure!(!self.teacher.as_os_str().is_empty(), "teacher: name the state-based policy to learn from (--teacher)");
         ensure!(
@@ -220,9 +226,7 @@ impl Distiller {
             bail!("teacher {}: a {} policy; the teacher must be state-based", config.teacher.display(), teacher_blob.architecture.agent);
         }
         config.env.observation_frame = teacher_blob.architecture.observation_frame;
-        let text = toml::to_string(&config).context("serialising the config")?;
-        racetracks::files::write_atomic(&dir.join("config.toml"), text.as_bytes())
-            .with_context(|| format!("writing {}", dir.join("config.toml").display()))?;
+        config.write(&dir.join("config.toml"))?;
         let tasks = LocalTasks::new(config.tracks.task_controller(config.envs, config.generator, config.switching, config.seed)?, None);
         let registration = tasks.register(ACTOR, config.envs)?;
         let env = VecEnv::new(registration.tracks, config.env, config.seed).with_images();

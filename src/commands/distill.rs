@@ -20,9 +20,10 @@ pub struct DistillArgs {
     #[arg(long, default_value = "runs/vision-student")]
     out: PathBuf,
     /// Continue the distillation in this directory from its newest checkpoint.
-    #[arg(long, conflicts_with_all = ["teacher", "config", "rounds_total", "seed"])]
+    #[arg(long, conflicts_with_all = ["teacher", "config", "seed"])]
     resume: Option<PathBuf>,
-    /// Rounds of the whole run (overrides the config).
+    /// Rounds of the whole run (overrides the config; with --resume, extends or shortens the
+    /// run being resumed).
     #[arg(long = "total-rounds", id = "rounds_total")]
     total_rounds: Option<u64>,
     /// Seed (overrides the config).
@@ -40,7 +41,15 @@ pub struct DistillArgs {
 pub fn run(args: DistillArgs) -> anyhow::Result<()> {
     let stop = runtime::services::stop_flag()?;
     let (dir, config) = match &args.resume {
-        Some(dir) => (dir.clone(), None),
+        Some(dir) => {
+            if let Some(rounds) = args.total_rounds {
+                let path = dir.join("config.toml");
+                let mut config = DistillConfig::read(&path)?;
+                config.rounds = rounds;
+                config.write(&path)?;
+            }
+            (dir.clone(), None)
+        }
         None => {
             let mut config = match &args.config {
                 Some(path) => DistillConfig::read(path)?,
