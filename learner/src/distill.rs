@@ -232,10 +232,27 @@ impl Student {
     /// normaliser, a new CNN and actor (seeded), the teacher's critic, log std
     /// `initial_log_std` (SPEC §10's VB column: 0).
     pub fn new(teacher: &WeightsBlob, initial_log_std: f64, seed: u64) -> Result<Self, LearnerError> {
+        Self::starting_from(teacher, None, initial_log_std, seed)
+    }
+
+    /// [`Student::new`], but the CNN and actor start from `start`'s (a vision policy of the
+    /// teacher's shape, e.g. a student distilled on one track), with a fresh optimiser.
+    pub fn starting_from(
+        teacher: &WeightsBlob,
+        start: Option<&WeightsBlob>,
+        initial_log_std: f64,
+        seed: u64,
+    ) -> Result<Self, LearnerError> {
         teacher.check_agent(Agent::State).map_err(|e| LearnerError::State(format!("teacher: {e}")))?;
         let device = Device::flex().autodiff();
         let architecture = Architecture { agent: Agent::Vision, ..teacher.architecture.clone() };
-        let mut model = VisionActorCritic::new(&architecture, initial_log_std, seed, &device);
+        let mut model = match start {
+            None => VisionActorCritic::new(&architecture, initial_log_std, seed, &device),
+            Some(blob) => {
+                blob.check_architecture(&architecture).map_err(|e| LearnerError::State(format!("starting student: {e}")))?;
+                blob.vision_model(&device).map_err(|e| LearnerError::State(format!("starting student: {e}")))?.train()
+            }
+        };
         model.critic = teacher.model(&device).map_err(|e| LearnerError::State(format!("teacher: {e}")))?.critic;
         Ok(Self { model: Some(model), optimizer: student_adam(), architecture, normalizer: teacher.normalizer.clone(), version: 0, device })
     }
@@ -392,6 +409,10 @@ mod tests {
         let teacher_values = teacher_net.forward(states.clone()).1.into_data();
         let student_values = blob.vision_model(&Device::flex()).unwrap().critic.forward(states).squeeze_dim::<1>(1).into_data();
         assert_eq!(teacher_values, student_values);
+        // A new student can start from this one: same actions, a fresh optimiser, version 0.
+        let second = Student::starting_from(&teacher, Some(&blob), 0.0, 99).unwrap();
+        let again = policy::VisionPolicy::from_blob(&second.weights()).unwrap().mean_actions(&data.images(&rows), &data.states(&rows));
+        assert_eq!((again, second.version()), (means, 0));
         // Exact resume: restored weights and moments take the same next step.
         let mut restored = Student::restore(&blob.to_bytes(), &student.optimizer_state()).unwrap();
         assert_eq!(restored.train_step(&data, &rows, 1e-3), student.train_step(&data, &rows, 1e-3));

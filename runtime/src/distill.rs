@@ -59,6 +59,9 @@ pub struct DistillConfig {
     pub learning_rate: f64,
     /// The student's log standard deviation, for vision PPO started from it (SPEC §10 VB: 0).
     pub initial_log_std: f64,
+    /// Start the student's CNN and actor from this vision policy (checkpoint or blob of the
+    /// teacher's shape; e.g. a student distilled on one track) instead of a fresh network.
+    pub init_from: Option<PathBuf>,
     /// Tracks the student flies (default generated, as in training).
     pub tracks: TrackSource,
     /// Track generator.
@@ -93,6 +96,7 @@ impl Default for DistillConfig {
             minibatch: 64,
             learning_rate: 5e-4,
             initial_log_std: 0.0,
+            init_from: None,
             tracks: TrackSource::Generated,
             generator: TrackGenerator::default(),
             switching: SwitchParams { window: 5, alpha: 100.0, ..SwitchParams::default() },
@@ -230,7 +234,12 @@ impl Distiller {
         let tasks = LocalTasks::new(config.tracks.task_controller(config.envs, config.generator, config.switching, config.seed)?, None);
         let registration = tasks.register(ACTOR, config.envs)?;
         let env = VecEnv::new(registration.tracks, config.env, config.seed).with_images();
-        let student = Student::new(&teacher_blob, config.initial_log_std, config.seed)?;
+        let start = match &config.init_from {
+            Some(path) => Some(read_policy(path).with_context(|| format!("init_from {}", path.display()))?),
+            None => None,
+        };
+        let student = Student::starting_from(&teacher_blob, start.as_ref(), config.initial_log_std, config.seed)
+            .with_context(|| config.init_from.as_ref().map_or(String::new(), |p| format!("init_from {}", p.display())))?;
         let progress = Progress {
             round: 0,
             rollout: registration.next_rollout,
