@@ -126,6 +126,14 @@ fn dronerace(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_dronerace")).args(args).output().expect("run dronerace")
 }
 
+/// `dronerace eval` of the policy at `policy` on Figure8, results in `out`.
+fn eval_on_figure8(policy: &Path, runs: usize, steps: usize, out: &Path) -> std::process::Output {
+    let figure8 = Path::new(env!("CARGO_MANIFEST_DIR")).join("tracks/figure8.toml");
+    let (runs, steps) = (runs.to_string(), steps.to_string());
+    let args = ["eval", "--controller", "policy", "--policy", policy.to_str().unwrap(), "--tracks", figure8.to_str().unwrap()];
+    dronerace(&[&args[..], &["--runs", &runs, "--steps", &steps, "--out", out.to_str().unwrap()]].concat())
+}
+
 #[test]
 fn train_resume_and_evaluate_from_the_command_line() {
     let dir = tempfile::tempdir().unwrap();
@@ -148,21 +156,7 @@ fn train_resume_and_evaluate_from_the_command_line() {
         assert!(run.join(file).exists(), "{file}");
     }
     let out = dir.path().join("eval");
-    let o = dronerace(&[
-        "eval",
-        "--controller",
-        "policy",
-        "--policy",
-        run.join("checkpoints/ckpt-000000003.bin").to_str().unwrap(),
-        "--tracks",
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("tracks/figure8.toml").to_str().unwrap(),
-        "--runs",
-        "2",
-        "--steps",
-        "100",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = eval_on_figure8(&run.join("checkpoints/ckpt-000000003.bin"), 2, 100, &out);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(String::from_utf8_lossy(&o.stdout).contains("policy v3"));
     // The exported weights blob flies exactly as the checkpoint it came from.
@@ -175,21 +169,7 @@ fn train_resume_and_evaluate_from_the_command_line() {
     let blob = dir.path().join("policy.bin");
     let o = dronerace(&["export-policy", run.join("checkpoints/ckpt-000000003.bin").to_str().unwrap(), "--out", blob.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let o = dronerace(&[
-        "eval",
-        "--controller",
-        "policy",
-        "--policy",
-        blob.to_str().unwrap(),
-        "--tracks",
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("tracks/figure8.toml").to_str().unwrap(),
-        "--runs",
-        "2",
-        "--steps",
-        "100",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = eval_on_figure8(&blob, 2, 100, &out);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert_eq!(table(&out.join("eval.json")), from_checkpoint);
     assert!(std::fs::metadata(&blob).unwrap().len() < std::fs::metadata(run.join("checkpoints/ckpt-000000003.bin")).unwrap().len());
@@ -290,21 +270,7 @@ fn a_vision_run_trains_over_grpc_and_its_policy_is_evaluated_with_its_camera() {
         "grpc",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let o = dronerace(&[
-        "eval",
-        "--controller",
-        "policy",
-        "--policy",
-        run.join("checkpoints/ckpt-000000002.bin").to_str().unwrap(),
-        "--tracks",
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("tracks/figure8.toml").to_str().unwrap(),
-        "--runs",
-        "1",
-        "--steps",
-        "50",
-        "--out",
-        dir.path().join("eval").to_str().unwrap(),
-    ]);
+    let o = eval_on_figure8(&run.join("checkpoints/ckpt-000000002.bin"), 1, 50, &dir.path().join("eval"));
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success() && out.contains("policy v2") && out.contains("vision-based"), "{out}");
 }
