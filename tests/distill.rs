@@ -97,3 +97,26 @@ fn the_command_refuses_a_teacher_that_cannot_teach() {
     let o = dronerace(&["distill", "--teacher", dir.path().join("missing.bin").to_str().unwrap(), "--out", out.to_str().unwrap()]);
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("missing.bin"));
 }
+
+#[test]
+fn every_shipped_distillation_and_vision_config_parses_and_names_files_that_exist() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let toml_files = |dir: &str| -> Vec<PathBuf> {
+        let mut files: Vec<PathBuf> = std::fs::read_dir(root.join(dir)).unwrap().map(|e| e.unwrap().path()).collect();
+        files.retain(|p| p.extension().is_some_and(|e| e == "toml"));
+        files
+    };
+    let distill = toml_files("experiments/distill");
+    assert!(distill.len() >= 2);
+    for path in distill {
+        let config = DistillConfig::read(&path).unwrap_or_else(|e| panic!("{e:#}"));
+        assert!(root.join(&config.teacher).exists(), "{}: teacher {}", path.display(), config.teacher.display());
+        if let Some(start) = &config.init_from {
+            assert!(root.join(start).exists(), "{}: init_from {}", path.display(), start.display());
+        }
+    }
+    for path in toml_files("experiments/vision") {
+        let config = runtime::TrainConfig::read(&path).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(config.resolved_profile().unwrap().architecture.agent, policy::Agent::Vision, "{}", path.display());
+    }
+}
