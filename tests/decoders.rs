@@ -227,7 +227,7 @@ fn every_mutated_weights_blob_is_refused_and_none_panics_the_parser() {
 #[test]
 fn every_mutated_rollout_chunk_is_refused_and_none_panics_the_parser() {
     let valid = chunk().to_bytes();
-    let decode = |b: &[u8]| RolloutChunk::from_bytes(b).is_ok_and(|c| c.check(sim::STATE_OBS_DIM, sim::ACTION_DIM).is_ok());
+    let decode = |b: &[u8]| RolloutChunk::from_bytes(b).is_ok_and(|c| c.check(sim::STATE_OBS_DIM, sim::ACTION_DIM, false).is_ok());
     let raw = fuzz("rollout chunk", 3, &valid, |b| b, decode);
     assert_eq!(raw.accepted, 0);
     assert!(decode(&reframe(valid.clone())), "the rewritten frame matches the format");
@@ -277,6 +277,7 @@ fn no_mutated_grpc_message_panics_its_decoders() {
         max_policy_lag: 2,
         observation_dim: sim::STATE_OBS_DIM,
         action_dim: sim::ACTION_DIM,
+        images: false,
         total_envs: 8,
     };
     let part = v1::RolloutPart {

@@ -204,12 +204,7 @@ impl Learner {
 
     fn check(&self, chunk: &RolloutChunk) -> Result<(), LearnerError> {
         let arch = &self.counters.profile.architecture;
-        chunk.check(arch.observation_dim, arch.action_dim).map_err(LearnerError::Malformed)?;
-        match (arch.agent, chunk.images.is_empty()) {
-            (Agent::Vision, true) => Err(LearnerError::Malformed("a vision agent's rollout without its camera images".into())),
-            (Agent::State, false) => Err(LearnerError::Malformed("camera images in a state-based agent's rollout".into())),
-            _ => Ok(()),
-        }
+        chunk.check(arch.observation_dim, arch.action_dim, arch.agent == Agent::Vision).map_err(LearnerError::Malformed)
     }
 
     /// A checkpoint holding [`Learner::save_state`] (sections `weights`, `optimizer`, `learner`).

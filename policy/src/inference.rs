@@ -175,18 +175,19 @@ impl VisionPolicy {
         self.frame
     }
 
-    /// Action means of one camera image (84×84 bytes, as the renderer writes it) and the raw
-    /// state observation in the policy's frame (its proprioceptive part feeds the actor).
-    pub fn mean_action(&self, image: &[u8], raw_state: &[f32]) -> Vec<f32> {
-        self.mean_actions(image, raw_state)
-    }
-
-    /// Action means of a batch: `n` camera images (`n × 84 × 84` bytes) and their raw state
-    /// observations (`n × 40`), one row of means per image.
+    /// Action means of a batch: `n` camera images (`n × 84 × 84` bytes, as the renderer writes
+    /// them) and their raw state observations (`n × 40`, in the policy's frame; their
+    /// proprioceptive part feeds the actor), one row of means per image.
     #[allow(clippy::expect_used, reason = "float outputs")]
     pub fn mean_actions(&self, images: &[u8], raw_states: &[f32]) -> Vec<f32> {
         let (images, states) = self.inputs(images, raw_states);
         self.model.actor_mean(images, states).into_data().try_into_vec::<f32>().expect("float outputs")
+    }
+
+    /// The deterministic actions evaluation takes (as [`Policy::deterministic_actions`]): the
+    /// action means of [`VisionPolicy::mean_actions`] clipped to [-1, 1].
+    pub fn deterministic_actions(&self, images: &[u8], raw_states: &[f32]) -> Vec<f32> {
+        self.mean_actions(images, raw_states).into_iter().map(|a| a.clamp(-1.0, 1.0)).collect()
     }
 
     /// The critic's values of raw state observations (`n × 40`): it reads the state only.
@@ -305,8 +306,8 @@ impl Controller for VisionPolicyController {
 
     fn act(&mut self, env: &RaceEnv) -> [f32; 4] {
         env.render_camera(&mut self.image);
-        let mean = self.policy.mean_action(&self.image, &env.observation_in(self.policy.frame));
-        std::array::from_fn(|i| mean[i].clamp(-1.0, 1.0))
+        let action = self.policy.deterministic_actions(&self.image, &env.observation_in(self.policy.frame));
+        std::array::from_fn(|i| action[i])
     }
 }
 

@@ -134,9 +134,10 @@ impl RolloutChunk {
         self.envs * self.steps
     }
 
-    /// Checks every array's length against `envs × steps` and the given dimensions, and that
-    /// all numbers are finite; the message names the offending field.
-    pub fn check(&self, observation_dim: usize, action_dim: usize) -> Result<(), String> {
+    /// Checks every array's length against `envs × steps` and the given dimensions, that the
+    /// camera images are there exactly when the agent acts on them (`images`: a vision agent),
+    /// and that all numbers are finite; the message names the offending field.
+    pub fn check(&self, observation_dim: usize, action_dim: usize, images: bool) -> Result<(), String> {
         let t = self.transitions();
         let expect = [
             ("observations", self.observations.len(), t * observation_dim),
@@ -154,8 +155,11 @@ impl RolloutChunk {
                 return Err(format!("{name} has {got} values, expected {want}"));
             }
         }
-        if !self.images.is_empty() && self.images.len() != t * IMAGE_PIXELS {
-            return Err(format!("images has {} bytes, expected none or {}", self.images.len(), t * IMAGE_PIXELS));
+        match (images, self.images.len()) {
+            (true, 0) => return Err("images: a vision agent's rollout without its camera images".into()),
+            (false, n) if n > 0 => return Err("images: camera images in a state-based agent's rollout".into()),
+            (true, n) if n != t * IMAGE_PIXELS => return Err(format!("images has {n} bytes, expected {}", t * IMAGE_PIXELS)),
+            _ => {}
         }
         let arrays = [
             ("observations", &self.observations),
@@ -332,12 +336,14 @@ mod tests {
         for (i, image) in v.images.chunks_mut(IMAGE_PIXELS).enumerate() {
             image[100 + i..140 + i].fill(155);
         }
-        v.check(5, 2).unwrap();
+        v.check(5, 2, true).unwrap();
+        assert!(v.check(5, 2, false).unwrap_err().contains("state-based"));
+        assert!(c.check(5, 2, true).unwrap_err().contains("without its camera images"));
         let bytes = v.to_bytes();
         assert!(bytes.len() < c.to_bytes().len() + v.transitions() * 20, "images are run-length coded");
         assert_eq!(RolloutChunk::from_bytes(&bytes).unwrap(), v);
         v.images.pop();
-        assert!(v.check(5, 2).unwrap_err().contains("images"));
+        assert!(v.check(5, 2, true).unwrap_err().contains("images"));
     }
 
     #[test]

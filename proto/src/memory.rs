@@ -93,7 +93,15 @@ mod tests {
         actor.send_rollout("a", 7, &RolloutChunk::zeroed(2, 0, 2, 1, 3, 4)).unwrap();
         let early = learner.receive(Duration::ZERO).unwrap();
         assert!(matches!(early, Some(Received::Refused { refusal: Refusal::Starting, .. })), "nothing is admitted before admit: {early:?}");
-        learner.admit(Admission { learner_epoch: 7, version: 2, max_policy_lag: 0, observation_dim: 3, action_dim: 4, total_envs: 4 });
+        learner.admit(Admission {
+            learner_epoch: 7,
+            version: 2,
+            max_policy_lag: 0,
+            observation_dim: 3,
+            action_dim: 4,
+            images: false,
+            total_envs: 4,
+        });
         for (version, first_env) in [(2, 0), (2, 2), (1, 0)] {
             actor.send_rollout("a", 7, &RolloutChunk::zeroed(version, first_env, 2, 1, 3, 4)).unwrap();
         }

@@ -109,6 +109,8 @@ pub struct Admission {
     pub observation_dim: usize,
     /// Action length of the policy.
     pub action_dim: usize,
+    /// The policy acts on camera images (a vision agent): its rollouts carry them, others must not.
+    pub images: bool,
     /// Environments in the whole run (global indices must fall below it).
     pub total_envs: usize,
 }
@@ -173,7 +175,7 @@ impl Admission {
     /// Accepts a rollout the learner can train on now, or says why not.
     pub fn check(&self, actor: &str, learner_epoch: u64, chunk: &RolloutChunk) -> Result<(), Refusal> {
         check_actor_name(actor).map_err(Refusal::Malformed)?;
-        chunk.check(self.observation_dim, self.action_dim).map_err(Refusal::Malformed)?;
+        chunk.check(self.observation_dim, self.action_dim, self.images).map_err(Refusal::Malformed)?;
         if chunk.first_env.checked_add(chunk.envs).is_none_or(|end| end > self.total_envs) {
             return Err(Refusal::Malformed(format!(
                 "environments {}..{} are not all known (the run has {})",
@@ -212,7 +214,8 @@ mod tests {
 
     #[test]
     fn admission_takes_versions_within_the_lag_of_this_epoch_only() {
-        let sync = Admission { learner_epoch: 7, version: 10, max_policy_lag: 0, observation_dim: 3, action_dim: 2, total_envs: 4 };
+        let sync =
+            Admission { learner_epoch: 7, version: 10, max_policy_lag: 0, observation_dim: 3, action_dim: 2, images: false, total_envs: 4 };
         assert_eq!(sync.check("a", 7, &chunk(10, 2)), Ok(()));
         assert_eq!(sync.check("a", 7, &chunk(9, 2)).map_err(|r| r.kind()), Err("too_old"));
         assert_eq!(sync.check("a", 7, &chunk(11, 2)).map_err(|r| r.kind()), Err("future_version"));
@@ -225,5 +228,8 @@ mod tests {
         let mut short = chunk(10, 0);
         short.rewards.pop();
         assert!(matches!(sync.check("a", 7, &short), Err(Refusal::Malformed(m)) if m.contains("rewards")));
+        // A vision learner refuses a rollout without camera images at the link, before training.
+        let vision = Admission { images: true, ..sync };
+        assert!(matches!(vision.check("a", 7, &chunk(10, 2)), Err(Refusal::Malformed(m)) if m.contains("camera images")));
     }
 }

@@ -379,18 +379,14 @@ impl Distiller {
         let mut flight = Flight::default();
         for _ in 0..self.config.steps_per_round {
             let labels = self.teacher.deterministic_actions(&self.env.observations);
-            let student_actions = student.as_ref().map(|s| s.mean_actions(&self.env.images, &self.env.observations));
+            let student_actions = student.as_ref().map(|s| s.deterministic_actions(&self.env.images, &self.env.observations));
             let mut actions = labels.clone();
             for i in 0..n {
                 let state = &self.env.observations[i * STATE_OBS_DIM..(i + 1) * STATE_OBS_DIM];
                 let rows = i * ACTION_DIM..(i + 1) * ACTION_DIM;
                 self.data.offer(&self.env.envs()[i], state, &labels[rows.clone()], &mut self.progress.rng);
                 match &student_actions {
-                    Some(s) if self.progress.rng.random::<f64>() >= beta => {
-                        for (a, m) in actions[rows.clone()].iter_mut().zip(&s[rows]) {
-                            *a = m.clamp(-1.0, 1.0);
-                        }
-                    }
+                    Some(s) if self.progress.rng.random::<f64>() >= beta => actions[rows.clone()].copy_from_slice(&s[rows]),
                     _ => flight.teacher_steps += 1,
                 }
             }

@@ -103,6 +103,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
             max_policy_lag: self.settings.max_policy_lag,
             observation_dim: arch.observation_dim,
             action_dim: arch.action_dim,
+            images: arch.agent == policy::Agent::Vision,
             total_envs: self.total_envs,
         }
     }

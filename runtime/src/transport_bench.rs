@@ -148,7 +148,15 @@ fn measure<L: LearnerLink>(
         latencies.push(last - sent);
     }
     let (observation_dim, action_dim) = (sim::STATE_OBS_DIM, sim::ACTION_DIM);
-    learner.admit(Admission { learner_epoch: 0, version: 0, max_policy_lag: 0, observation_dim, action_dim, total_envs: args.envs });
+    learner.admit(Admission {
+        learner_epoch: 0,
+        version: 0,
+        max_policy_lag: 0,
+        observation_dim,
+        action_dim,
+        images: false,
+        total_envs: args.envs,
+    });
     let mut received = 0;
     let mut started = None;
     while received < chunks {
@@ -209,6 +217,7 @@ pub fn run(args: TransportBenchArgs) -> anyhow::Result<()> {
                 max_policy_lag: 0,
                 observation_dim: sim::STATE_OBS_DIM,
                 action_dim: sim::ACTION_DIM,
+                images: false,
                 total_envs: args.envs,
             });
             let security = Security::default();
