@@ -46,6 +46,8 @@ enum Command {
     Learner(runtime::services::LearnerArgs),
     /// Show the task controller's state: every environment's track, window, ρ, q, switches.
     Tasks(commands::tasks::TasksArgs),
+    /// Show how a running training is doing, from its learner: iteration, env steps, actors.
+    Status(commands::status::StatusArgs),
     /// Run an actor process (environments, inference, rollouts).
     Actor(runtime::services::ActorArgs),
     /// Measure rollout throughput and weight-broadcast latency of a transport.
@@ -92,6 +94,7 @@ fn main() -> std::process::ExitCode {
         Command::Learner(a) => runtime::services::learner(a),
         Command::Actor(a) => runtime::services::actor(a),
         Command::Tasks(a) => commands::tasks::run(a),
+        Command::Status(a) => commands::status::run(a),
         Command::Chaos(a) => runtime::chaos::run(a),
         Command::LearnerBench(a) => commands::train::bench(a),
         Command::TransportBench(a) => runtime::transport_bench::run(a),

@@ -5,6 +5,7 @@ pub mod eval;
 pub mod experiment;
 pub mod render;
 pub mod sim;
+pub mod status;
 pub mod tasks;
 pub mod tracks;
 pub mod train;
@@ -31,6 +32,15 @@ pub fn load_tracks(paths: &[PathBuf]) -> anyhow::Result<Vec<Arc<Track>>> {
         }
     }
     Ok(tracks.into_iter().map(Arc::new).collect())
+}
+
+/// A client's TLS and token settings: the `[network]` section of a run config, or none.
+pub fn client_security(config: Option<&Path>) -> anyhow::Result<proto::Security> {
+    let network = match config {
+        Some(p) => runtime::TrainConfig::read(p)?.network,
+        None => Default::default(),
+    };
+    Ok(proto::Security::load(&network)?)
 }
 
 /// Writes `contents` to `path` atomically, creating parent directories.

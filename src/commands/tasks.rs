@@ -4,7 +4,6 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use proto::Security;
 use taskctl::client::TaskClient;
 use taskctl::{TaskInfo, TaskService};
 
@@ -36,11 +35,7 @@ fn row(t: &TaskInfo) -> String {
 
 /// Prints the tasks (or one, or the history).
 pub fn run(args: TasksArgs) -> anyhow::Result<()> {
-    let network = match &args.config {
-        Some(p) => runtime::TrainConfig::read(p)?.network,
-        None => Default::default(),
-    };
-    let security = Security::load(&network)?;
+    let security = super::client_security(args.config.as_deref())?;
     // The blocking client drives calls through a Handle, which needs a runtime with its own worker.
     let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build()?;
     let client = TaskClient::new(rt.handle().clone(), &args.taskctl, &security)?;

@@ -1,0 +1,41 @@
+//! `dronerace status`: how a running training is doing, as its learner reports it
+//! (`dronerace.v1.Learner/Status`): iteration, env steps, throughput, connected actors.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::Context;
+use clap::Args;
+use proto::v1::StatusRequest;
+
+/// Arguments of `dronerace status`.
+#[derive(Args)]
+pub struct StatusArgs {
+    /// Learner address (`http://` or `https://`).
+    #[arg(long, default_value = "http://127.0.0.1:50052")]
+    learner: String,
+    /// Run config whose `[network]` section holds the token and CA.
+    #[arg(long)]
+    config: Option<PathBuf>,
+}
+
+/// Prints the learner's status.
+pub fn run(args: StatusArgs) -> anyhow::Result<()> {
+    let security = super::client_security(args.config.as_deref())?;
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+    let status = rt
+        .block_on(async {
+            let mut client = proto::grpc_link::learner_client(&args.learner, &security)?;
+            let call = tokio::time::timeout(Duration::from_secs(10), client.status(StatusRequest {}));
+            anyhow::Ok(call.await.context("no answer within 10 s")??.into_inner())
+        })
+        .with_context(|| format!("Learner/Status at {}", args.learner))?;
+    println!("iteration {}", status.iteration);
+    println!("env steps {}", status.env_steps);
+    println!("env-steps/s {:.0}", status.sps);
+    println!("connected actors {}", status.connected_actors.join(" "));
+    println!("policy lag {}", status.policy_lag);
+    println!("refused chunks {}", status.refused_chunks);
+    println!("learner epoch {}", status.learner_epoch);
+    Ok(())
+}
