@@ -42,6 +42,12 @@ if ! exists "$build_image"; then
     cp /etc/resolv.conf "$work/build/etc/resolv.conf"
     chroot "$work/build" sh -c 'apt-get update -qq && DEBIAN_FRONTEND=noninteractive \
         apt-get install -y -qq --no-install-recommends gcc libc6-dev ca-certificates >/dev/null'
+    # Certificate authorities this machine trusts beyond Debian's (a proxy's, say), so that cargo
+    # in the build base reaches crates.io as cargo on this machine does.
+    if compgen -G "/usr/local/share/ca-certificates/*.crt" >/dev/null; then
+        cp /usr/local/share/ca-certificates/*.crt "$work/build/usr/local/share/ca-certificates/"
+        chroot "$work/build" update-ca-certificates >/dev/null
+    fi
     toolchain=$(rustc --print sysroot)
     mkdir -p "$work/build/usr/local/rust"
     tar -C "$toolchain" --exclude=./share/doc -c . | tar -C "$work/build/usr/local/rust" -x
