@@ -9,39 +9,27 @@
 #                                     CI's short version uses the one its tests built)
 #
 # Needs root, podman, runc, debootstrap and podman-compose (`apt-get install podman runc
-# debootstrap`, `pip install podman-compose`); makes the base images with local-images.sh.
+# debootstrap`, `pip install podman-compose`); builds the image with build-image.sh.
 # Prints the timings BENCHMARKS.md reports: image build, start to first iteration.
 set -euo pipefail
 deploy=$(cd "$(dirname "$0")" && pwd)
-root=$(dirname "$deploy")
 export CONTAINERS_CONF=${CONTAINERS_CONF:-$deploy/podman/containers.conf}
 project=dronerace-test-$$
 image=localhost/dronerace:test-$$
-work=$(mktemp -d /var/tmp/dronerace-compose.XXXXXX)
+secrets=$(mktemp -d /var/tmp/dronerace-secrets.XXXXXX)
 compose() { DRONERACE_IMAGE=$image podman-compose -p "$project" -f "$deploy/compose.yaml" "$@"; }
 cleanup() {
     compose down -v >/dev/null 2>&1 || true
     podman image rm -f "$image" >/dev/null 2>&1 || true
-    rm -rf "$work" "$deploy/secrets-$project"
+    rm -rf "$secrets"
 }
 trap cleanup EXIT
 say() { echo "compose-test: $*"; }
 elapsed() { echo $(( $(date +%s) - $1 )); }
 
-"$deploy/local-images.sh"
-bases=(--build-arg BUILD_IMAGE=localhost/rust:1.95-bookworm --build-arg RUNTIME_IMAGE=localhost/debian:bookworm-slim)
-start=$(date +%s)
-if [ $# -ge 1 ]; then
-    # Only the binary goes into the build context, stripped of debug information.
-    strip -o "$work/dronerace" "$1"
-    podman build -q -f "$root/docker/Dockerfile" --target prebuilt "${bases[@]}" -t "$image" "$work" >/dev/null
-else
-    podman build -q -f "$root/docker/Dockerfile" "${bases[@]}" -t "$image" "$root" >/dev/null
-fi
-say "image built in $(elapsed "$start") s, $(podman image inspect "$image" --format '{{.Size}}') bytes"
+say "$("$deploy/build-image.sh" "$image" "$@")"
 
 # Certificates for the services' names; readable by the image's user (uid 10001) only.
-secrets=$deploy/secrets-$project
 "$deploy/make-certs.sh" "$secrets" taskctl learner >/dev/null 2>&1
 chown -R 10001:10001 "$secrets" && chmod 700 "$secrets"
 export DRONERACE_SECRETS=$secrets
