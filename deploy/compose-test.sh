@@ -4,7 +4,7 @@
 # until three iterations are done; the learner container is stopped and started and must resume
 # from its volume; teardown must leave no container or volume of the project behind.
 #
-#   deploy/compose-test.sh            image compiled from source (docker/Dockerfile, ~25 min here)
+#   deploy/compose-test.sh            image compiled from source (docker/Dockerfile; 43 min cold here)
 #   deploy/compose-test.sh BINARY     image around a binary already built (`--target prebuilt`;
 #                                     CI's short version uses the one its tests built)
 #
