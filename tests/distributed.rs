@@ -277,6 +277,14 @@ fn an_actor_killed_mid_rollout_is_dropped_and_a_restarted_one_rejoins() {
     let status = clients.status(&c.learner_url()).unwrap();
     assert_eq!(status.connected_actors, vec!["a0".to_string()]);
     assert!(learner.output().contains("dropping actor a1"), "{}", learner.output());
+    // `dronerace status` prints the same from the command line.
+    let cli = std::process::Command::new(env!("CARGO_BIN_EXE_dronerace")).args(["status", "--learner", &c.learner_url()]).output().unwrap();
+    let printed = String::from_utf8_lossy(&cli.stdout);
+    assert!(
+        cli.status.success() && printed.lines().any(|l| l == "connected actors a0"),
+        "{printed}{}",
+        String::from_utf8_lossy(&cli.stderr)
+    );
     // A restarted a1 takes back its environments and rejoins.
     let a1 = c.actor("a1");
     wait_until(MINUTE, "a1 to rejoin", &[&learner, &a0, &a1], || {
