@@ -8,7 +8,8 @@ deploy=$(cd "$(dirname "$0")" && pwd)
 root=$(dirname "$deploy")
 export CONTAINERS_CONF=${CONTAINERS_CONF:-$deploy/podman/containers.conf}
 tag=$1
-"$deploy/local-images.sh" >&2
+# Around a prebuilt binary only the runtime base is needed.
+"$deploy/local-images.sh" $([ $# -ge 2 ] && echo runtime) >&2
 bases=(--build-arg BUILD_IMAGE=localhost/rust:1.95-bookworm --build-arg RUNTIME_IMAGE=localhost/debian:bookworm-slim)
 start=$(date +%s)
 if [ $# -ge 2 ]; then

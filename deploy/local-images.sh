@@ -9,6 +9,7 @@
 #   podman build -f docker/Dockerfile -t dronerace \
 #     --build-arg BUILD_IMAGE=localhost/rust:1.95-bookworm \
 #     --build-arg RUNTIME_IMAGE=localhost/debian:bookworm-slim .
+# `local-images.sh runtime` makes the runtime base only (enough for `--target prebuilt`).
 # Images that exist already are kept (FORCE=1 remakes them). Needs root: debootstrap and chroot.
 set -euo pipefail
 export CONTAINERS_CONF=${CONTAINERS_CONF:-$(cd "$(dirname "$0")" && pwd)/podman/containers.conf}
@@ -19,6 +20,8 @@ for tool in podman debootstrap; do
     command -v "$tool" >/dev/null || { echo "$tool is missing: apt-get install podman runc debootstrap" >&2; exit 1; }
 done
 exists() { [ "${FORCE:-0}" != 1 ] && podman image exists "$1"; }
+# Whether to make the build base: not with `runtime` (prebuilt images need none), nor when it exists.
+wanted_build() { [ "${1:-}" != runtime ] && ! exists "$build_image"; }
 work=$(mktemp -d /var/tmp/dronerace-images.XXXXXX)
 trap 'rm -rf "$work"' EXIT
 
@@ -28,15 +31,15 @@ slim() {
         "$1"/usr/share/doc/* "$1"/usr/share/man/* "$1"/usr/share/info/*
 }
 
-if exists "$runtime_image" && exists "$build_image"; then
-    echo "$runtime_image and $build_image exist (FORCE=1 remakes them)"
+if exists "$runtime_image" && ! wanted_build "$@"; then
+    echo "the base images wanted exist (FORCE=1 remakes them)"
     exit 0
 fi
 echo "debootstrap bookworm (minbase) from $mirror"
 debootstrap --variant=minbase bookworm "$work/rootfs" "$mirror" >"$work/debootstrap.log" ||
     { tail -20 "$work/debootstrap.log" >&2; exit 1; }
 
-if ! exists "$build_image"; then
+if wanted_build "$@"; then
     # The build base starts as a copy of the runtime base, so both are the same Debian.
     cp -a "$work/rootfs" "$work/build"
     cp /etc/resolv.conf "$work/build/etc/resolv.conf"
