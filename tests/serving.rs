@@ -36,7 +36,7 @@ fn policy_and_flight(dir: &Path) -> (std::path::PathBuf, Vec<Vec<f32>>, Vec<[f32
     pilot.reset(&env);
     let mut observations = Vec::new();
     for _ in 0..60 {
-        observations.push(env.observation_in(arch.observation_frame).to_vec());
+        observations.push(env.observation_in(arch.observation_layout()).to_vec());
         env.step(&pilot.act(&env));
     }
     let mut normalizer = ObsNormalizer::new(arch.observation_dim);

@@ -19,14 +19,14 @@ pub enum ActorError {
     /// The weights blob was refused.
     #[error(transparent)]
     Blob(#[from] BlobError),
-    /// The policy reads observations in another frame than the environments write them
-    /// (e.g. a run started before the frame was configurable, resumed by a newer build).
-    #[error("the policy reads {reads:?}-frame observations but the environments write {writes:?}-frame ones")]
-    FrameMismatch {
-        /// Frame of the policy.
-        reads: sim::ObservationFrame,
-        /// Frame of the environments.
-        writes: sim::ObservationFrame,
+    /// The policy reads other observations than the environments write (another frame or
+    /// another number of obstacle gates, e.g. a run resumed with a changed `[env]`).
+    #[error("the policy reads {reads:?} observations but the environments write {writes:?}")]
+    LayoutMismatch {
+        /// Layout of the policy.
+        reads: sim::ObservationLayout,
+        /// Layout of the environments.
+        writes: sim::ObservationLayout,
     },
     /// An environment index outside this actor's range.
     #[error("environment {env} is not in this actor's range {first}..{end}")]
@@ -100,9 +100,9 @@ impl Actor {
     pub fn set_weights(&mut self, blob: &WeightsBlob) -> Result<(), ActorError> {
         let policy = ActingPolicy::from_blob(blob)?;
         if let Some(env) = self.env.envs().first() {
-            let (reads, writes) = (policy.observation_frame(), env.config().observation_frame);
+            let (reads, writes) = (policy.observation_layout(), env.config().observation_layout());
             if reads != writes {
-                return Err(ActorError::FrameMismatch { reads, writes });
+                return Err(ActorError::LayoutMismatch { reads, writes });
             }
         }
         if policy.sees_images() {

@@ -337,7 +337,7 @@ mod tests {
         let mut env = RaceEnv::new(track(), EnvConfig::default(), 0, 0);
         for i in 0..1000 {
             // The label numbers the sample, so the survivors tell which were kept.
-            data.offer(&env, &env.observation_in(sim::ObservationFrame::Heading), &[i as f32, 0.0, 0.0, 0.0], &mut rng);
+            data.offer(&env, &env.observation_in(sim::ObservationLayout::spec(sim::ObservationFrame::Heading)), &[i as f32, 0.0, 0.0, 0.0], &mut rng);
             env.step(&[0.1, 0.0, 0.0, 0.0]);
             if env.stats().crash.is_some() || env.stats().length >= 200 {
                 env.reset();
@@ -382,7 +382,7 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let mut env = RaceEnv::new(track(), EnvConfig::default(), 1, 0);
         for _ in 0..32 {
-            let state = env.observation_in(arch.observation_frame);
+            let state = env.observation_in(arch.observation_layout());
             // Labels scaled up so that the student's initial near-zero head is far from them.
             let label: Vec<f32> = teacher_policy.deterministic_actions(&state).iter().map(|a| (a * 40.0).clamp(-1.0, 1.0)).collect();
             data.offer(&env, &state, &label, &mut rng);

@@ -39,6 +39,10 @@ pub struct Architecture {
     /// Blobs written before this field existed were world-frame.
     #[serde(default)]
     pub observation_frame: sim::ObservationFrame,
+    /// Nearest other gates the observation shows after SPEC §5's 40 numbers
+    /// ([`sim::ObservationLayout`]); blobs written before this field existed show none.
+    #[serde(default)]
+    pub obstacle_gates: usize,
     /// Kind of agent; blobs written before this field existed were state-based.
     #[serde(default)]
     pub agent: Agent,
@@ -53,6 +57,7 @@ impl Architecture {
             hidden: vec![512, 512],
             negative_slope: 0.01,
             observation_frame: sim::ObservationFrame::World,
+            obstacle_gates: 0,
             agent: Agent::State,
         }
     }
@@ -61,6 +66,11 @@ impl Architecture {
     /// paper's. Chosen on the validation set over 128×128 (BENCHMARKS.md, issue 10).
     pub fn cpu() -> Self {
         Self { hidden: vec![256, 256], ..Self::paper() }
+    }
+
+    /// What the policy's state observations hold; their length is `observation_dim`.
+    pub fn observation_layout(&self) -> sim::ObservationLayout {
+        sim::ObservationLayout { frame: self.observation_frame, obstacle_gates: self.obstacle_gates }
     }
 
     /// Number of trainable scalars (actor, critic and the log std).

@@ -231,9 +231,7 @@ impl WeightsBlob {
             clip: s.clip,
             epsilon: s.epsilon,
         };
-        if normalizer.mean.len() != architecture.observation_dim || normalizer.var.len() != architecture.observation_dim {
-            return Err(malformed("normaliser length differs from the observation length".into()));
-        }
+        check_observation_lengths(&architecture, &normalizer)?;
         let names = Self::tensor_names(&architecture);
         if ids.len() != names.len() {
             return Err(malformed(format!("{} parameter ids for {} parameters", ids.len(), names.len())));
@@ -290,11 +288,26 @@ impl WeightsBlob {
         if r.remaining() != 0 {
             return Err(BlobError::Malformed(format!("{} bytes after the parameters", r.remaining())));
         }
-        if normalizer.dim() != architecture.observation_dim {
-            return Err(BlobError::Malformed("normaliser length differs from the observation length".into()));
-        }
+        check_observation_lengths(&architecture, &normalizer)?;
         Ok(Self { version, architecture, normalizer, params })
     }
+}
+
+/// The observation length must match what the layout holds, and the normaliser must match it.
+fn check_observation_lengths(architecture: &Architecture, normalizer: &ObsNormalizer) -> Result<(), BlobError> {
+    let layout = architecture.observation_layout();
+    if architecture.observation_dim != layout.dim() {
+        return Err(BlobError::Malformed(format!(
+            "observation_dim {} but {} obstacle gates make {} numbers",
+            architecture.observation_dim,
+            layout.obstacle_gates,
+            layout.dim()
+        )));
+    }
+    if normalizer.mean.len() != architecture.observation_dim || normalizer.var.len() != architecture.observation_dim {
+        return Err(BlobError::Malformed("normaliser length differs from the observation length".into()));
+    }
+    Ok(())
 }
 
 impl From<TensorFileError> for BlobError {
@@ -365,5 +378,20 @@ mod tests {
         other.metadata.insert("format_version".into(), "3".into());
         assert_eq!(WeightsBlob::from_bytes(&other.to_bytes()), Err(BlobError::UnsupportedFormat(3)));
         assert!(e.contains("[8,8]") && e.contains("[512,512]"), "{e}");
+    }
+
+    /// A policy with obstacle gates round-trips with its wider observation; a blob whose
+    /// observation length disagrees with its layout is refused, naming both.
+    #[test]
+    fn the_observation_layout_travels_with_the_blob_and_must_match_its_length() {
+        let arch = Architecture { hidden: vec![8, 8], obstacle_gates: 2, observation_dim: 64, ..Architecture::paper() };
+        let model = ActorCritic::new(&arch, -0.5, 1, &Device::flex());
+        let b = WeightsBlob::from_model(3, &arch, &ObsNormalizer::new(64), &model);
+        let back = WeightsBlob::from_bytes(&b.to_bytes()).unwrap();
+        assert_eq!(back.architecture.observation_layout(), sim::ObservationLayout { frame: sim::ObservationFrame::World, obstacle_gates: 2 });
+        assert_eq!(back.params[0].values.len(), 64 * 8);
+        let wrong = Architecture { obstacle_gates: 1, ..arch.clone() };
+        let e = WeightsBlob::from_bytes(&WeightsBlob::from_model(3, &wrong, &ObsNormalizer::new(64), &model).to_bytes()).unwrap_err();
+        assert!(matches!(&e, BlobError::Malformed(m) if m.contains("observation_dim 64") && m.contains("1 obstacle gates make 52")), "{e}");
     }
 }

@@ -48,7 +48,7 @@ pub struct Policy {
     normalizer: ObsNormalizer,
     log_std: Vec<f32>,
     version: u64,
-    frame: sim::ObservationFrame,
+    layout: sim::ObservationLayout,
     device: Device,
 }
 
@@ -58,8 +58,8 @@ impl Policy {
         let device = Device::flex();
         let model = blob.model(&device)?.valid();
         let log_std = blob.params.last().map(|p| p.values.clone()).unwrap_or_default();
-        let frame = blob.architecture.observation_frame;
-        Ok(Self { model, normalizer: blob.normalizer.clone(), log_std, version: blob.version, frame, device })
+        let layout = blob.architecture.observation_layout();
+        Ok(Self { model, normalizer: blob.normalizer.clone(), log_std, version: blob.version, layout, device })
     }
 
     /// Policy version this was built from.
@@ -67,9 +67,9 @@ impl Policy {
         self.version
     }
 
-    /// Frame of the observations this policy reads.
-    pub fn observation_frame(&self) -> sim::ObservationFrame {
-        self.frame
+    /// What the observations this policy reads hold, and in which frame.
+    pub fn observation_layout(&self) -> sim::ObservationLayout {
+        self.layout
     }
 
     /// Length of a raw observation.
@@ -138,7 +138,7 @@ impl Controller for PolicyController {
     fn reset(&mut self, _env: &RaceEnv) {}
 
     fn act(&mut self, env: &RaceEnv) -> [f32; 4] {
-        let action = self.policy.deterministic_actions(&env.observation_in(self.policy.observation_frame()));
+        let action = self.policy.deterministic_actions(&env.observation_in(self.policy.observation_layout()));
         std::array::from_fn(|i| action[i])
     }
 }
@@ -150,7 +150,7 @@ pub struct VisionPolicy {
     model: VisionActorCritic,
     normalizer: ObsNormalizer,
     log_std: Vec<f32>,
-    frame: sim::ObservationFrame,
+    layout: sim::ObservationLayout,
     version: u64,
     device: Device,
 }
@@ -161,8 +161,8 @@ impl VisionPolicy {
         let device = Device::flex();
         let model = blob.vision_model(&device)?.valid();
         let log_std = blob.params.last().map(|p| p.values.clone()).unwrap_or_default();
-        let frame = blob.architecture.observation_frame;
-        Ok(Self { model, normalizer: blob.normalizer.clone(), log_std, frame, version: blob.version, device })
+        let layout = blob.architecture.observation_layout();
+        Ok(Self { model, normalizer: blob.normalizer.clone(), log_std, layout, version: blob.version, device })
     }
 
     /// Policy version this was built from.
@@ -170,9 +170,9 @@ impl VisionPolicy {
         self.version
     }
 
-    /// Frame of the state observations this policy reads.
-    pub fn observation_frame(&self) -> sim::ObservationFrame {
-        self.frame
+    /// What the state observations this policy reads hold, and in which frame.
+    pub fn observation_layout(&self) -> sim::ObservationLayout {
+        self.layout
     }
 
     /// Action means of a batch: `n` camera images (`n × 84 × 84` bytes, as the renderer writes
@@ -251,11 +251,11 @@ impl ActingPolicy {
         }
     }
 
-    /// Frame of the state observations it reads.
-    pub fn observation_frame(&self) -> sim::ObservationFrame {
+    /// What the state observations it reads hold, and in which frame.
+    pub fn observation_layout(&self) -> sim::ObservationLayout {
         match self {
-            Self::State(p) => p.observation_frame(),
-            Self::Vision(p) => p.observation_frame(),
+            Self::State(p) => p.observation_layout(),
+            Self::Vision(p) => p.observation_layout(),
         }
     }
 
@@ -306,7 +306,7 @@ impl Controller for VisionPolicyController {
 
     fn act(&mut self, env: &RaceEnv) -> [f32; 4] {
         env.render_camera(&mut self.image);
-        let action = self.policy.deterministic_actions(&self.image, &env.observation_in(self.policy.frame));
+        let action = self.policy.deterministic_actions(&self.image, &env.observation_in(self.policy.layout));
         std::array::from_fn(|i| action[i])
     }
 }

@@ -229,12 +229,16 @@ pub fn actor_model(blob: &WeightsBlob) -> Result<Vec<u8>, BlobError> {
         output: vec![batch_of("action", arch.action_dim)],
     };
     let frame = arch.observation_frame.name();
+    let obstacles = match arch.obstacle_gates {
+        0 => String::new(),
+        k => format!(" with the corners of the {k} nearest other gates after SPEC §5's 40"),
+    };
     Ok(ModelProto {
         ir_version: IR_VERSION,
         producer_name: "dronerace".into(),
         producer_version: env!("CARGO_PKG_VERSION").into(),
         doc_string: format!(
-            "dronerace policy v{}: raw {}-number state observation in the {frame} frame -> mean action in [-1, 1]",
+            "dronerace policy v{}: raw {}-number state observation in the {frame} frame{obstacles} -> mean action in [-1, 1]",
             blob.version, arch.observation_dim
         ),
         graph: Some(graph),

@@ -307,10 +307,10 @@ mod tests {
         let mut image = vec![0u8; sim::camera::IMAGE_PIXELS];
         env.render_camera(&mut image);
         assert!(image.contains(&sim::camera::TARGET_COLOUR), "gate 0 is in view from the start");
-        let by_hand = policy.mean_actions(&image, &env.observation_in(arch.observation_frame));
+        let by_hand = policy.mean_actions(&image, &env.observation_in(arch.observation_layout()));
         assert_eq!(action.to_vec(), by_hand.iter().map(|a| a.clamp(-1.0, 1.0)).collect::<Vec<_>>());
         // A blank image gives another action: the controller really looks.
-        let blank = policy.mean_actions(&vec![0u8; sim::camera::IMAGE_PIXELS], &env.observation_in(arch.observation_frame));
+        let blank = policy.mean_actions(&vec![0u8; sim::camera::IMAGE_PIXELS], &env.observation_in(arch.observation_layout()));
         assert_ne!(blank, by_hand);
     }
 

@@ -90,7 +90,7 @@ impl Pilot for PilotService {
         Ok(Response::new(PilotDescription {
             observation_dim: self.policy.observation_dim() as u32,
             action_dim: self.policy.action_dim() as u32,
-            observation_frame: self.policy.observation_frame().name().into(),
+            observation_frame: self.policy.observation_layout().frame.name().into(),
             policy_version: self.policy.version(),
         }))
     }

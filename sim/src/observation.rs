@@ -1,4 +1,5 @@
-//! The 40-dimensional state observation (SPEC §5, §12.9), in a choice of reference frames.
+//! The 40-dimensional state observation (SPEC §5, §12.9), in a choice of reference frames,
+//! optionally followed by the corners of the nearest other gates.
 //!
 //! Observations are written raw (un-normalised) into caller-owned f32 rows; normalisation
 //! belongs to the policy, which owns the running statistics.
@@ -9,8 +10,11 @@ use serde::{Deserialize, Serialize};
 use crate::quadrotor::BodyState;
 use crate::track::Track;
 
-/// Length of the state observation.
+/// Length of the state observation of SPEC §5.
 pub const STATE_OBS_DIM: usize = 40;
+
+/// Numbers each observed obstacle gate adds: its 4 inner corners relative to the drone.
+pub const OBSTACLE_GATE_DIM: usize = 12;
 
 /// The frame in which the observation's vectors (attitude columns, v, δp1, δp2) are written.
 ///
@@ -52,22 +56,55 @@ impl ObservationFrame {
     }
 }
 
+/// What a state observation holds: SPEC §5's 40 numbers in `frame`, then the corners of the
+/// `obstacle_gates` nearest gates other than the target and the one after it.
+///
+/// SPEC §5 shows the policy two gates only, so a gate of the same track that stands in the way
+/// between them is invisible to it: on the test set a third of the default generalist's
+/// gate-frame crashes were on such gates, on tracks the pilot flies (BENCHMARKS.md, "Blind to
+/// the other gates"). The obstacle gates are an option beyond the thesis; 0 is SPEC §5.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ObservationLayout {
+    /// Frame of the vectors.
+    pub frame: ObservationFrame,
+    /// How many of the nearest other gates follow the SPEC's 40 numbers.
+    pub obstacle_gates: usize,
+}
+
+impl ObservationLayout {
+    /// SPEC §5's 40 numbers in `frame`, nothing more.
+    pub fn spec(frame: ObservationFrame) -> Self {
+        Self { frame, obstacle_gates: 0 }
+    }
+
+    /// Length of an observation row.
+    pub fn dim(self) -> usize {
+        STATE_OBS_DIM + OBSTACLE_GATE_DIM * self.obstacle_gates
+    }
+}
+
 /// `R_z(-ψ)`: world vectors into the yaw-aligned frame of the drone's heading ψ.
 fn heading_from_world(body: &BodyState) -> Matrix3<f64> {
     Rotation3::from_axis_angle(&Vector3::z_axis(), -body.yaw()).into_inner()
 }
 
-/// Writes `[R col 0, col 1, v, w, a_prev, δp1, δp2]` into `out` (length [`STATE_OBS_DIM`]),
-/// with R, v and the δp vectors in `frame`.
+/// Writes `[R col 0, col 1, v, w, a_prev, δp1, δp2, obstacles…]` into `out` (length
+/// `layout.dim()`), with R, v and the relative positions in `layout.frame`.
+///
+/// Obstacles are the `layout.obstacle_gates` gates nearest to the drone (by centre) among all
+/// but the target and the gate after it, nearest first, each as its 4 corners minus the drone
+/// position (like δp1). Where the track has fewer such gates, the gate after the target fills
+/// the remaining slots: a gate the policy already sees, so a missing obstacle adds nothing new.
 pub fn write_state_observation(
     body: &BodyState,
     previous_action: &[f64; 4],
     track: &Track,
     target: usize,
-    frame: ObservationFrame,
+    layout: ObservationLayout,
     out: &mut [f32],
 ) {
-    assert_eq!(out.len(), STATE_OBS_DIM, "state observation row has the wrong length");
+    assert_eq!(out.len(), layout.dim(), "state observation row has the wrong length");
+    let frame = layout.frame;
     let to_frame = frame.rotation_from_world(body);
     let attitude = match frame {
         ObservationFrame::World => body.rotation(),
@@ -90,6 +127,25 @@ pub fn write_state_observation(
     for (o, v) in out.iter_mut().zip(values) {
         *o = v as f32;
     }
+    if layout.obstacle_gates == 0 {
+        return;
+    }
+    let next = track.next_index(target);
+    let mut others: Vec<(f64, usize)> = (0..track.gates.len())
+        .filter(|&g| g != target && g != next)
+        .map(|g| ((track.gates[g].position - body.position).norm_squared(), g))
+        .collect();
+    others.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    let obstacles = others.iter().map(|&(_, g)| g).chain(std::iter::repeat(next)).take(layout.obstacle_gates);
+    for (slot, gate) in obstacles.enumerate() {
+        let row = &mut out[STATE_OBS_DIM + OBSTACLE_GATE_DIM * slot..STATE_OBS_DIM + OBSTACLE_GATE_DIM * (slot + 1)];
+        for (c, corner) in track.gates[gate].corners().iter().enumerate() {
+            let relative = to_frame * (corner - body.position);
+            for k in 0..3 {
+                row[3 * c + k] = relative[k] as f32;
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -106,7 +162,7 @@ mod tests {
         body.velocity = Vector3::new(0.1, 0.2, 0.3);
         body.body_rates = Vector3::new(-1.0, -2.0, -3.0);
         let mut out = [0f32; STATE_OBS_DIM];
-        write_state_observation(&body, &[0.5, 0.6, 0.7, 0.8], &track, 1, ObservationFrame::World, &mut out);
+        write_state_observation(&body, &[0.5, 0.6, 0.7, 0.8], &track, 1, ObservationLayout::spec(ObservationFrame::World), &mut out);
         // Yaw 90°: body x points to world +y, body y to world -x.
         let expect_prefix = [0.0, 1.0, 0.0, -1.0, 0.0, 0.0, 0.1, 0.2, 0.3, -1.0, -2.0, -3.0, 0.5, 0.6, 0.7, 0.8];
         for (i, e) in expect_prefix.iter().enumerate() {
@@ -145,7 +201,7 @@ mod tests {
                 body_rates: Vector3::new(0.1, 0.2, 0.3),
             };
             let mut out = [0f32; STATE_OBS_DIM];
-            write_state_observation(&body, &[0.1, 0.2, 0.3, 0.4], &track, 0, frame, &mut out);
+            write_state_observation(&body, &[0.1, 0.2, 0.3, 0.4], &track, 0, ObservationLayout::spec(frame), &mut out);
             out
         };
         for frame in [ObservationFrame::Heading, ObservationFrame::Body] {
@@ -165,10 +221,46 @@ mod tests {
         // Facing +y (yaw 90°), 5 m before gate 0: its centre is 5 m along body x.
         let body = BodyState::at_rest(Vector3::new(0.0, 0.0, 2.0), std::f64::consts::FRAC_PI_2);
         let mut out = [0f32; STATE_OBS_DIM];
-        write_state_observation(&body, &[0.0; 4], &track, 0, ObservationFrame::Body, &mut out);
+        write_state_observation(&body, &[0.0; 4], &track, 0, ObservationLayout::spec(ObservationFrame::Body), &mut out);
         let centre: Vec<f32> = (0..3).map(|k| (0..4).map(|c| out[16 + 3 * c + k]).sum::<f32>() / 4.0).collect();
         assert!((centre[0] - 5.0).abs() < 1e-5 && centre[1].abs() < 1e-5 && centre[2].abs() < 1e-5, "{centre:?}");
         // Level and heading-aligned: attitude columns are the identity's.
         assert!((out[0] - 1.0).abs() < 1e-6 && (out[4] - 1.0).abs() < 1e-6);
+    }
+
+    /// The obstacle slots hold the nearest gates other than the target and the one after it,
+    /// nearest first, as corners relative to the drone; a track without enough such gates fills
+    /// the rest with the gate after the target.
+    #[test]
+    fn obstacle_slots_show_the_nearest_other_gates_and_pad_with_the_next_gate() {
+        let gates = vec![
+            Gate::new(Vector3::new(0.0, 0.0, 2.0), 0.0),
+            Gate::new(Vector3::new(10.0, 0.0, 2.0), 0.0),
+            Gate::new(Vector3::new(10.0, 10.0, 2.0), 0.0),
+            Gate::new(Vector3::new(3.0, 4.0, 2.0), 0.0),
+        ];
+        let track = Track::new("t", gates.clone(), None, Arena::default()).unwrap();
+        let body = BodyState::at_rest(Vector3::new(1.0, 1.0, 2.0), 0.0);
+        let layout = ObservationLayout { frame: ObservationFrame::World, obstacle_gates: 2 };
+        assert_eq!(layout.dim(), 64);
+        let mut out = vec![0f32; layout.dim()];
+        // Target 0, next 1: the others are gate 3 (3.6 m away) then gate 2 (12.7 m).
+        write_state_observation(&body, &[0.0; 4], &track, 0, layout, &mut out);
+        let slot = |out: &[f32], s: usize| -> Vec<f32> { out[STATE_OBS_DIM + OBSTACLE_GATE_DIM * s..][..OBSTACLE_GATE_DIM].to_vec() };
+        let expected = |g: usize| -> Vec<f32> {
+            gates[g].corners().iter().flat_map(|c| (c - body.position).iter().map(|&v| v as f32).collect::<Vec<_>>()).collect()
+        };
+        assert_eq!((slot(&out, 0), slot(&out, 1)), (expected(3), expected(2)));
+        // The SPEC's 40 numbers do not change with the obstacle slots.
+        let mut spec = [0f32; STATE_OBS_DIM];
+        write_state_observation(&body, &[0.0; 4], &track, 0, ObservationLayout::spec(ObservationFrame::World), &mut spec);
+        assert_eq!(&out[..STATE_OBS_DIM], &spec[..]);
+        // Target 2, next 3: the others are gate 0 (1.4 m) then gate 1 (9.1 m).
+        write_state_observation(&body, &[0.0; 4], &track, 2, layout, &mut out);
+        assert_eq!((slot(&out, 0), slot(&out, 1)), (expected(0), expected(1)));
+        // A two-gate track has no other gate: both slots show the gate after the target.
+        let two = Track::new("two", gates[..2].to_vec(), None, Arena::default()).unwrap();
+        write_state_observation(&body, &[0.0; 4], &two, 0, layout, &mut out);
+        assert_eq!((slot(&out, 0), slot(&out, 1)), (expected(1), expected(1)));
     }
 }

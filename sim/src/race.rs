@@ -10,7 +10,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::observation::{ObservationFrame, STATE_OBS_DIM, write_state_observation};
+use crate::observation::{ObservationFrame, ObservationLayout, write_state_observation};
 use crate::params::{QuadrotorParams, RaceParams};
 use crate::quadrotor::{BodyState, Command, Quadrotor};
 use crate::randomization::RandomizationParams;
@@ -58,6 +58,9 @@ pub struct EnvConfig {
     /// Frame of the observation's vectors. Default heading: on the test set it beat SPEC §5's
     /// world frame fourfold (BENCHMARKS.md, "Generalisation").
     pub observation_frame: ObservationFrame,
+    /// How many of the nearest other gates the observation shows after SPEC §5's 40 numbers
+    /// ([`ObservationLayout`]). Default 0 (SPEC §5).
+    pub obstacle_gates: usize,
     /// Which gate episodes start behind. Default first (SPEC §7).
     pub start_gate: StartGate,
     /// Per-episode randomisation around the nominal vehicle and start pose.
@@ -74,6 +77,7 @@ impl Default for EnvConfig {
             quadrotor: QuadrotorParams::default(),
             controller_model: ControllerModel::default(),
             observation_frame: ObservationFrame::Heading,
+            obstacle_gates: 0,
             start_gate: StartGate::First,
             randomization: RandomizationParams::default(),
             race: RaceParams::default(),
@@ -83,6 +87,11 @@ impl Default for EnvConfig {
 }
 
 impl EnvConfig {
+    /// What this configuration's observations hold.
+    pub fn observation_layout(&self) -> ObservationLayout {
+        ObservationLayout { frame: self.observation_frame, obstacle_gates: self.obstacle_gates }
+    }
+
     /// The evaluation setting of SPEC §9: nominal dynamics, 1000-step episodes.
     pub fn evaluation() -> Self {
         Self {
@@ -351,14 +360,14 @@ impl RaceEnv {
         self.quad.body.rotation() * Vector3::new(CAMERA_TILT.cos(), 0.0, CAMERA_TILT.sin())
     }
 
-    /// Writes the state observation in the configured frame into `out` (length [`STATE_OBS_DIM`]).
+    /// Writes the state observation of the configured layout into `out` (its `dim()` long).
     pub fn observe(&self, out: &mut [f32]) {
-        self.observe_in(self.config.observation_frame, out);
+        self.observe_in(self.config.observation_layout(), out);
     }
 
-    /// Writes the state observation in `frame` (a policy evaluates in the frame it learned).
-    pub fn observe_in(&self, frame: ObservationFrame, out: &mut [f32]) {
-        write_state_observation(&self.quad.body, &self.previous_action, &self.track, self.target, frame, out);
+    /// Writes the state observation in `layout` (a policy evaluates in the layout it learned).
+    pub fn observe_in(&self, layout: ObservationLayout, out: &mut [f32]) {
+        write_state_observation(&self.quad.body, &self.previous_action, &self.track, self.target, layout, out);
     }
 
     /// Renders the camera image of the current state (SPEC §5) into `out` (84×84 bytes).
@@ -366,10 +375,10 @@ impl RaceEnv {
         crate::camera::render(&self.track, self.target, &self.quad.body.position, &self.quad.body.rotation(), out);
     }
 
-    /// The state observation in `frame` as a new array.
-    pub fn observation_in(&self, frame: ObservationFrame) -> [f32; STATE_OBS_DIM] {
-        let mut out = [0f32; STATE_OBS_DIM];
-        self.observe_in(frame, &mut out);
+    /// The state observation in `layout` as a new row.
+    pub fn observation_in(&self, layout: ObservationLayout) -> Vec<f32> {
+        let mut out = vec![0f32; layout.dim()];
+        self.observe_in(layout, &mut out);
         out
     }
 

@@ -10,7 +10,6 @@ use std::sync::Arc;
 use rayon::prelude::*;
 
 use crate::camera::IMAGE_PIXELS;
-use crate::observation::STATE_OBS_DIM;
 use crate::race::{EnvConfig, EpisodeStats, RaceEnv, StepOutcome};
 use crate::track::Track;
 
@@ -29,7 +28,9 @@ pub struct FinishedEpisode {
 /// Vectorised race environment with automatic reset.
 pub struct VecEnv {
     envs: Vec<RaceEnv>,
-    /// Current observations, `n × STATE_OBS_DIM`, row-major.
+    /// Length of one observation row (the environments' [`crate::ObservationLayout`]).
+    observation_dim: usize,
+    /// Current observations, `n × observation_dim`, row-major.
     pub observations: Vec<f32>,
     /// Rewards of the last step.
     pub rewards: Vec<f32>,
@@ -78,7 +79,7 @@ impl VecEnv {
 
     /// Length of one observation row.
     pub fn observation_dim(&self) -> usize {
-        STATE_OBS_DIM
+        self.observation_dim
     }
 
     /// Steps every environment with its row of `actions` (`n × 4`).
@@ -88,8 +89,8 @@ impl VecEnv {
             .envs
             .par_iter_mut()
             .zip(actions.par_chunks(ACTION_DIM))
-            .zip(self.observations.par_chunks_mut(STATE_OBS_DIM))
-            .zip(self.final_observations.par_chunks_mut(STATE_OBS_DIM))
+            .zip(self.observations.par_chunks_mut(self.observation_dim))
+            .zip(self.final_observations.par_chunks_mut(self.observation_dim))
             .with_min_len(4)
             .map(|(((env, action), obs), final_obs)| {
                 let outcome = env.step(&[action[0], action[1], action[2], action[3]]);
@@ -119,7 +120,8 @@ impl VecEnv {
     /// episode is not reported as finished.
     pub fn set_track(&mut self, i: usize, track: Arc<Track>) {
         self.envs[i].set_track(track);
-        self.envs[i].observe(&mut self.observations[i * STATE_OBS_DIM..(i + 1) * STATE_OBS_DIM]);
+        let d = self.observation_dim;
+        self.envs[i].observe(&mut self.observations[i * d..(i + 1) * d]);
         if !self.images.is_empty() {
             self.envs[i].render_camera(&mut self.images[i * IMAGE_PIXELS..(i + 1) * IMAGE_PIXELS]);
         }
@@ -130,16 +132,20 @@ impl VecEnv {
         &self.envs
     }
 
-    /// Rebuilds a vectorised environment from saved environments (see [`VecEnv::envs`]).
+    /// Rebuilds a vectorised environment from saved environments (see [`VecEnv::envs`]), which
+    /// must share one observation layout.
     pub fn from_envs(envs: Vec<RaceEnv>) -> Self {
         let n = envs.len();
+        let observation_dim = envs.first().map_or(crate::STATE_OBS_DIM, |e| e.config().observation_layout().dim());
+        assert!(envs.iter().all(|e| e.config().observation_layout().dim() == observation_dim), "environments of one VecEnv share an observation layout");
         let mut v = Self {
             envs,
-            observations: vec![0.0; n * STATE_OBS_DIM],
+            observation_dim,
+            observations: vec![0.0; n * observation_dim],
             rewards: vec![0.0; n],
             terminated: vec![false; n],
             truncated: vec![false; n],
-            final_observations: vec![0.0; n * STATE_OBS_DIM],
+            final_observations: vec![0.0; n * observation_dim],
             finished: Vec::new(),
             images: Vec::new(),
         };
@@ -161,7 +167,7 @@ impl VecEnv {
     }
 
     fn write_all_observations(&mut self) {
-        for (env, obs) in self.envs.iter().zip(self.observations.chunks_mut(STATE_OBS_DIM)) {
+        for (env, obs) in self.envs.iter().zip(self.observations.chunks_mut(self.observation_dim)) {
             env.observe(obs);
         }
     }
@@ -265,7 +271,7 @@ mod tests {
         assert!(fin.stats.crash.is_some());
         assert_eq!(fin.stats.length, steps);
         // The reset observation differs from the final one and starts with zero previous action.
-        let (obs, final_obs) = (&env.observations[..STATE_OBS_DIM], &env.final_observations[..STATE_OBS_DIM]);
+        let (obs, final_obs) = (&env.observations[..crate::STATE_OBS_DIM], &env.final_observations[..crate::STATE_OBS_DIM]);
         assert_ne!(obs, final_obs);
         assert_eq!(&obs[12..16], &[0.0; 4]);
         assert_eq!(&final_obs[12..16], &[1.0, 0.0, 0.0, 0.0]);
@@ -275,7 +281,7 @@ mod tests {
     fn replacing_a_track_restarts_that_environment_only() {
         let mut env = VecEnv::new(tracks(2), EnvConfig::default(), 1);
         env.step(&[0.0; 8]);
-        let other_before = env.observations[STATE_OBS_DIM..].to_vec();
+        let other_before = env.observations[crate::STATE_OBS_DIM..].to_vec();
         let new_track = Arc::new(
             Track::new(
                 "pair",
@@ -288,7 +294,7 @@ mod tests {
         env.set_track(0, new_track.clone());
         assert_eq!(env.envs()[0].track().name, "pair");
         assert_eq!(env.envs()[0].stats().length, 0);
-        assert_eq!(&env.observations[STATE_OBS_DIM..], &other_before[..]);
+        assert_eq!(&env.observations[crate::STATE_OBS_DIM..], &other_before[..]);
         // δp1 now points at the new gate 0 (start 2 m behind it, ±0.8 m randomisation).
         let dx = env.observations[16];
         assert!((dx - 2.0).abs() < 1.0, "{dx}");
