@@ -112,6 +112,30 @@ fn fine_tuning_starts_from_the_given_policy_at_version_zero() {
     assert!(err.contains("init_from") && err.contains("architecture"), "{err}");
 }
 
+/// The tiny run with the two nearest other gates in the observation.
+fn tiny_obstacle_config() -> TrainConfig {
+    let mut config = tiny_config();
+    config.env.obstacle_gates = 2;
+    config
+}
+
+#[test]
+fn a_run_with_obstacle_gates_learns_from_64_numbers_and_resumes_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = straight_and_resumed(tiny_obstacle_config, dir.path());
+    assert!(weights(&b) == weights(&a), "the next iteration's weights equal an uninterrupted run's");
+    let arch = a.learner().weights().architecture;
+    assert_eq!((arch.observation_dim, arch.obstacle_gates), (64, 2));
+    assert_eq!(a.learner().weights().normalizer.dim(), 64);
+    // Its policy flies with the observation it learned (64 numbers, not the SPEC's 40).
+    let policy = std::sync::Arc::new(policy::Policy::from_blob(&a.learner().weights()).unwrap());
+    assert_eq!(policy.observation_layout().dim(), 64);
+    let track = std::sync::Arc::new(racetracks::library_track("Figure8").unwrap().unwrap());
+    let config = sim::eval::EvalConfig { runs: 2, steps: 50, ..sim::eval::EvalConfig::default() };
+    let report = sim::eval::evaluate("policy", &[track], &|| Box::new(policy::PolicyController::new(policy.clone())), &config);
+    assert_eq!(report.outcomes.deployments, 2);
+}
+
 #[test]
 fn a_run_directory_with_checkpoints_is_not_overwritten() {
     let dir = tempfile::tempdir().unwrap();
