@@ -441,7 +441,7 @@ pub fn markdown_report(experiment: &Experiment, summaries: &[VariantSummary]) ->
         ));
     }
     out.push_str("\n## How the test deployments of `best` ended (all seeds together)\n\n");
-    out.push_str("| variant | deployments | success | ground | ceiling | wall | gate frame | no lap | mean lap (s) |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+    out.push_str("| variant | deployments | success | ground | ceiling | wall | gate frame | of it not the target | no lap | mean lap (s) |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
     for v in summaries {
         let mut total = OutcomeCounts::default();
         for x in &v.results {
@@ -450,7 +450,7 @@ pub fn markdown_report(experiment: &Experiment, summaries: &[VariantSummary]) ->
         let pct = |n: usize| format!("{:.0} %", 100.0 * total.fraction(n));
         let laps: Vec<f64> = v.results.iter().filter_map(|x| x.best_policy.mean_lap).collect();
         out.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
             v.name,
             total.deployments,
             pct(total.success),
@@ -458,6 +458,7 @@ pub fn markdown_report(experiment: &Experiment, summaries: &[VariantSummary]) ->
             pct(total.ceiling),
             pct(total.wall),
             pct(total.gate_total()),
+            pct(total.gate_not_target),
             pct(total.no_lap),
             if laps.is_empty() { "–".into() } else { format!("{:.2}", mean_std(&laps).0) }
         ));

@@ -42,6 +42,10 @@ pub struct Deployment {
     pub gates_passed: u32,
     /// Steps flown.
     pub steps: u32,
+    /// Target gate when it ended: a gate-frame crash on another gate hit a gate the state
+    /// observation of SPEC §5 does not show (unless it was the next one).
+    #[serde(default)]
+    pub target: usize,
 }
 
 /// How one deployment ended (SPEC §9 success, or why not).
@@ -71,6 +75,9 @@ pub struct OutcomeCounts {
     pub wall: usize,
     /// Crashes into a gate frame, indexed by gate (length = the largest gate index hit + 1).
     pub gate: Vec<usize>,
+    /// Of the gate-frame crashes, those on a gate that was not the target.
+    #[serde(default)]
+    pub gate_not_target: usize,
     /// No crash and no lap within the step limit.
     pub no_lap: usize,
 }
@@ -81,6 +88,9 @@ impl OutcomeCounts {
         let mut counts = Self::default();
         for d in deployments {
             counts.add(d.outcome());
+            if matches!(d.crash, Some(CrashCause::Gate(g)) if g != d.target) {
+                counts.gate_not_target += 1;
+            }
         }
         counts
     }
@@ -110,6 +120,7 @@ impl OutcomeCounts {
         self.ceiling += other.ceiling;
         self.wall += other.wall;
         self.no_lap += other.no_lap;
+        self.gate_not_target += other.gate_not_target;
         if self.gate.len() < other.gate.len() {
             self.gate.resize(other.gate.len(), 0);
         }
@@ -221,6 +232,7 @@ pub fn deploy(track: Arc<Track>, controller: &mut dyn Controller, config: &EvalC
         crash,
         gates_passed: env.stats().gates_passed,
         steps: env.stats().length,
+        target: env.target_gate(),
     }
 }
 
@@ -284,12 +296,12 @@ impl EvalReport {
             self.controller, self.config.runs, self.config.steps, self.config.seed
         );
         out.push_str(
-            "| track | success | mean lap (s) | fastest lap (s) | S_pw (1/s) | ground | ceiling | wall | gate frame | no lap | gate frames hit |\n\
-             |---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|\n",
+            "| track | success | mean lap (s) | fastest lap (s) | S_pw (1/s) | ground | ceiling | wall | gate frame | not the target | no lap | gate frames hit |\n\
+             |---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|\n",
         );
         let row = |name: &str, success: f64, mean: Option<f64>, fastest: Option<f64>, s_pw: f64, o: &OutcomeCounts| {
             format!(
-                "| {name} | {:.0} % | {} | {} | {s_pw:.4} | {} | {} | {} | {} | {} | {} |\n",
+                "| {name} | {:.0} % | {} | {} | {s_pw:.4} | {} | {} | {} | {} | {} | {} | {} |\n",
                 100.0 * success,
                 secs(mean),
                 secs(fastest),
@@ -297,6 +309,7 @@ impl EvalReport {
                 o.ceiling,
                 o.wall,
                 o.gate_total(),
+                o.gate_not_target,
                 o.no_lap,
                 o.gate_summary()
             )
@@ -334,8 +347,8 @@ mod tests {
 
     #[test]
     fn s_pw_is_the_mean_of_success_over_fastest_lap() {
-        let ok = |t: &[f64]| Deployment { success: true, lap_times: t.to_vec(), crash: None, gates_passed: 9, steps: 1000 };
-        let crashed = Deployment { success: false, lap_times: vec![2.0], crash: Some(CrashCause::Ground), gates_passed: 5, steps: 300 };
+        let ok = |t: &[f64]| Deployment { success: true, lap_times: t.to_vec(), crash: None, gates_passed: 9, steps: 1000, target: 1 };
+        let crashed = Deployment { success: false, lap_times: vec![2.0], crash: Some(CrashCause::Ground), gates_passed: 5, steps: 300, target: 1 };
         let r = summarise("t", vec![ok(&[5.0, 4.0]), ok(&[8.0]), crashed]);
         assert_eq!((r.outcomes.success, r.outcomes.ground, r.outcomes.deployments), (2, 1, 3));
         assert!((r.s_pw - (0.25 + 0.125 + 0.0) / 3.0).abs() < 1e-12);
@@ -366,6 +379,7 @@ mod tests {
             crash,
             gates_passed: 3,
             steps: 500,
+            target: 2,
         };
         let cases = [
             (d(true, &[6.0], None), Outcome::Success),
@@ -374,6 +388,8 @@ mod tests {
             (d(false, &[], Some(CrashCause::Wall)), Outcome::Crash(CrashCause::Wall)),
             // A crash after a completed lap is a crash, not a success.
             (d(false, &[6.0], Some(CrashCause::Gate(2))), Outcome::Crash(CrashCause::Gate(2))),
+            // A frame of a gate that was not the target (2).
+            (d(false, &[], Some(CrashCause::Gate(0))), Outcome::Crash(CrashCause::Gate(0))),
             (d(false, &[], None), Outcome::NoLap),
         ];
         for (deployment, expected) in &cases {
@@ -382,14 +398,14 @@ mod tests {
         let counts = OutcomeCounts::of(cases.iter().map(|(d, _)| d));
         assert_eq!(
             (counts.success, counts.ground, counts.ceiling, counts.wall, counts.gate.clone(), counts.no_lap),
-            (1, 1, 1, 1, vec![0, 0, 1], 1)
+            (1, 1, 1, 1, vec![1, 0, 1], 1)
         );
-        assert_eq!(counts.gate_summary(), "g2 1");
-        assert_eq!(counts.deployments, 6);
+        assert_eq!(counts.gate_summary(), "g0 1, g2 1");
+        assert_eq!((counts.deployments, counts.gate_not_target), (7, 1));
         let mut twice = counts.clone();
         twice.merge(&OutcomeCounts { deployments: 1, gate: vec![0, 0, 0, 1], ..OutcomeCounts::default() });
         twice.merge(&counts);
-        assert_eq!((twice.deployments, twice.success, twice.gate.clone()), (13, 2, vec![0, 0, 2, 1]));
+        assert_eq!((twice.deployments, twice.success, twice.gate.clone(), twice.gate_not_target), (15, 2, vec![2, 0, 2, 1], 2));
     }
 
     /// Real flights into the floor and the ceiling end with those causes.
