@@ -337,7 +337,12 @@ mod tests {
         let mut env = RaceEnv::new(track(), EnvConfig::default(), 0, 0);
         for i in 0..1000 {
             // The label numbers the sample, so the survivors tell which were kept.
-            data.offer(&env, &env.observation_in(sim::ObservationLayout::spec(sim::ObservationFrame::Heading)), &[i as f32, 0.0, 0.0, 0.0], &mut rng);
+            data.offer(
+                &env,
+                &env.observation_in(sim::ObservationLayout::spec(sim::ObservationFrame::Heading)),
+                &[i as f32, 0.0, 0.0, 0.0],
+                &mut rng,
+            );
             env.step(&[0.1, 0.0, 0.0, 0.0]);
             if env.stats().crash.is_some() || env.stats().length >= 200 {
                 env.reset();

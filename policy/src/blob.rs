@@ -388,7 +388,10 @@ mod tests {
         let model = ActorCritic::new(&arch, -0.5, 1, &Device::flex());
         let b = WeightsBlob::from_model(3, &arch, &ObsNormalizer::new(64), &model);
         let back = WeightsBlob::from_bytes(&b.to_bytes()).unwrap();
-        assert_eq!(back.architecture.observation_layout(), sim::ObservationLayout { frame: sim::ObservationFrame::World, obstacle_gates: 2 });
+        assert_eq!(
+            back.architecture.observation_layout(),
+            sim::ObservationLayout { frame: sim::ObservationFrame::World, obstacle_gates: 2 }
+        );
         assert_eq!(back.params[0].values.len(), 64 * 8);
         let wrong = Architecture { obstacle_gates: 1, ..arch.clone() };
         let e = WeightsBlob::from_bytes(&WeightsBlob::from_model(3, &wrong, &ObsNormalizer::new(64), &model).to_bytes()).unwrap_err();

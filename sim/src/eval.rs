@@ -348,7 +348,8 @@ mod tests {
     #[test]
     fn s_pw_is_the_mean_of_success_over_fastest_lap() {
         let ok = |t: &[f64]| Deployment { success: true, lap_times: t.to_vec(), crash: None, gates_passed: 9, steps: 1000, target: 1 };
-        let crashed = Deployment { success: false, lap_times: vec![2.0], crash: Some(CrashCause::Ground), gates_passed: 5, steps: 300, target: 1 };
+        let crashed =
+            Deployment { success: false, lap_times: vec![2.0], crash: Some(CrashCause::Ground), gates_passed: 5, steps: 300, target: 1 };
         let r = summarise("t", vec![ok(&[5.0, 4.0]), ok(&[8.0]), crashed]);
         assert_eq!((r.outcomes.success, r.outcomes.ground, r.outcomes.deployments), (2, 1, 3));
         assert!((r.s_pw - (0.25 + 0.125 + 0.0) / 3.0).abs() < 1e-12);

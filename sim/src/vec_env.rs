@@ -137,7 +137,10 @@ impl VecEnv {
     pub fn from_envs(envs: Vec<RaceEnv>) -> Self {
         let n = envs.len();
         let observation_dim = envs.first().map_or(crate::STATE_OBS_DIM, |e| e.config().observation_layout().dim());
-        assert!(envs.iter().all(|e| e.config().observation_layout().dim() == observation_dim), "environments of one VecEnv share an observation layout");
+        assert!(
+            envs.iter().all(|e| e.config().observation_layout().dim() == observation_dim),
+            "environments of one VecEnv share an observation layout"
+        );
         let mut v = Self {
             envs,
             observation_dim,
