@@ -87,17 +87,14 @@ impl OutcomeCounts {
     pub fn of<'a>(deployments: impl IntoIterator<Item = &'a Deployment>) -> Self {
         let mut counts = Self::default();
         for d in deployments {
-            counts.add(d.outcome());
-            if matches!(d.crash, Some(CrashCause::Gate(g)) if g != d.target) {
-                counts.gate_not_target += 1;
-            }
+            counts.add(d);
         }
         counts
     }
 
-    fn add(&mut self, outcome: Outcome) {
+    fn add(&mut self, deployment: &Deployment) {
         self.deployments += 1;
-        match outcome {
+        match deployment.outcome() {
             Outcome::Success => self.success += 1,
             Outcome::NoLap => self.no_lap += 1,
             Outcome::Crash(CrashCause::Ground) => self.ground += 1,
@@ -108,6 +105,9 @@ impl OutcomeCounts {
                     self.gate.resize(i + 1, 0);
                 }
                 self.gate[i] += 1;
+                if i != deployment.target {
+                    self.gate_not_target += 1;
+                }
             }
         }
     }

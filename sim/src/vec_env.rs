@@ -136,11 +136,9 @@ impl VecEnv {
     /// must share one observation layout.
     pub fn from_envs(envs: Vec<RaceEnv>) -> Self {
         let n = envs.len();
-        let observation_dim = envs.first().map_or(crate::STATE_OBS_DIM, |e| e.config().observation_layout().dim());
-        assert!(
-            envs.iter().all(|e| e.config().observation_layout().dim() == observation_dim),
-            "environments of one VecEnv share an observation layout"
-        );
+        let layout = envs.first().map(|e| e.config().observation_layout()).unwrap_or_default();
+        assert!(envs.iter().all(|e| e.config().observation_layout() == layout), "environments of one VecEnv share an observation layout");
+        let observation_dim = layout.dim();
         let mut v = Self {
             envs,
             observation_dim,
