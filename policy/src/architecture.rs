@@ -39,10 +39,13 @@ pub struct Architecture {
     /// Blobs written before this field existed were world-frame.
     #[serde(default)]
     pub observation_frame: sim::ObservationFrame,
-    /// Nearest other gates the observation shows after SPEC §5's 40 numbers
+    /// Other gates the observation shows after SPEC §5's 40 numbers
     /// ([`sim::ObservationLayout`]); blobs written before this field existed show none.
     #[serde(default)]
     pub obstacle_gates: usize,
+    /// Which other gates those are; blobs written before this field existed show the nearest.
+    #[serde(default)]
+    pub obstacle_order: sim::ObstacleOrder,
     /// Kind of agent; blobs written before this field existed were state-based.
     #[serde(default)]
     pub agent: Agent,
@@ -58,6 +61,7 @@ impl Architecture {
             negative_slope: 0.01,
             observation_frame: sim::ObservationFrame::World,
             obstacle_gates: 0,
+            obstacle_order: sim::ObstacleOrder::Nearest,
             agent: Agent::State,
         }
     }
@@ -70,7 +74,7 @@ impl Architecture {
 
     /// What the policy's state observations hold; their length is `observation_dim`.
     pub fn observation_layout(&self) -> sim::ObservationLayout {
-        sim::ObservationLayout { frame: self.observation_frame, obstacle_gates: self.obstacle_gates }
+        sim::ObservationLayout { frame: self.observation_frame, obstacle_gates: self.obstacle_gates, obstacle_order: self.obstacle_order }
     }
 
     /// Number of trainable scalars (actor, critic and the log std).

@@ -380,17 +380,23 @@ mod tests {
         assert!(e.contains("[8,8]") && e.contains("[512,512]"), "{e}");
     }
 
-    /// A policy with obstacle gates round-trips with its wider observation; a blob whose
-    /// observation length disagrees with its layout is refused, naming both.
+    /// A policy with obstacle gates round-trips with its wider observation and their order; a
+    /// blob whose observation length disagrees with its layout is refused, naming both.
     #[test]
     fn the_observation_layout_travels_with_the_blob_and_must_match_its_length() {
-        let arch = Architecture { hidden: vec![8, 8], obstacle_gates: 2, observation_dim: 64, ..Architecture::paper() };
+        let arch = Architecture {
+            hidden: vec![8, 8],
+            obstacle_gates: 2,
+            obstacle_order: sim::ObstacleOrder::Track,
+            observation_dim: 64,
+            ..Architecture::paper()
+        };
         let model = ActorCritic::new(&arch, -0.5, 1, &Device::flex());
         let b = WeightsBlob::from_model(3, &arch, &ObsNormalizer::new(64), &model);
         let back = WeightsBlob::from_bytes(&b.to_bytes()).unwrap();
         assert_eq!(
             back.architecture.observation_layout(),
-            sim::ObservationLayout { frame: sim::ObservationFrame::World, obstacle_gates: 2 }
+            sim::ObservationLayout { frame: sim::ObservationFrame::World, obstacle_gates: 2, obstacle_order: sim::ObstacleOrder::Track }
         );
         assert_eq!(back.params[0].values.len(), 64 * 8);
         let wrong = Architecture { obstacle_gates: 1, ..arch.clone() };

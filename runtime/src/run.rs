@@ -200,6 +200,7 @@ impl TrainConfig {
         // The network reads the observations the environments write.
         profile.architecture.observation_frame = self.env.observation_frame;
         profile.architecture.obstacle_gates = self.env.obstacle_gates;
+        profile.architecture.obstacle_order = self.env.obstacle_order;
         profile.architecture.observation_dim = self.env.observation_layout().dim();
         profile.architecture.agent = self.agent;
         if profile.envs == 0 || profile.ppo.n_steps == 0 || profile.ppo.batch_size == 0 || profile.ppo.n_epochs == 0 {

@@ -1,5 +1,5 @@
 //! The 40-dimensional state observation (SPEC §5, §12.9), in a choice of reference frames,
-//! optionally followed by the corners of the nearest other gates.
+//! optionally followed by the corners of other gates of the track.
 //!
 //! Observations are written raw (un-normalised) into caller-owned f32 rows; normalisation
 //! belongs to the policy, which owns the running statistics.
@@ -56,8 +56,36 @@ impl ObservationFrame {
     }
 }
 
-/// What a state observation holds: SPEC §5's 40 numbers in `frame`, then the corners of the
-/// `obstacle_gates` nearest gates other than the target and the one after it.
+/// Which other gates fill the observation's obstacle slots, and in what order.
+///
+/// `Nearest` sorts by distance, so two gates swap slots whenever their distances cross: the
+/// input jumps while the drone flies smoothly. `Track` takes the gates that follow the one after
+/// the target in the order they are raced (target + 2, + 3, …, wrapping round), so slots change
+/// only when the target does, as δp1 and δp2 already do; with as many slots as the track has
+/// other gates (4 on a generated 6-gate track) the policy sees the whole track, including the
+/// gate it has just passed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ObstacleOrder {
+    /// The nearest other gates by centre, nearest first.
+    #[default]
+    Nearest,
+    /// The gates after the target's successor, in racing order.
+    Track,
+}
+
+impl ObstacleOrder {
+    /// The order's name as run configs spell it: `nearest` or `track`.
+    pub fn name(self) -> &'static str {
+        match self {
+            ObstacleOrder::Nearest => "nearest",
+            ObstacleOrder::Track => "track",
+        }
+    }
+}
+
+/// What a state observation holds: SPEC §5's 40 numbers in `frame`, then the corners of
+/// `obstacle_gates` gates other than the target and the one after it, chosen by `obstacle_order`.
 ///
 /// SPEC §5 shows the policy two gates only, so a gate of the same track that stands in the way
 /// between them is invisible to it: on the test set a third of the default generalist's
@@ -68,14 +96,16 @@ impl ObservationFrame {
 pub struct ObservationLayout {
     /// Frame of the vectors.
     pub frame: ObservationFrame,
-    /// How many of the nearest other gates follow the SPEC's 40 numbers.
+    /// How many other gates follow the SPEC's 40 numbers.
     pub obstacle_gates: usize,
+    /// Which other gates those are.
+    pub obstacle_order: ObstacleOrder,
 }
 
 impl ObservationLayout {
     /// SPEC §5's 40 numbers in `frame`, nothing more.
     pub fn spec(frame: ObservationFrame) -> Self {
-        Self { frame, obstacle_gates: 0 }
+        Self { frame, obstacle_gates: 0, obstacle_order: ObstacleOrder::Nearest }
     }
 
     /// Length of an observation row.
@@ -92,10 +122,13 @@ fn heading_from_world(body: &BodyState) -> Matrix3<f64> {
 /// Writes `[R col 0, col 1, v, w, a_prev, δp1, δp2, obstacles…]` into `out` (length
 /// `layout.dim()`), with R, v and the relative positions in `layout.frame`.
 ///
-/// Obstacles are the `layout.obstacle_gates` gates nearest to the drone (by centre) among all
-/// but the target and the gate after it, nearest first, each as its 4 corners minus the drone
-/// position (like δp1). Where the track has fewer such gates, the gate after the target fills
-/// the remaining slots: a gate the policy already sees, so a missing obstacle adds nothing new.
+/// Obstacles are `layout.obstacle_gates` gates among all but the target and the gate after it,
+/// each as its 4 corners minus the drone position (like δp1): with [`ObstacleOrder::Nearest`]
+/// the nearest to the drone (by centre), nearest first, and where the track has fewer such gates
+/// the gate after the target fills the remaining slots (a gate the policy already sees, so a
+/// missing obstacle adds nothing new); with [`ObstacleOrder::Track`] the gates target + 2,
+/// + 3, … in racing order, wrapping round the track (so on a short track a slot may repeat a
+/// gate the policy already sees, for the same reason).
 pub fn write_state_observation(
     body: &BodyState,
     previous_action: &[f64; 4],
@@ -132,13 +165,18 @@ pub fn write_state_observation(
         return;
     }
     let next = track.next_index(target);
-    let mut others: Vec<(f64, usize)> = (0..track.gates.len())
-        .filter(|&g| g != target && g != next)
-        .map(|g| ((track.gates[g].position - body.position).norm_squared(), g))
-        .collect();
-    others.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-    let obstacles = others.iter().map(|&(_, g)| g).chain(std::iter::repeat(next)).take(layout.obstacle_gates);
-    for (slot, gate) in obstacles.enumerate() {
+    let obstacles: Vec<usize> = match layout.obstacle_order {
+        ObstacleOrder::Nearest => {
+            let mut others: Vec<(f64, usize)> = (0..track.gates.len())
+                .filter(|&g| g != target && g != next)
+                .map(|g| ((track.gates[g].position - body.position).norm_squared(), g))
+                .collect();
+            others.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            others.iter().map(|&(_, g)| g).chain(std::iter::repeat(next)).take(layout.obstacle_gates).collect()
+        }
+        ObstacleOrder::Track => (0..layout.obstacle_gates).map(|k| (target + 2 + k) % track.gates.len()).collect(),
+    };
+    for (slot, &gate) in obstacles.iter().enumerate() {
         let row = &mut out[STATE_OBS_DIM + OBSTACLE_GATE_DIM * slot..STATE_OBS_DIM + OBSTACLE_GATE_DIM * (slot + 1)];
         for (c, corner) in track.gates[gate].corners().iter().enumerate() {
             let relative = to_frame * (corner - body.position);
@@ -242,7 +280,7 @@ mod tests {
         ];
         let track = Track::new("t", gates.clone(), None, Arena::default()).unwrap();
         let body = BodyState::at_rest(Vector3::new(1.0, 1.0, 2.0), 0.0);
-        let layout = ObservationLayout { frame: ObservationFrame::World, obstacle_gates: 2 };
+        let layout = ObservationLayout { frame: ObservationFrame::World, obstacle_gates: 2, obstacle_order: ObstacleOrder::Nearest };
         assert_eq!(layout.dim(), 64);
         let mut out = vec![0f32; layout.dim()];
         // Target 0, next 1: the others are gate 3 (3.6 m away) then gate 2 (12.7 m).
@@ -263,5 +301,37 @@ mod tests {
         let two = Track::new("two", gates[..2].to_vec(), None, Arena::default()).unwrap();
         write_state_observation(&body, &[0.0; 4], &two, 0, layout, &mut out);
         assert_eq!((slot(&out, 0), slot(&out, 1)), (expected(1), expected(1)));
+    }
+
+    /// In track order the slots hold target + 2, + 3, … wrapping round the track, wherever the
+    /// drone is: the slots do not reorder as it flies, only when the target changes.
+    #[test]
+    fn obstacle_slots_in_track_order_follow_the_racing_order_and_wrap() {
+        let gates: Vec<Gate> = (0..6).map(|g| Gate::new(Vector3::new(3.0 * g as f64 - 7.0, (g % 2) as f64, 2.0), 0.0)).collect();
+        let track = Track::new("t", gates.clone(), None, Arena::default()).unwrap();
+        let layout = ObservationLayout { frame: ObservationFrame::Heading, obstacle_gates: 4, obstacle_order: ObstacleOrder::Track };
+        assert_eq!(layout.dim(), 88);
+        let slot = |out: &[f32], s: usize| -> Vec<f32> { out[STATE_OBS_DIM + OBSTACLE_GATE_DIM * s..][..OBSTACLE_GATE_DIM].to_vec() };
+        // Yaw 0: the heading frame is the world frame, so slots are plain corner offsets.
+        let mut out = vec![0f32; layout.dim()];
+        for position in [Vector3::new(-9.0, 0.0, 2.0), Vector3::new(6.0, 1.0, 2.0)] {
+            let body = BodyState::at_rest(position, 0.0);
+            let expected = |g: usize| -> Vec<f32> {
+                gates[g].corners().iter().flat_map(|c| (c - body.position).iter().map(|&v| v as f32).collect::<Vec<_>>()).collect()
+            };
+            // Target 4, next 5: then 0, 1, 2, 3 — gate 3 is the one just passed.
+            write_state_observation(&body, &[0.0; 4], &track, 4, layout, &mut out);
+            let slots: Vec<Vec<f32>> = (0..4).map(|s| slot(&out, s)).collect();
+            assert_eq!(slots, (0..4).map(expected).collect::<Vec<_>>(), "drone at {position:?}");
+        }
+        // A three-gate track wraps: target 0, next 1, then 2, 0, 1, 2.
+        let three = Track::new("three", gates[..3].to_vec(), None, Arena::default()).unwrap();
+        let body = BodyState::at_rest(Vector3::new(-3.0, 0.0, 2.0), 0.0);
+        write_state_observation(&body, &[0.0; 4], &three, 0, layout, &mut out);
+        let corners = |g: usize| -> Vec<f32> {
+            gates[g].corners().iter().flat_map(|c| (c - body.position).iter().map(|&v| v as f32).collect::<Vec<_>>()).collect()
+        };
+        let slots: Vec<Vec<f32>> = (0..4).map(|s| slot(&out, s)).collect();
+        assert_eq!(slots, vec![corners(2), corners(0), corners(1), corners(2)]);
     }
 }

@@ -10,7 +10,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::observation::{ObservationFrame, ObservationLayout, write_state_observation};
+use crate::observation::{ObservationFrame, ObservationLayout, ObstacleOrder, write_state_observation};
 use crate::params::{QuadrotorParams, RaceParams};
 use crate::quadrotor::{BodyState, Command, Quadrotor};
 use crate::randomization::RandomizationParams;
@@ -61,6 +61,9 @@ pub struct EnvConfig {
     /// How many of the nearest other gates the observation shows after SPEC §5's 40 numbers
     /// ([`ObservationLayout`]). Default 0 (SPEC §5).
     pub obstacle_gates: usize,
+    /// Which other gates those are: the nearest, or the next ones in racing order. Default
+    /// nearest.
+    pub obstacle_order: ObstacleOrder,
     /// Which gate episodes start behind. Default first (SPEC §7).
     pub start_gate: StartGate,
     /// Per-episode randomisation around the nominal vehicle and start pose.
@@ -78,6 +81,7 @@ impl Default for EnvConfig {
             controller_model: ControllerModel::default(),
             observation_frame: ObservationFrame::Heading,
             obstacle_gates: 0,
+            obstacle_order: ObstacleOrder::Nearest,
             start_gate: StartGate::First,
             randomization: RandomizationParams::default(),
             race: RaceParams::default(),
@@ -89,7 +93,7 @@ impl Default for EnvConfig {
 impl EnvConfig {
     /// What this configuration's observations hold.
     pub fn observation_layout(&self) -> ObservationLayout {
-        ObservationLayout { frame: self.observation_frame, obstacle_gates: self.obstacle_gates }
+        ObservationLayout { frame: self.observation_frame, obstacle_gates: self.obstacle_gates, obstacle_order: self.obstacle_order }
     }
 
     /// The evaluation setting of SPEC §9: nominal dynamics, 1000-step episodes.
