@@ -126,9 +126,9 @@ fn heading_from_world(body: &BodyState) -> Matrix3<f64> {
 /// each as its 4 corners minus the drone position (like δp1): with [`ObstacleOrder::Nearest`]
 /// the nearest to the drone (by centre), nearest first, and where the track has fewer such gates
 /// the gate after the target fills the remaining slots (a gate the policy already sees, so a
-/// missing obstacle adds nothing new); with [`ObstacleOrder::Track`] the gates target + 2,
-/// + 3, … in racing order, wrapping round the track (so on a short track a slot may repeat a
-/// gate the policy already sees, for the same reason).
+/// missing obstacle adds nothing new); with [`ObstacleOrder::Track`] the gates that follow the
+/// target's successor in racing order (target + 2, target + 3, …), wrapping round the track (so
+/// on a short track a slot may repeat a gate the policy already sees, for the same reason).
 pub fn write_state_observation(
     body: &BodyState,
     previous_action: &[f64; 4],
