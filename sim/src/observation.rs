@@ -74,16 +74,6 @@ pub enum ObstacleOrder {
     Track,
 }
 
-impl ObstacleOrder {
-    /// The order's name as run configs spell it: `nearest` or `track`.
-    pub fn name(self) -> &'static str {
-        match self {
-            ObstacleOrder::Nearest => "nearest",
-            ObstacleOrder::Track => "track",
-        }
-    }
-}
-
 /// What a state observation holds: SPEC §5's 40 numbers in `frame`, then the corners of
 /// `obstacle_gates` gates other than the target and the one after it, chosen by `obstacle_order`.
 ///
@@ -91,7 +81,7 @@ impl ObstacleOrder {
 /// between them is invisible to it: on the test set a third of the default generalist's
 /// gate-frame crashes were on such gates, on tracks the pilot flies (BENCHMARKS.md, "Blind to
 /// the other gates"). The obstacle gates are an option beyond the thesis; 0 is SPEC §5 and the
-/// default, because with two of them a proxy run did worse, on those very crashes too.
+/// default, because in proxy runs both orders did worse, on those very crashes too.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ObservationLayout {
     /// Frame of the vectors.
