@@ -275,10 +275,7 @@ mod tests {
         let mut out = vec![0f32; layout.dim()];
         // Target 0, next 1: the others are gate 3 (3.6 m away) then gate 2 (12.7 m).
         write_state_observation(&body, &[0.0; 4], &track, 0, layout, &mut out);
-        let slot = |out: &[f32], s: usize| -> Vec<f32> { out[STATE_OBS_DIM + OBSTACLE_GATE_DIM * s..][..OBSTACLE_GATE_DIM].to_vec() };
-        let expected = |g: usize| -> Vec<f32> {
-            gates[g].corners().iter().flat_map(|c| (c - body.position).iter().map(|&v| v as f32).collect::<Vec<_>>()).collect()
-        };
+        let expected = |g: usize| corners_from(&gates[g], &body);
         assert_eq!((slot(&out, 0), slot(&out, 1)), (expected(3), expected(2)));
         // The SPEC's 40 numbers do not change with the obstacle slots.
         let mut spec = [0f32; STATE_OBS_DIM];
@@ -301,27 +298,31 @@ mod tests {
         let track = Track::new("t", gates.clone(), None, Arena::default()).unwrap();
         let layout = ObservationLayout { frame: ObservationFrame::Heading, obstacle_gates: 4, obstacle_order: ObstacleOrder::Track };
         assert_eq!(layout.dim(), 88);
-        let slot = |out: &[f32], s: usize| -> Vec<f32> { out[STATE_OBS_DIM + OBSTACLE_GATE_DIM * s..][..OBSTACLE_GATE_DIM].to_vec() };
         // Yaw 0: the heading frame is the world frame, so slots are plain corner offsets.
         let mut out = vec![0f32; layout.dim()];
         for position in [Vector3::new(-9.0, 0.0, 2.0), Vector3::new(6.0, 1.0, 2.0)] {
             let body = BodyState::at_rest(position, 0.0);
-            let expected = |g: usize| -> Vec<f32> {
-                gates[g].corners().iter().flat_map(|c| (c - body.position).iter().map(|&v| v as f32).collect::<Vec<_>>()).collect()
-            };
             // Target 4, next 5: then 0, 1, 2, 3 — gate 3 is the one just passed.
             write_state_observation(&body, &[0.0; 4], &track, 4, layout, &mut out);
             let slots: Vec<Vec<f32>> = (0..4).map(|s| slot(&out, s)).collect();
-            assert_eq!(slots, (0..4).map(expected).collect::<Vec<_>>(), "drone at {position:?}");
+            assert_eq!(slots, (0..4).map(|g| corners_from(&gates[g], &body)).collect::<Vec<_>>(), "drone at {position:?}");
         }
         // A three-gate track wraps: target 0, next 1, then 2, 0, 1, 2.
         let three = Track::new("three", gates[..3].to_vec(), None, Arena::default()).unwrap();
         let body = BodyState::at_rest(Vector3::new(-3.0, 0.0, 2.0), 0.0);
         write_state_observation(&body, &[0.0; 4], &three, 0, layout, &mut out);
-        let corners = |g: usize| -> Vec<f32> {
-            gates[g].corners().iter().flat_map(|c| (c - body.position).iter().map(|&v| v as f32).collect::<Vec<_>>()).collect()
-        };
         let slots: Vec<Vec<f32>> = (0..4).map(|s| slot(&out, s)).collect();
-        assert_eq!(slots, vec![corners(2), corners(0), corners(1), corners(2)]);
+        assert_eq!(slots, [2, 0, 1, 2].map(|g| corners_from(&gates[g], &body)));
+    }
+
+    /// The 12 numbers of obstacle slot `s` of an observation row.
+    fn slot(out: &[f32], s: usize) -> Vec<f32> {
+        out[STATE_OBS_DIM + OBSTACLE_GATE_DIM * s..][..OBSTACLE_GATE_DIM].to_vec()
+    }
+
+    /// A gate's 4 corners minus the drone's position, as an obstacle slot holds them in the
+    /// world frame.
+    fn corners_from(gate: &Gate, body: &BodyState) -> Vec<f32> {
+        gate.corners().iter().flat_map(|c| (c - body.position).iter().map(|&v| v as f32).collect::<Vec<_>>()).collect()
     }
 }
