@@ -77,6 +77,15 @@ impl Architecture {
         sim::ObservationLayout { frame: self.observation_frame, obstacle_gates: self.obstacle_gates, obstacle_order: self.obstacle_order }
     }
 
+    /// Makes the network read observations of `layout`: the inverse of `observation_layout`,
+    /// `observation_dim` included.
+    pub fn set_observation_layout(&mut self, layout: sim::ObservationLayout) {
+        self.observation_frame = layout.frame;
+        self.obstacle_gates = layout.obstacle_gates;
+        self.obstacle_order = layout.obstacle_order;
+        self.observation_dim = layout.dim();
+    }
+
     /// Number of trainable scalars (actor, critic and the log std).
     pub fn parameter_count(&self) -> usize {
         let mlp = |out: usize| {

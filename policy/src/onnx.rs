@@ -231,10 +231,13 @@ pub fn actor_model(blob: &WeightsBlob) -> Result<Vec<u8>, BlobError> {
     let frame = arch.observation_frame.name();
     let obstacles = match arch.obstacle_gates {
         0 => String::new(),
-        k => match arch.obstacle_order {
-            sim::ObstacleOrder::Nearest => format!(" with the corners of the {k} nearest other gates after SPEC §5's 40"),
-            sim::ObstacleOrder::Track => format!(" with the corners of the {k} gates after the next (racing order) after SPEC §5's 40"),
-        },
+        k => {
+            let which = match arch.obstacle_order {
+                sim::ObstacleOrder::Nearest => "nearest other gates",
+                sim::ObstacleOrder::Track => "gates after the next (racing order)",
+            };
+            format!(" with the corners of the {k} {which} after SPEC §5's 40")
+        }
     };
     Ok(ModelProto {
         ir_version: IR_VERSION,

@@ -198,10 +198,7 @@ impl TrainConfig {
             profile.architecture.hidden = hidden.clone();
         }
         // The network reads the observations the environments write.
-        profile.architecture.observation_frame = self.env.observation_frame;
-        profile.architecture.obstacle_gates = self.env.obstacle_gates;
-        profile.architecture.obstacle_order = self.env.obstacle_order;
-        profile.architecture.observation_dim = self.env.observation_layout().dim();
+        profile.architecture.set_observation_layout(self.env.observation_layout());
         profile.architecture.agent = self.agent;
         if profile.envs == 0 || profile.ppo.n_steps == 0 || profile.ppo.batch_size == 0 || profile.ppo.n_epochs == 0 {
             return Err(TrainError::Config("envs, ppo.n_steps, ppo.batch_size and ppo.n_epochs must be ≥ 1".into()));

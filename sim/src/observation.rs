@@ -155,18 +155,21 @@ pub fn write_state_observation(
         return;
     }
     let next = track.next_index(target);
-    let obstacles: Vec<usize> = match layout.obstacle_order {
-        ObstacleOrder::Nearest => {
-            let mut others: Vec<(f64, usize)> = (0..track.gates.len())
+    // Only the nearest-first order needs the other gates sorted (an empty Vec does not allocate).
+    let mut nearest: Vec<(f64, usize)> = Vec::new();
+    if layout.obstacle_order == ObstacleOrder::Nearest {
+        nearest.extend(
+            (0..track.gates.len())
                 .filter(|&g| g != target && g != next)
-                .map(|g| ((track.gates[g].position - body.position).norm_squared(), g))
-                .collect();
-            others.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-            others.iter().map(|&(_, g)| g).chain(std::iter::repeat(next)).take(layout.obstacle_gates).collect()
-        }
-        ObstacleOrder::Track => (0..layout.obstacle_gates).map(|k| (target + 2 + k) % track.gates.len()).collect(),
-    };
-    for (slot, &gate) in obstacles.iter().enumerate() {
+                .map(|g| ((track.gates[g].position - body.position).norm_squared(), g)),
+        );
+        nearest.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    }
+    for slot in 0..layout.obstacle_gates {
+        let gate = match layout.obstacle_order {
+            ObstacleOrder::Nearest => nearest.get(slot).map_or(next, |&(_, g)| g),
+            ObstacleOrder::Track => (target + 2 + slot) % track.gates.len(),
+        };
         let row = &mut out[STATE_OBS_DIM + OBSTACLE_GATE_DIM * slot..STATE_OBS_DIM + OBSTACLE_GATE_DIM * (slot + 1)];
         for (c, corner) in track.gates[gate].corners().iter().enumerate() {
             let relative = to_frame * (corner - body.position);
