@@ -112,24 +112,29 @@ fn fine_tuning_starts_from_the_given_policy_at_version_zero() {
     assert!(err.contains("init_from") && err.contains("architecture"), "{err}");
 }
 
-/// The tiny run with the two nearest other gates in the observation.
+/// The tiny run with the two nearest other gates and one proximity reading in the observation.
 fn tiny_obstacle_config() -> TrainConfig {
     let mut config = tiny_config();
     config.env.obstacle_gates = 2;
+    config.env.proximity_gates = 1;
     config
 }
 
 #[test]
-fn a_run_with_obstacle_gates_learns_from_64_numbers_and_resumes_bit_for_bit() {
+fn a_run_with_obstacle_gates_and_proximity_learns_from_68_numbers_and_resumes_bit_for_bit() {
     let dir = tempfile::tempdir().unwrap();
     let (a, b) = straight_and_resumed(tiny_obstacle_config, dir.path());
     assert!(weights(&b) == weights(&a), "the next iteration's weights equal an uninterrupted run's");
     let arch = a.learner().weights().architecture;
-    assert_eq!((arch.observation_dim, arch.obstacle_gates), (64, 2));
-    assert_eq!(a.learner().weights().normalizer.dim(), 64);
-    // Its policy flies with the observation it learned (64 numbers, not the SPEC's 40).
+    assert_eq!((arch.observation_dim, arch.obstacle_gates, arch.proximity_gates), (68, 2, 1));
+    assert_eq!(a.learner().weights().normalizer.dim(), 68);
+    // Its policy flies with the observation it learned (68 numbers, not the SPEC's 40).
     let policy = std::sync::Arc::new(policy::Policy::from_blob(&a.learner().weights()).unwrap());
-    assert_eq!(policy.observation_layout().dim(), 64);
+    assert_eq!(policy.observation_layout().dim(), 68);
+    // A proximity range that is no distance is refused, naming the field.
+    let bad = TrainConfig { env: sim::EnvConfig { proximity_range: -1.0, ..tiny_obstacle_config().env }, ..tiny_obstacle_config() };
+    let err = Trainer::start(bad, &dir.path().join("bad")).err().expect("refused").to_string();
+    assert!(err.contains("env.proximity_range"), "{err}");
     let track = std::sync::Arc::new(racetracks::library_track("Figure8").unwrap().unwrap());
     let config = sim::eval::EvalConfig { runs: 2, steps: 50, ..sim::eval::EvalConfig::default() };
     let report = sim::eval::evaluate("policy", &[track], &|| Box::new(policy::PolicyController::new(policy.clone())), &config);

@@ -46,9 +46,21 @@ pub struct Architecture {
     /// Which other gates those are; blobs written before this field existed show the nearest.
     #[serde(default)]
     pub obstacle_order: sim::ObstacleOrder,
+    /// Proximity readings the observation ends with; blobs written before this field existed
+    /// have none.
+    #[serde(default)]
+    pub proximity_gates: usize,
+    /// Range (m) of those readings.
+    #[serde(default = "default_proximity_range")]
+    pub proximity_range: f64,
     /// Kind of agent; blobs written before this field existed were state-based.
     #[serde(default)]
     pub agent: Agent,
+}
+
+/// Serde's default for [`Architecture::proximity_range`].
+fn default_proximity_range() -> f64 {
+    sim::DEFAULT_PROXIMITY_RANGE
 }
 
 impl Architecture {
@@ -62,6 +74,8 @@ impl Architecture {
             observation_frame: sim::ObservationFrame::World,
             obstacle_gates: 0,
             obstacle_order: sim::ObstacleOrder::Nearest,
+            proximity_gates: 0,
+            proximity_range: sim::DEFAULT_PROXIMITY_RANGE,
             agent: Agent::State,
         }
     }
@@ -74,7 +88,13 @@ impl Architecture {
 
     /// What the policy's state observations hold; their length is `observation_dim`.
     pub fn observation_layout(&self) -> sim::ObservationLayout {
-        sim::ObservationLayout { frame: self.observation_frame, obstacle_gates: self.obstacle_gates, obstacle_order: self.obstacle_order }
+        sim::ObservationLayout {
+            frame: self.observation_frame,
+            obstacle_gates: self.obstacle_gates,
+            obstacle_order: self.obstacle_order,
+            proximity_gates: self.proximity_gates,
+            proximity_range: self.proximity_range,
+        }
     }
 
     /// Makes the network read observations of `layout`: the inverse of `observation_layout`,
@@ -83,6 +103,8 @@ impl Architecture {
         self.observation_frame = layout.frame;
         self.obstacle_gates = layout.obstacle_gates;
         self.obstacle_order = layout.obstacle_order;
+        self.proximity_gates = layout.proximity_gates;
+        self.proximity_range = layout.proximity_range;
         self.observation_dim = layout.dim();
     }
 

@@ -298,9 +298,10 @@ fn check_observation_lengths(architecture: &Architecture, normalizer: &ObsNormal
     let layout = architecture.observation_layout();
     if architecture.observation_dim != layout.dim() {
         return Err(BlobError::Malformed(format!(
-            "observation_dim {} but {} obstacle gates make {} numbers",
+            "observation_dim {} but {} obstacle gates and {} proximity readings make {} numbers",
             architecture.observation_dim,
             layout.obstacle_gates,
+            layout.proximity_gates,
             layout.dim()
         )));
     }
@@ -401,6 +402,9 @@ mod tests {
         assert_eq!(back.params[0].values.len(), 64 * 8);
         let wrong = Architecture { obstacle_gates: 1, ..arch.clone() };
         let e = WeightsBlob::from_bytes(&WeightsBlob::from_model(3, &wrong, &ObsNormalizer::new(64), &model).to_bytes()).unwrap_err();
-        assert!(matches!(&e, BlobError::Malformed(m) if m.contains("observation_dim 64") && m.contains("1 obstacle gates make 52")), "{e}");
+        assert!(
+            matches!(&e, BlobError::Malformed(m) if m.contains("observation_dim 64") && m.contains("1 obstacle gates and 0 proximity readings make 52")),
+            "{e}"
+        );
     }
 }

@@ -239,12 +239,16 @@ pub fn actor_model(blob: &WeightsBlob) -> Result<Vec<u8>, BlobError> {
             format!(" with the corners of the {k} {which} after SPEC §5's 40")
         }
     };
+    let proximity = match arch.proximity_gates {
+        0 => String::new(),
+        k => format!(", then {k} proximity readings [w*u, w] of the nearest gate frames (w = 1 - d / {} m)", arch.proximity_range),
+    };
     Ok(ModelProto {
         ir_version: IR_VERSION,
         producer_name: "dronerace".into(),
         producer_version: env!("CARGO_PKG_VERSION").into(),
         doc_string: format!(
-            "dronerace policy v{}: raw {}-number state observation in the {frame} frame{obstacles} -> mean action in [-1, 1]",
+            "dronerace policy v{}: raw {}-number state observation in the {frame} frame{obstacles}{proximity} -> mean action in [-1, 1]",
             blob.version, arch.observation_dim
         ),
         graph: Some(graph),

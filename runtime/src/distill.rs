@@ -229,16 +229,17 @@ impl Distiller {
         if teacher_blob.architecture.agent != Agent::State {
             bail!("teacher {}: a {} policy; the teacher must be state-based", config.teacher.display(), teacher_blob.architecture.agent);
         }
-        if teacher_blob.architecture.obstacle_gates != 0 {
+        if teacher_blob.architecture.observation_dim != STATE_OBS_DIM {
             // The data set stores SPEC §5's 40 numbers per state (the student's critic input).
             bail!(
-                "teacher {}: observes {} obstacle gates; distillation takes teachers with SPEC §5's 40-number observation",
+                "teacher {}: observes {} numbers (obstacle gates or proximity readings); distillation takes teachers with SPEC §5's {STATE_OBS_DIM}-number observation",
                 config.teacher.display(),
-                teacher_blob.architecture.obstacle_gates
+                teacher_blob.architecture.observation_dim
             );
         }
         config.env.observation_frame = teacher_blob.architecture.observation_frame;
         config.env.obstacle_gates = 0;
+        config.env.proximity_gates = 0;
         config.write(&dir.join("config.toml"))?;
         let tasks = LocalTasks::new(config.tracks.task_controller(config.envs, config.generator, config.switching, config.seed)?, None);
         let registration = tasks.register(ACTOR, config.envs)?;

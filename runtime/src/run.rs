@@ -198,6 +198,10 @@ impl TrainConfig {
             profile.architecture.hidden = hidden.clone();
         }
         // The network reads the observations the environments write.
+        let range = self.env.proximity_range;
+        if self.env.proximity_gates > 0 && !(range.is_finite() && range > 0.0) {
+            return Err(TrainError::Config(format!("env.proximity_range: {range} m must be a positive distance")));
+        }
         profile.architecture.set_observation_layout(self.env.observation_layout());
         profile.architecture.agent = self.agent;
         if profile.envs == 0 || profile.ppo.n_steps == 0 || profile.ppo.batch_size == 0 || profile.ppo.n_epochs == 0 {
@@ -207,7 +211,6 @@ impl TrainConfig {
     }
 }
 
-/// Why training cannot go on.
 /// How the learner process treats its actors (`[learner]` in the run config).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -228,6 +231,7 @@ impl Default for LearnerSettings {
     }
 }
 
+/// Why training cannot go on.
 #[derive(Debug, thiserror::Error)]
 pub enum TrainError {
     /// Bad configuration.

@@ -16,7 +16,9 @@ pub mod track;
 pub mod vec_env;
 
 pub use nalgebra;
-pub use observation::{OBSTACLE_GATE_DIM, ObservationFrame, ObservationLayout, ObstacleOrder, STATE_OBS_DIM};
+pub use observation::{
+    DEFAULT_PROXIMITY_RANGE, OBSTACLE_GATE_DIM, ObservationFrame, ObservationLayout, ObstacleOrder, PROXIMITY_DIM, STATE_OBS_DIM,
+};
 pub use params::{GRAVITY, QuadrotorParams, RaceParams};
 pub use pilot::{Controller, PilotParams, ReferencePilot};
 pub use race::{ControllerModel, CrashCause, EnvConfig, EpisodeStats, RaceEnv, StartGate, StepOutcome};

@@ -1,5 +1,6 @@
 //! The 40-dimensional state observation (SPEC §5, §12.9), in a choice of reference frames,
-//! optionally followed by the corners of other gates of the track.
+//! optionally followed by the corners of other gates of the track or by proximity readings of
+//! their frames.
 //!
 //! Observations are written raw (un-normalised) into caller-owned f32 rows; normalisation
 //! belongs to the policy, which owns the running statistics.
@@ -15,6 +16,14 @@ pub const STATE_OBS_DIM: usize = 40;
 
 /// Numbers each observed obstacle gate adds: its 4 inner corners relative to the drone.
 pub const OBSTACLE_GATE_DIM: usize = 12;
+
+/// Numbers each proximity reading adds: `w·u` (3) and `w`, for the direction `u` to the
+/// nearest frame point and the closeness `w = 1 − d / range` (zero beyond the range).
+pub const PROXIMITY_DIM: usize = 4;
+
+/// Default proximity range (m): at the ~8–10 m/s of a generalist's laps, about half a second
+/// of warning, in which the drone can move sideways by more than a gate's width.
+pub const DEFAULT_PROXIMITY_RANGE: f64 = 4.0;
 
 /// The frame in which the observation's vectors (attitude columns, v, δp1, δp2) are written.
 ///
@@ -75,14 +84,19 @@ pub enum ObstacleOrder {
 }
 
 /// What a state observation holds: SPEC §5's 40 numbers in `frame`, then the corners of
-/// `obstacle_gates` gates other than the target and the one after it, chosen by `obstacle_order`.
+/// `obstacle_gates` gates other than the target and the one after it, chosen by `obstacle_order`,
+/// then `proximity_gates` proximity readings of the nearest gate frames other than the target's.
 ///
 /// SPEC §5 shows the policy two gates only, so a gate of the same track that stands in the way
 /// between them is invisible to it: on the test set a third of the default generalist's
 /// gate-frame crashes were on such gates, on tracks the pilot flies (BENCHMARKS.md, "Blind to
 /// the other gates"). The obstacle gates are an option beyond the thesis; 0 is SPEC §5 and the
 /// default, because in proxy runs both orders did worse, on those very crashes too.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+///
+/// Proximity readings are the compact alternative: 4 numbers per gate, all zero unless a frame
+/// is within `proximity_range`, so they stay silent on the stretches where SPEC §5's 40 numbers
+/// are all the policy needs, and what they say when they speak is "a frame, this close, that way".
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ObservationLayout {
     /// Frame of the vectors.
     pub frame: ObservationFrame,
@@ -90,17 +104,22 @@ pub struct ObservationLayout {
     pub obstacle_gates: usize,
     /// Which other gates those are.
     pub obstacle_order: ObstacleOrder,
+    /// How many proximity readings follow: the nearest gate frames other than the target's,
+    /// nearest first.
+    pub proximity_gates: usize,
+    /// Distance (m) at which a proximity reading starts to rise from zero.
+    pub proximity_range: f64,
 }
 
 impl ObservationLayout {
     /// SPEC §5's 40 numbers in `frame`, nothing more.
     pub fn spec(frame: ObservationFrame) -> Self {
-        Self { frame, obstacle_gates: 0, obstacle_order: ObstacleOrder::Nearest }
+        Self { frame, ..Self::default() }
     }
 
     /// Length of an observation row.
     pub fn dim(self) -> usize {
-        STATE_OBS_DIM + OBSTACLE_GATE_DIM * self.obstacle_gates
+        STATE_OBS_DIM + OBSTACLE_GATE_DIM * self.obstacle_gates + PROXIMITY_DIM * self.proximity_gates
     }
 }
 
@@ -119,6 +138,11 @@ fn heading_from_world(body: &BodyState) -> Matrix3<f64> {
 /// missing obstacle adds nothing new); with [`ObstacleOrder::Track`] the gates that follow the
 /// target's successor in racing order (target + 2, target + 3, …), wrapping round the track (so
 /// on a short track a slot may repeat a gate the policy already sees, for the same reason).
+///
+/// Proximity readings come last: for the `layout.proximity_gates` gates (other than the target)
+/// whose frames are nearest to the drone, nearest first, `[w·u, w]` with `u` the unit vector to
+/// the nearest frame point in `layout.frame` and `w = max(0, 1 − d / proximity_range)`; a
+/// reading with no gate left, or beyond the range, is all zeros.
 pub fn write_state_observation(
     body: &BodyState,
     previous_action: &[f64; 4],
@@ -151,6 +175,20 @@ pub fn write_state_observation(
     for (o, v) in out.iter_mut().zip(values) {
         *o = v as f32;
     }
+    write_obstacle_corners(body, track, target, layout, to_frame, &mut out[STATE_OBS_DIM..]);
+    let proximity_start = STATE_OBS_DIM + OBSTACLE_GATE_DIM * layout.obstacle_gates;
+    write_proximity(body, track, target, layout, to_frame, &mut out[proximity_start..]);
+}
+
+/// The obstacle-gate corners of [`write_state_observation`] into `out`.
+fn write_obstacle_corners(
+    body: &BodyState,
+    track: &Track,
+    target: usize,
+    layout: ObservationLayout,
+    to_frame: Matrix3<f64>,
+    out: &mut [f32],
+) {
     if layout.obstacle_gates == 0 {
         return;
     }
@@ -170,13 +208,42 @@ pub fn write_state_observation(
             ObstacleOrder::Nearest => nearest.get(slot).map_or(next, |&(_, g)| g),
             ObstacleOrder::Track => (target + 2 + slot) % track.gates.len(),
         };
-        let row = &mut out[STATE_OBS_DIM + OBSTACLE_GATE_DIM * slot..STATE_OBS_DIM + OBSTACLE_GATE_DIM * (slot + 1)];
+        let row = &mut out[OBSTACLE_GATE_DIM * slot..OBSTACLE_GATE_DIM * (slot + 1)];
         for (c, corner) in track.gates[gate].corners().iter().enumerate() {
             let relative = to_frame * (corner - body.position);
             for k in 0..3 {
                 row[3 * c + k] = relative[k] as f32;
             }
         }
+    }
+}
+
+/// The proximity readings of [`write_state_observation`] into `out`.
+fn write_proximity(body: &BodyState, track: &Track, target: usize, layout: ObservationLayout, to_frame: Matrix3<f64>, out: &mut [f32]) {
+    out[..PROXIMITY_DIM * layout.proximity_gates].fill(0.0);
+    let distance_to = |g: usize| (track.gates[g].nearest_frame_point(&body.position) - body.position).norm();
+    // k is small (1–2): pick the next nearest k times instead of sorting into a per-step Vec.
+    let mut previous: Option<(f64, usize)> = None;
+    for slot in 0..layout.proximity_gates {
+        let after_previous = |&(d, g): &(f64, usize)| previous.is_none_or(|p| (d, g) > p);
+        let nearest = (0..track.gates.len())
+            .filter(|&g| g != target)
+            .map(|g| (distance_to(g), g))
+            .filter(after_previous)
+            .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let Some((distance, gate)) = nearest else { break };
+        previous = Some((distance, gate));
+        let closeness = 1.0 - distance / layout.proximity_range;
+        if closeness <= 0.0 {
+            break;
+        }
+        let towards = track.gates[gate].nearest_frame_point(&body.position) - body.position;
+        let direction = if distance > 0.0 { to_frame * towards / distance } else { Vector3::zeros() };
+        let row = &mut out[PROXIMITY_DIM * slot..PROXIMITY_DIM * (slot + 1)];
+        for k in 0..3 {
+            row[k] = (closeness * direction[k]) as f32;
+        }
+        row[3] = closeness as f32;
     }
 }
 
@@ -273,7 +340,7 @@ mod tests {
         ];
         let track = Track::new("t", gates.clone(), None, Arena::default()).unwrap();
         let body = BodyState::at_rest(Vector3::new(1.0, 1.0, 2.0), 0.0);
-        let layout = ObservationLayout { frame: ObservationFrame::World, obstacle_gates: 2, obstacle_order: ObstacleOrder::Nearest };
+        let layout = ObservationLayout { frame: ObservationFrame::World, obstacle_gates: 2, ..Default::default() };
         assert_eq!(layout.dim(), 64);
         let mut out = vec![0f32; layout.dim()];
         // Target 0, next 1: the others are gate 3 (3.6 m away) then gate 2 (12.7 m).
@@ -299,7 +366,12 @@ mod tests {
     fn obstacle_slots_in_track_order_follow_the_racing_order_and_wrap() {
         let gates: Vec<Gate> = (0..6).map(|g| Gate::new(Vector3::new(3.0 * g as f64 - 7.0, (g % 2) as f64, 2.0), 0.0)).collect();
         let track = Track::new("t", gates.clone(), None, Arena::default()).unwrap();
-        let layout = ObservationLayout { frame: ObservationFrame::Heading, obstacle_gates: 4, obstacle_order: ObstacleOrder::Track };
+        let layout = ObservationLayout {
+            frame: ObservationFrame::Heading,
+            obstacle_gates: 4,
+            obstacle_order: ObstacleOrder::Track,
+            ..Default::default()
+        };
         assert_eq!(layout.dim(), 88);
         // Yaw 0: the heading frame is the world frame, so slots are plain corner offsets.
         let mut out = vec![0f32; layout.dim()];
@@ -316,6 +388,46 @@ mod tests {
         write_state_observation(&body, &[0.0; 4], &three, 0, layout, &mut out);
         let slots: Vec<Vec<f32>> = (0..4).map(|s| slot(&out, s)).collect();
         assert_eq!(slots, [2, 0, 1, 2].map(|g| corners_from(&gates[g], &body)));
+    }
+
+    /// Proximity readings: the nearest frames other than the target's, nearest first, as
+    /// `[w·u, w]` in the observation frame, silent beyond the range.
+    #[test]
+    fn proximity_readings_point_at_the_nearest_other_frames_and_fade_with_distance() {
+        let gates = vec![
+            Gate::new(Vector3::new(0.0, 0.0, 2.0), 0.0),
+            Gate::new(Vector3::new(10.0, 0.0, 2.0), std::f64::consts::FRAC_PI_2),
+            Gate::new(Vector3::new(3.0, 3.0, 2.0), 0.0),
+        ];
+        let track = Track::new("t", gates, None, Arena::default()).unwrap();
+        // Facing +y, 1.5 m beside gate 2's centre along its plane: 0.5 m from its side bar, in
+        // world +y, which the heading frame (yaw 90°) calls +x.
+        let body = BodyState::at_rest(Vector3::new(3.0, 1.5, 2.0), std::f64::consts::FRAC_PI_2);
+        let layout = ObservationLayout { frame: ObservationFrame::Heading, proximity_gates: 2, proximity_range: 4.0, ..Default::default() };
+        assert_eq!(layout.dim(), 48);
+        let mut out = vec![f32::NAN; layout.dim()];
+        let reading = |out: &[f32], s: usize| out[STATE_OBS_DIM + PROXIMITY_DIM * s..][..PROXIMITY_DIM].to_vec();
+        let close = |a: Vec<f32>, b: [f64; 4]| a.iter().zip(b).all(|(x, y)| (f64::from(*x) - y).abs() < 1e-6);
+        // Target 0 (2.99 m away) is not read; gate 2 is, gate 1 (6.2 m) is beyond the range.
+        write_state_observation(&body, &[0.0; 4], &track, 0, layout, &mut out);
+        let w = 1.0 - 0.5 / 4.0;
+        assert!(close(reading(&out, 0), [w, 0.0, 0.0, w]), "{:?}", reading(&out, 0));
+        assert!(close(reading(&out, 1), [0.0; 4]), "{:?}", reading(&out, 1));
+        // Target 2: now gate 0's frame (nearest point (0.05, 1, 2)) is the nearest other one.
+        write_state_observation(&body, &[0.0; 4], &track, 2, layout, &mut out);
+        let d = 2.95f64.hypot(0.5);
+        let w = 1.0 - d / 4.0;
+        // World (−2.95, −0.5, 0) / d; the heading frame maps world (x, y) to (y, −x).
+        assert!(close(reading(&out, 0), [w * -0.5 / d, w * 2.95 / d, 0.0, w]), "{:?}", reading(&out, 0));
+        // A longer range reaches gate 1 too, second: 1.45 m along its normal, 6 m beside it.
+        let far = ObservationLayout { proximity_range: 10.0, ..layout };
+        write_state_observation(&body, &[0.0; 4], &track, 0, far, &mut out);
+        assert!((f64::from(reading(&out, 0)[3]) - 0.95).abs() < 1e-6);
+        assert!((f64::from(reading(&out, 1)[3]) - (1.0 - 1.45f64.hypot(6.0) / 10.0)).abs() < 1e-6);
+        // The SPEC's 40 numbers do not change with the readings.
+        let mut spec = [0f32; STATE_OBS_DIM];
+        write_state_observation(&body, &[0.0; 4], &track, 0, ObservationLayout::spec(ObservationFrame::Heading), &mut spec);
+        assert_eq!(&out[..STATE_OBS_DIM], &spec[..]);
     }
 
     /// The 12 numbers of obstacle slot `s` of an observation row.

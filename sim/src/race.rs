@@ -10,7 +10,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::observation::{ObservationFrame, ObservationLayout, ObstacleOrder, write_state_observation};
+use crate::observation::{DEFAULT_PROXIMITY_RANGE, ObservationFrame, ObservationLayout, ObstacleOrder, write_state_observation};
 use crate::params::{QuadrotorParams, RaceParams};
 use crate::quadrotor::{BodyState, Command, Quadrotor};
 use crate::randomization::RandomizationParams;
@@ -64,6 +64,11 @@ pub struct EnvConfig {
     /// Which other gates those are: the nearest, or the next ones in racing order. Default
     /// nearest.
     pub obstacle_order: ObstacleOrder,
+    /// How many proximity readings of the nearest gate frames (other than the target's) the
+    /// observation ends with ([`ObservationLayout`]). Default 0 (SPEC §5).
+    pub proximity_gates: usize,
+    /// Distance (m) within which a gate frame registers in a proximity reading. Default 4.
+    pub proximity_range: f64,
     /// Which gate episodes start behind. Default first (SPEC §7).
     pub start_gate: StartGate,
     /// Per-episode randomisation around the nominal vehicle and start pose.
@@ -82,6 +87,8 @@ impl Default for EnvConfig {
             observation_frame: ObservationFrame::Heading,
             obstacle_gates: 0,
             obstacle_order: ObstacleOrder::Nearest,
+            proximity_gates: 0,
+            proximity_range: DEFAULT_PROXIMITY_RANGE,
             start_gate: StartGate::First,
             randomization: RandomizationParams::default(),
             race: RaceParams::default(),
@@ -93,7 +100,13 @@ impl Default for EnvConfig {
 impl EnvConfig {
     /// What this configuration's observations hold.
     pub fn observation_layout(&self) -> ObservationLayout {
-        ObservationLayout { frame: self.observation_frame, obstacle_gates: self.obstacle_gates, obstacle_order: self.obstacle_order }
+        ObservationLayout {
+            frame: self.observation_frame,
+            obstacle_gates: self.obstacle_gates,
+            obstacle_order: self.obstacle_order,
+            proximity_gates: self.proximity_gates,
+            proximity_range: self.proximity_range,
+        }
     }
 
     /// The evaluation setting of SPEC §9: nominal dynamics, 1000-step episodes.

@@ -162,6 +162,19 @@ impl Gate {
         })
     }
 
+    /// The point of the gate frame nearest to `p`, in the world (`p` itself if inside a bar).
+    pub fn nearest_frame_point(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        let l = self.to_local(p);
+        let clamp_into =
+            |(lo, hi): &([f64; 3], [f64; 3])| Vector3::new(l.x.clamp(lo[0], hi[0]), l.y.clamp(lo[1], hi[1]), l.z.clamp(lo[2], hi[2]));
+        let nearest = FRAME_BARS
+            .iter()
+            .map(clamp_into)
+            .min_by(|a, b| (a - l).norm_squared().total_cmp(&(b - l).norm_squared()))
+            .expect("a frame has bars");
+        self.to_world(&nearest)
+    }
+
     /// Whether the outer frames (2.0 × 2.0 × 0.1 m boxes, yaw only) of two gates intersect.
     pub fn frame_overlaps(&self, other: &Gate) -> bool {
         if (self.position.z - other.position.z).abs() >= 2.0 * GATE_HALF_OUTER {
@@ -311,6 +324,28 @@ mod tests {
         // Diagonal distance to the outer corner (y = z = 1): 0.1·√2 = 0.141 < 0.15.
         assert!(g.frame_touches_sphere(&local(&g, 0.0, 1.1, 1.1), r));
         assert!(!g.frame_touches_sphere(&local(&g, 0.0, 1.11, 1.11), r));
+    }
+
+    #[test]
+    fn nearest_frame_point_is_the_contact_test_in_metres() {
+        use rand::{Rng, SeedableRng};
+        let g = Gate::new(Vector3::new(3.0, -2.0, 2.5), 0.7);
+        let distance = |x, y, z| (g.nearest_frame_point(&local(&g, x, y, z)) - local(&g, x, y, z)).norm();
+        // Centre of the opening: 0.75 m from each of the four inner edges.
+        assert!((distance(0.0, 0.0, 0.0) - 0.75).abs() < 1e-12);
+        // 2 m in front of the centre: to the nearest inner-edge point (0.05, 0, ±0.75) or (0.05, ±0.75, 0).
+        assert!((distance(2.0, 0.0, 0.0) - 1.95f64.hypot(0.75)).abs() < 1e-12);
+        // Above the gate: straight down to the top of the top bar.
+        assert!((distance(0.0, 0.3, 3.0) - 2.0).abs() < 1e-12);
+        // Inside a bar the point is its own nearest point.
+        assert!(distance(0.0, 0.0, 0.9) < 1e-12);
+        // The contact test of SPEC §12.2 is "nearest frame point within the radius", everywhere.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        for _ in 0..2000 {
+            let p = local(&g, rng.random_range(-1.0..1.0), rng.random_range(-1.5..1.5), rng.random_range(-1.5..1.5));
+            let d = (g.nearest_frame_point(&p) - p).norm();
+            assert_eq!(g.frame_touches_sphere(&p, 0.3), d <= 0.3, "at {p:?}, {d} m from the frame");
+        }
     }
 
     #[test]
