@@ -381,29 +381,38 @@ mod tests {
         assert!(e.contains("[8,8]") && e.contains("[512,512]"), "{e}");
     }
 
-    /// A policy with obstacle gates round-trips with its wider observation and their order; a
-    /// blob whose observation length disagrees with its layout is refused, naming both.
+    /// A policy with obstacle gates and proximity readings round-trips with its wider
+    /// observation, their order and range; a blob whose observation length disagrees with its
+    /// layout is refused, naming both.
     #[test]
     fn the_observation_layout_travels_with_the_blob_and_must_match_its_length() {
         let arch = Architecture {
             hidden: vec![8, 8],
             obstacle_gates: 2,
             obstacle_order: sim::ObstacleOrder::Track,
-            observation_dim: 64,
+            proximity_gates: 1,
+            proximity_range: 3.0,
+            observation_dim: 68,
             ..Architecture::paper()
         };
         let model = ActorCritic::new(&arch, -0.5, 1, &Device::flex());
-        let b = WeightsBlob::from_model(3, &arch, &ObsNormalizer::new(64), &model);
+        let b = WeightsBlob::from_model(3, &arch, &ObsNormalizer::new(68), &model);
         let back = WeightsBlob::from_bytes(&b.to_bytes()).unwrap();
         assert_eq!(
             back.architecture.observation_layout(),
-            sim::ObservationLayout { frame: sim::ObservationFrame::World, obstacle_gates: 2, obstacle_order: sim::ObstacleOrder::Track }
+            sim::ObservationLayout {
+                frame: sim::ObservationFrame::World,
+                obstacle_gates: 2,
+                obstacle_order: sim::ObstacleOrder::Track,
+                proximity_gates: 1,
+                proximity_range: 3.0
+            }
         );
-        assert_eq!(back.params[0].values.len(), 64 * 8);
+        assert_eq!(back.params[0].values.len(), 68 * 8);
         let wrong = Architecture { obstacle_gates: 1, ..arch.clone() };
-        let e = WeightsBlob::from_bytes(&WeightsBlob::from_model(3, &wrong, &ObsNormalizer::new(64), &model).to_bytes()).unwrap_err();
+        let e = WeightsBlob::from_bytes(&WeightsBlob::from_model(3, &wrong, &ObsNormalizer::new(68), &model).to_bytes()).unwrap_err();
         assert!(
-            matches!(&e, BlobError::Malformed(m) if m.contains("observation_dim 64") && m.contains("1 obstacle gates and 0 proximity readings make 52")),
+            matches!(&e, BlobError::Malformed(m) if m.contains("observation_dim 68") && m.contains("1 obstacle gates and 1 proximity readings make 56")),
             "{e}"
         );
     }

@@ -167,11 +167,8 @@ impl Gate {
         let l = self.to_local(p);
         let clamp_into =
             |(lo, hi): &([f64; 3], [f64; 3])| Vector3::new(l.x.clamp(lo[0], hi[0]), l.y.clamp(lo[1], hi[1]), l.z.clamp(lo[2], hi[2]));
-        let nearest = FRAME_BARS
-            .iter()
-            .map(clamp_into)
-            .min_by(|a, b| (a - l).norm_squared().total_cmp(&(b - l).norm_squared()))
-            .expect("a frame has bars");
+        let nearer = |a: Vector3<f64>, b: Vector3<f64>| if (b - l).norm_squared() < (a - l).norm_squared() { b } else { a };
+        let nearest = FRAME_BARS[1..].iter().map(clamp_into).fold(clamp_into(&FRAME_BARS[0]), nearer);
         self.to_world(&nearest)
     }
 
