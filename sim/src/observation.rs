@@ -96,7 +96,7 @@ pub enum ObstacleOrder {
 /// Proximity readings are the compact alternative: 4 numbers per gate, all zero unless a frame
 /// is within `proximity_range`, so they stay silent on the stretches where SPEC §5's 40 numbers
 /// are all the policy needs, and what they say when they speak is "a frame, this close, that way".
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ObservationLayout {
     /// Frame of the vectors.
     pub frame: ObservationFrame,
@@ -109,6 +109,19 @@ pub struct ObservationLayout {
     pub proximity_gates: usize,
     /// Distance (m) at which a proximity reading starts to rise from zero.
     pub proximity_range: f64,
+}
+
+impl Default for ObservationLayout {
+    /// SPEC §5's 40 numbers in the world frame (SPEC §5 as written).
+    fn default() -> Self {
+        Self {
+            frame: ObservationFrame::World,
+            obstacle_gates: 0,
+            obstacle_order: ObstacleOrder::Nearest,
+            proximity_gates: 0,
+            proximity_range: DEFAULT_PROXIMITY_RANGE,
+        }
+    }
 }
 
 impl ObservationLayout {
