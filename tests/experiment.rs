@@ -73,6 +73,9 @@ fn an_interrupted_experiment_resumes_without_redoing_finished_runs_and_reports()
     let resumed: serde_json::Value = serde_json::from_slice(&std::fs::read(run_dir("heading", 0).join("test.json")).unwrap()).unwrap();
     assert_eq!(resumed["iterations"], 3, "the resumed run finished its budget, not more");
     assert_eq!(resumed["final_policy"]["outcomes"]["deployments"], 40, "40 test tracks × 1 deployment");
+    // Every deployment's ending is kept, for failure analyses without re-flying the policies.
+    let kept: usize = resumed["best_policy"]["tracks"].as_array().unwrap().iter().map(|t| t["deployments"].as_array().unwrap().len()).sum();
+    assert_eq!(kept, 40);
 
     // A third call has nothing left to do.
     let third = run(&experiment, &out, None);

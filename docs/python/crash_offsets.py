@@ -4,6 +4,8 @@
     dronerace eval --controller policy --policy P --tracks ts --out ev
     python3 docs/python/crash_offsets.py ev/eval.json ts
 
+An experiment run's `test.json` works too (its `best.bin`'s test deployments).
+
 For every deployment that ended on a gate frame, the crashed gate's index minus the target's,
 taken round the track into -N/2..N/2: 0 is the target itself, -1 the gate just passed, +2 and
 +3 gates further along the lap that stand in the way (the observation of SPEC §5 shows only the
@@ -42,6 +44,7 @@ def main():
     if len(sys.argv) != 3:
         sys.exit(__doc__)
     report = json.loads(pathlib.Path(sys.argv[1]).read_text())
+    report = report.get("best_policy", report)  # an experiment run's test.json
     offsets = crash_offsets(report, gate_counts(sys.argv[2]))
     print(f"{sum(offsets.values())} gate-frame crashes; crashed gate - target gate:")
     for offset, count in sorted(offsets.items()):

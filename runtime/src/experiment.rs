@@ -165,9 +165,9 @@ pub struct RunResult {
     pub best_validation_s_pw: Option<f64>,
     /// Policy version in `best.bin`.
     pub best_version: u64,
-    /// The final policy on the test set (per-track results without the deployments).
+    /// The final policy on the test set, every deployment included.
     pub final_policy: EvalReport,
-    /// `best.bin` on the test set.
+    /// `best.bin` on the test set, every deployment included.
     pub best_policy: EvalReport,
 }
 
@@ -253,11 +253,9 @@ fn test_run(trainer: &Trainer, variant: &str, seed: u64, test: &TestSettings) ->
     let config = EvalConfig { runs: test.runs, steps: test.steps, ..EvalConfig::default() };
     let fly = |blob: &policy::WeightsBlob, name: &str| -> Result<EvalReport, TrainError> {
         let policy = Arc::new(Policy::from_blob(blob)?);
-        let mut report = evaluate(name, &tracks, &|| Box::new(PolicyController::new(policy.clone())), &config);
-        for t in &mut report.tracks {
-            t.deployments.clear();
-        }
-        Ok(report)
+        // Deployments stay in: where each one ended is what failure analyses read
+        // (docs/python/crash_offsets.py), and re-flying a run's policies costs minutes.
+        Ok(evaluate(name, &tracks, &|| Box::new(PolicyController::new(policy.clone())), &config))
     };
     let final_blob = trainer.learner().weights();
     let best_path = trainer.dir().join("checkpoints").join("best.bin");
