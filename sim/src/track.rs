@@ -28,6 +28,15 @@ pub(crate) const FRAME_BARS: [([f64; 3], [f64; 3]); 4] = [
     ([-GATE_HALF_DEPTH, -GATE_HALF_OUTER, -GATE_HALF_OUTER], [GATE_HALF_DEPTH, -GATE_HALF_OPENING, GATE_HALF_OUTER]),
 ];
 
+/// The point of the frame bars nearest to the gate-local point `l` (each bar's nearest point is
+/// `l` clamped into its box).
+fn nearest_frame_point_local(l: &Vector3<f64>) -> Vector3<f64> {
+    let clamp_into =
+        |(lo, hi): &([f64; 3], [f64; 3])| Vector3::new(l.x.clamp(lo[0], hi[0]), l.y.clamp(lo[1], hi[1]), l.z.clamp(lo[2], hi[2]));
+    let nearer = |a: Vector3<f64>, b: Vector3<f64>| if (b - l).norm_squared() < (a - l).norm_squared() { b } else { a };
+    FRAME_BARS[1..].iter().map(clamp_into).fold(clamp_into(&FRAME_BARS[0]), nearer)
+}
+
 /// A position and a heading.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Pose {
@@ -151,25 +160,12 @@ impl Gate {
         if l.x.abs() > GATE_HALF_DEPTH + radius || l.y.abs() > GATE_HALF_OUTER + radius || l.z.abs() > GATE_HALF_OUTER + radius {
             return false;
         }
-        FRAME_BARS.iter().any(|(lo, hi)| {
-            let d2: f64 = (0..3)
-                .map(|i| {
-                    let excess = (lo[i] - l[i]).max(l[i] - hi[i]).max(0.0);
-                    excess * excess
-                })
-                .sum();
-            d2 <= radius * radius
-        })
+        (nearest_frame_point_local(&l) - l).norm_squared() <= radius * radius
     }
 
     /// The point of the gate frame nearest to `p`, in the world (`p` itself if inside a bar).
     pub fn nearest_frame_point(&self, p: &Vector3<f64>) -> Vector3<f64> {
-        let l = self.to_local(p);
-        let clamp_into =
-            |(lo, hi): &([f64; 3], [f64; 3])| Vector3::new(l.x.clamp(lo[0], hi[0]), l.y.clamp(lo[1], hi[1]), l.z.clamp(lo[2], hi[2]));
-        let nearer = |a: Vector3<f64>, b: Vector3<f64>| if (b - l).norm_squared() < (a - l).norm_squared() { b } else { a };
-        let nearest = FRAME_BARS[1..].iter().map(clamp_into).fold(clamp_into(&FRAME_BARS[0]), nearer);
-        self.to_world(&nearest)
+        self.to_world(&nearest_frame_point_local(&self.to_local(p)))
     }
 
     /// Whether the outer frames (2.0 × 2.0 × 0.1 m boxes, yaw only) of two gates intersect.
