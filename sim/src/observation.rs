@@ -234,23 +234,24 @@ fn write_obstacle_corners(
 /// The proximity readings of [`write_state_observation`] into `out`.
 fn write_proximity(body: &BodyState, track: &Track, target: usize, layout: ObservationLayout, to_frame: Matrix3<f64>, out: &mut [f32]) {
     out[..PROXIMITY_DIM * layout.proximity_gates].fill(0.0);
-    let distance_to = |g: usize| (track.gates[g].nearest_frame_point(&body.position) - body.position).norm();
+    // (distance, gate, drone → nearest frame point) of every gate but the target.
+    let others = || {
+        (0..track.gates.len()).filter(|&g| g != target).map(|g| {
+            let towards = track.gates[g].nearest_frame_point(&body.position) - body.position;
+            (towards.norm(), g, towards)
+        })
+    };
     // k is small (1–2): pick the next nearest k times instead of sorting into a per-step Vec.
     let mut previous: Option<(f64, usize)> = None;
     for slot in 0..layout.proximity_gates {
-        let after_previous = |&(d, g): &(f64, usize)| previous.is_none_or(|p| (d, g) > p);
-        let nearest = (0..track.gates.len())
-            .filter(|&g| g != target)
-            .map(|g| (distance_to(g), g))
-            .filter(after_previous)
-            .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let Some((distance, gate)) = nearest else { break };
+        let nearest =
+            others().filter(|&(d, g, _)| previous.is_none_or(|p| (d, g) > p)).min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let Some((distance, gate, towards)) = nearest else { break };
         previous = Some((distance, gate));
         let closeness = 1.0 - distance / layout.proximity_range;
         if closeness <= 0.0 {
             break;
         }
-        let towards = track.gates[gate].nearest_frame_point(&body.position) - body.position;
         let direction = if distance > 0.0 { to_frame * towards / distance } else { Vector3::zeros() };
         let row = &mut out[PROXIMITY_DIM * slot..PROXIMITY_DIM * (slot + 1)];
         for k in 0..3 {
