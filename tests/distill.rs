@@ -74,6 +74,35 @@ fn an_interrupted_distillation_resumes_bit_for_bit() {
     assert_eq!(best.architecture.agent, policy::Agent::Vision);
 }
 
+#[test]
+fn a_state_student_of_the_pilot_resumes_bit_for_bit_with_its_pilots_mid_flight() {
+    let config = || DistillConfig {
+        teacher: runtime::distill::PILOT_TEACHER.into(),
+        student: policy::Agent::State,
+        hidden: Some(vec![16, 16]),
+        envs: 3,
+        ..tiny_config()
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (straight, resumed) = (dir.path().join("straight"), dir.path().join("resumed"));
+    let mut a = Distiller::start(config(), &straight).unwrap();
+    for _ in 0..4 {
+        a.round_step().unwrap();
+    }
+    let mut b = Distiller::start(config(), &resumed).unwrap();
+    b.round_step().unwrap();
+    b.round_step().unwrap(); // checkpoint of round 2, every pilot somewhere in an episode
+    drop(b);
+    let mut b = Distiller::resume(&resumed).unwrap();
+    b.round_step().unwrap();
+    b.round_step().unwrap();
+    assert!(student(&b) == student(&a), "recalled pilots label exactly as the remembered ones");
+    let blob = b.student();
+    assert_eq!((blob.architecture.agent, blob.architecture.hidden.clone()), (policy::Agent::State, vec![16, 16]));
+    // Its normaliser learnt from the 3 × 4 × 16 states flown (no teacher to take one from).
+    assert_eq!(blob.normalizer.count, (3 * 4 * 16) as f64 + policy::ObsNormalizer::new(40).count);
+}
+
 fn dronerace(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_dronerace")).args(args).output().expect("run dronerace")
 }

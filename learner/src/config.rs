@@ -40,6 +40,11 @@ pub struct PpoConfig {
     pub adam_epsilon: f64,
     /// Initial log standard deviation of the policy. -0.5.
     pub initial_log_std: f64,
+    /// Iterations at the start of a run in which only the value function learns: the actor
+    /// and log std take no step. For a run that starts from an imitated policy with a fresh
+    /// critic, whose first advantages would otherwise be noise that unlearns the imitation
+    /// (a run's `[warm_start]` sets it). Default 0.
+    pub critic_warmup_iterations: u64,
 }
 
 impl Default for PpoConfig {
@@ -60,6 +65,7 @@ impl Default for PpoConfig {
             weight_decay: 1e-5,
             adam_epsilon: 1e-5,
             initial_log_std: -0.5,
+            critic_warmup_iterations: 0,
         }
     }
 }

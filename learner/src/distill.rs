@@ -1,6 +1,7 @@
-//! Teacher–student distillation of a vision policy by DAgger (Ross, Gordon and Bagnell 2011):
-//! the aggregated data set of visited states, each labelled with the state-based teacher's mean
-//! action, and the student's supervised regression on it. The loop that flies the student and
+//! Teacher–student distillation by DAgger (Ross, Gordon and Bagnell 2011): the aggregated data
+//! set of visited states, each labelled with the teacher's action (a state-based policy's mean,
+//! or the reference pilot's), and the student's supervised regression on it — a vision student,
+//! or a state-based one (imitation of the pilot as a warm start for PPO). The loop that flies the student and
 //! fills the data set is `runtime::distill`.
 //!
 //! A sample keeps the camera's pose (track, target gate, position, attitude), not its image:
@@ -15,7 +16,7 @@ use burn::module::Module;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Bytes, Device, Tensor, TensorData};
 use policy::vision::IMAGE_SIDE;
-use policy::{Agent, Architecture, ObsNormalizer, VisionActorCritic, WeightsBlob, pixels_to_unit};
+use policy::{ActorCritic, Agent, Architecture, ObsNormalizer, VisionActorCritic, WeightsBlob, pixels_to_unit};
 use rand::Rng;
 use rayon::prelude::*;
 use sim::camera::IMAGE_PIXELS;
@@ -209,15 +210,25 @@ impl DistillDataset {
     }
 }
 
-/// The vision student under supervised training: its CNN actor regresses the teacher's
-/// actions; its critic is the teacher's (same state input), so that vision PPO can start from
-/// the student; its normaliser is the teacher's, frozen.
+/// The student's network: a state-based or a vision actor-critic.
+enum StudentNet {
+    State(ActorCritic),
+    Vision(VisionActorCritic),
+}
+
+/// A student under supervised training: its actor regresses the teacher's actions. Taught by a
+/// state-based policy, it takes the teacher's critic (same state input, so that PPO can start
+/// from the student) and its normaliser, frozen. Taught by a scripted teacher (the reference
+/// pilot), it has a fresh critic and learns its normaliser from the states it is shown
+/// ([`Student::observe`]), as PPO would.
 pub struct Student {
     /// Always `Some` between calls; taken while burn's optimiser consumes and returns it.
-    model: Option<VisionActorCritic>,
+    model: Option<StudentNet>,
     optimizer: ModuleOptimizer,
     architecture: Architecture,
     normalizer: ObsNormalizer,
+    /// True when the normaliser follows the states seen (no policy teacher to take it from).
+    learns_normalizer: bool,
     version: u64,
     device: Device,
 }
@@ -228,41 +239,65 @@ fn student_adam() -> ModuleOptimizer {
 }
 
 impl Student {
-    /// A fresh student of the teacher's shape: the teacher's hidden widths, frame and
-    /// normaliser, a new CNN and actor (seeded), the teacher's critic, log std
-    /// `initial_log_std` (SPEC §10's VB column: 0).
-    pub fn new(teacher: &WeightsBlob, initial_log_std: f64, seed: u64) -> Result<Self, LearnerError> {
-        Self::starting_from(teacher, None, initial_log_std, seed)
-    }
-
-    /// [`Student::new`], but the CNN and actor start from `start`'s (a vision policy of the
-    /// teacher's shape, e.g. a student distilled on one track), with a fresh optimiser.
-    pub fn starting_from(
-        teacher: &WeightsBlob,
+    /// A student of `architecture` (its agent says which network): a fresh actor (seeded, log
+    /// std `initial_log_std`), or `start`'s (a policy of the same architecture, e.g. a student
+    /// distilled on one track) with a fresh optimiser. With a `teacher` — a state-based policy
+    /// whose observation and hidden widths `architecture` shares — the critic and the
+    /// normaliser are the teacher's; without one, a fresh critic and a normaliser to learn.
+    pub fn new(
+        architecture: &Architecture,
+        teacher: Option<&WeightsBlob>,
         start: Option<&WeightsBlob>,
         initial_log_std: f64,
         seed: u64,
     ) -> Result<Self, LearnerError> {
-        teacher.check_agent(Agent::State).map_err(|e| LearnerError::State(format!("teacher: {e}")))?;
         let device = Device::flex().autodiff();
-        let architecture = Architecture { agent: Agent::Vision, ..teacher.architecture.clone() };
-        let mut model = match start {
-            None => VisionActorCritic::new(&architecture, initial_log_std, seed, &device),
-            Some(blob) => {
-                blob.check_architecture(&architecture).map_err(|e| LearnerError::State(format!("starting student: {e}")))?;
-                blob.vision_model(&device).map_err(|e| LearnerError::State(format!("starting student: {e}")))?.train()
+        let architecture = architecture.clone();
+        let start_error = |e: policy::BlobError| LearnerError::State(format!("starting student: {e}"));
+        if let Some(blob) = start {
+            blob.check_architecture(&architecture).map_err(start_error)?;
+        }
+        let mut model = match (architecture.agent, start) {
+            (Agent::State, None) => StudentNet::State(ActorCritic::new(&architecture, initial_log_std, seed, &device)),
+            (Agent::Vision, None) => StudentNet::Vision(VisionActorCritic::new(&architecture, initial_log_std, seed, &device)),
+            (Agent::State, Some(blob)) => StudentNet::State(blob.model(&device).map_err(start_error)?.train()),
+            (Agent::Vision, Some(blob)) => StudentNet::Vision(blob.vision_model(&device).map_err(start_error)?.train()),
+        };
+        let normalizer = match teacher {
+            None => start.map_or_else(|| ObsNormalizer::new(architecture.observation_dim), |blob| blob.normalizer.clone()),
+            Some(teacher) => {
+                let teacher_error = |e: policy::BlobError| LearnerError::State(format!("teacher: {e}"));
+                teacher.check_agent(Agent::State).map_err(teacher_error)?;
+                teacher.check_architecture(&Architecture { agent: Agent::State, ..architecture.clone() }).map_err(teacher_error)?;
+                let critic = teacher.model(&device).map_err(teacher_error)?.critic;
+                match &mut model {
+                    StudentNet::State(m) => m.critic = critic,
+                    StudentNet::Vision(m) => m.critic = critic,
+                }
+                teacher.normalizer.clone()
             }
         };
-        model.critic = teacher.model(&device).map_err(|e| LearnerError::State(format!("teacher: {e}")))?.critic;
-        Ok(Self { model: Some(model), optimizer: student_adam(), architecture, normalizer: teacher.normalizer.clone(), version: 0, device })
+        Ok(Self {
+            model: Some(model),
+            optimizer: student_adam(),
+            architecture,
+            normalizer,
+            learns_normalizer: teacher.is_none(),
+            version: 0,
+            device,
+        })
     }
 
     /// Restores a student from its weights blob and optimiser state ([`Student::weights`],
-    /// [`Student::optimizer_state`]).
-    pub fn restore(weights: &[u8], optimizer: &[u8]) -> Result<Self, LearnerError> {
+    /// [`Student::optimizer_state`]); `learns_normalizer` as it was created (no policy teacher).
+    pub fn restore(weights: &[u8], optimizer: &[u8], learns_normalizer: bool) -> Result<Self, LearnerError> {
         let blob = WeightsBlob::from_bytes(weights).map_err(|e| LearnerError::State(e.to_string()))?;
         let device = Device::flex().autodiff();
-        let model = blob.vision_model(&device).map_err(|e| LearnerError::State(e.to_string()))?.train();
+        let state = |e: policy::BlobError| LearnerError::State(e.to_string());
+        let model = match blob.architecture.agent {
+            Agent::State => StudentNet::State(blob.model(&device).map_err(state)?.train()),
+            Agent::Vision => StudentNet::Vision(blob.vision_model(&device).map_err(state)?.train()),
+        };
         let optimizer = student_adam()
             .from_bytes(Bytes::from_bytes_vec(optimizer.to_vec()))
             .map_err(|e| LearnerError::State(format!("student optimiser: {e:?}")))?;
@@ -271,13 +306,14 @@ impl Student {
             optimizer,
             architecture: blob.architecture.clone(),
             normalizer: blob.normalizer,
+            learns_normalizer,
             version: blob.version,
             device,
         })
     }
 
     #[allow(clippy::expect_used, reason = "the model is present between calls")]
-    fn model(&self) -> &VisionActorCritic {
+    fn model(&self) -> &StudentNet {
         self.model.as_ref().expect("the model is present between calls")
     }
 
@@ -286,15 +322,26 @@ impl Student {
         self.version
     }
 
-    /// The student as a vision weights blob.
+    /// The student as a weights blob of its agent.
     pub fn weights(&self) -> WeightsBlob {
-        WeightsBlob::from_vision_model(self.version, &self.architecture, &self.normalizer, self.model())
+        match self.model() {
+            StudentNet::State(m) => WeightsBlob::from_model(self.version, &self.architecture, &self.normalizer, m),
+            StudentNet::Vision(m) => WeightsBlob::from_vision_model(self.version, &self.architecture, &self.normalizer, m),
+        }
     }
 
     /// The optimiser's moments, for exact resume.
     #[allow(clippy::expect_used, reason = "optimiser state serialises")]
     pub fn optimizer_state(&self) -> Vec<u8> {
         self.optimizer.into_bytes().expect("optimiser state serialises").to_vec()
+    }
+
+    /// Shows the student raw states (rows of the observation): a student without a policy
+    /// teacher folds them into its normaliser; one with a teacher keeps the teacher's.
+    pub fn observe(&mut self, raw_states: &[f32]) {
+        if self.learns_normalizer {
+            self.normalizer.update(raw_states);
+        }
     }
 
     /// One gradient step of the mean squared error between the student's action means and the
@@ -304,18 +351,36 @@ impl Student {
         let n = rows.len();
         let mut states = vec![0.0; n * STATE_OBS_DIM];
         self.normalizer.normalize(&data.states(rows), &mut states);
-        let images =
-            Tensor::<4>::from_data(TensorData::new(pixels_to_unit(&data.images(rows)), [n, 1, IMAGE_SIDE, IMAGE_SIDE]), &self.device);
         let states = Tensor::<2>::from_data(TensorData::new(states, [n, STATE_OBS_DIM]), &self.device);
         let labels = Tensor::<2>::from_data(TensorData::new(data.labels(rows), [n, ACTION_DIM]), &self.device);
-        let model = self.model.take().expect("the model is present between calls");
-        let loss = (model.actor_mean(images, states) - labels).powi_scalar(2).mean();
-        let value = f64::from(loss.clone().into_data().try_into_vec::<f32>().expect("float outputs")[0]);
-        let grads = GradientsParams::from_grads(loss.backward(), &model);
-        self.model = Some(self.optimizer.step(learning_rate, model, grads));
+        let squared_error = |means: Tensor<2>| (means - labels).powi_scalar(2).mean();
+        let (loss, model) = match self.model.take().expect("the model is present between calls") {
+            StudentNet::State(model) => {
+                let loss = squared_error(model.actor.forward(states));
+                let value = scalar(&loss);
+                let grads = GradientsParams::from_grads(loss.backward(), &model);
+                (value, StudentNet::State(self.optimizer.step(learning_rate, model, grads)))
+            }
+            StudentNet::Vision(model) => {
+                let images = Tensor::<4>::from_data(
+                    TensorData::new(pixels_to_unit(&data.images(rows)), [n, 1, IMAGE_SIDE, IMAGE_SIDE]),
+                    &self.device,
+                );
+                let loss = squared_error(model.actor_mean(images, states));
+                let value = scalar(&loss);
+                let grads = GradientsParams::from_grads(loss.backward(), &model);
+                (value, StudentNet::Vision(self.optimizer.step(learning_rate, model, grads)))
+            }
+        };
+        self.model = Some(model);
         self.version += 1;
-        value
+        loss
     }
+}
+
+#[allow(clippy::expect_used, reason = "float outputs")]
+fn scalar(loss: &Tensor<1>) -> f64 {
+    f64::from(loss.clone().into_data().try_into_vec::<f32>().expect("float outputs")[0])
 }
 
 #[cfg(test)]
@@ -323,7 +388,7 @@ mod tests {
     use super::*;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
-    use sim::{EnvConfig, Gate};
+    use sim::{Controller, EnvConfig, Gate};
 
     fn track() -> Arc<Track> {
         let gates = vec![Gate::new(Vector3::new(4.0, 0.0, 2.0), 0.0), Gate::new(Vector3::new(-4.0, 0.0, 2.0), 3.0)];
@@ -393,7 +458,8 @@ mod tests {
             data.offer(&env, &state, &label, &mut rng);
             env.step(&[0.3, 0.2, -0.1, 0.2]);
         }
-        let mut student = Student::new(&teacher, 0.0, 2).unwrap();
+        let vision_arch = Architecture { agent: Agent::Vision, ..arch.clone() };
+        let mut student = Student::new(&vision_arch, Some(&teacher), None, 0.0, 2).unwrap();
         let rows: Vec<usize> = (0..data.len()).collect();
         let first = student.train_step(&data, &rows, 1e-3);
         let mut last = first;
@@ -415,11 +481,64 @@ mod tests {
         let student_values = blob.vision_model(&Device::flex()).unwrap().critic.forward(states).squeeze_dim::<1>(1).into_data();
         assert_eq!(teacher_values, student_values);
         // A new student can start from this one: same actions, a fresh optimiser, version 0.
-        let second = Student::starting_from(&teacher, Some(&blob), 0.0, 99).unwrap();
+        let second = Student::new(&vision_arch, Some(&teacher), Some(&blob), 0.0, 99).unwrap();
         let again = policy::VisionPolicy::from_blob(&second.weights()).unwrap().mean_actions(&data.images(&rows), &data.states(&rows));
         assert_eq!((again, second.version()), (means, 0));
         // Exact resume: restored weights and moments take the same next step.
-        let mut restored = Student::restore(&blob.to_bytes(), &student.optimizer_state()).unwrap();
+        let mut restored = Student::restore(&blob.to_bytes(), &student.optimizer_state(), false).unwrap();
+        assert_eq!(restored.train_step(&data, &rows, 1e-3), student.train_step(&data, &rows, 1e-3));
+        assert_eq!(restored.weights(), student.weights());
+    }
+
+    #[test]
+    fn a_state_student_imitates_the_pilot_and_learns_its_normaliser() {
+        let arch = Architecture { hidden: vec![32, 32], ..Architecture::paper() };
+        let layout = arch.observation_layout();
+        let mut env = RaceEnv::new(track(), EnvConfig::default(), 1, 0);
+        let mut pilot = sim::ReferencePilot::default();
+        pilot.reset(&env);
+        let mut student = Student::new(&arch, None, None, -0.5, 3).unwrap();
+        let mut data = DistillDataset::new(256);
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let mut shown = Vec::new();
+        for _ in 0..128 {
+            let state = env.observation_in(layout);
+            let label = pilot.act(&env);
+            data.offer(&env, &state, &label, &mut rng);
+            student.observe(&state);
+            shown.extend(state);
+            env.step(&label);
+            if env.stats().crash.is_some() {
+                env.reset();
+                pilot.reset(&env);
+            }
+        }
+        // The normaliser is the states' own: a teacher-less student learns it from what it sees.
+        let mut expected = ObsNormalizer::new(arch.observation_dim);
+        expected.update(&shown);
+        let learnt = student.weights().normalizer;
+        assert_eq!(learnt.count, expected.count);
+        // Row by row and all at once agree up to rounding.
+        for (a, b) in learnt.mean.iter().zip(&expected.mean).chain(learnt.var.iter().zip(&expected.var)) {
+            assert!((a - b).abs() <= 1e-9 * (1.0 + b.abs()), "{a} vs {b}");
+        }
+        let rows: Vec<usize> = (0..data.len()).collect();
+        let first = student.train_step(&data, &rows, 3e-3);
+        let mut last = first;
+        for _ in 0..150 {
+            last = student.train_step(&data, &rows, 3e-3);
+        }
+        assert!(last < 0.25 * first, "loss {first} → {last}");
+        // The blob is a state policy whose deterministic actions are the pilot's, roughly.
+        let blob = student.weights();
+        assert_eq!(blob.architecture.agent, Agent::State);
+        let actions = policy::Policy::from_blob(&blob).unwrap().deterministic_actions(&data.states(&rows));
+        let mse: f32 = actions.iter().zip(data.labels(&rows)).map(|(a, l)| (a - l).powi(2)).sum::<f32>() / actions.len() as f32;
+        assert!(f64::from(mse) < 0.3 * first, "{mse} against {first}");
+        // Exact resume, the normaliser still learning.
+        let mut restored = Student::restore(&blob.to_bytes(), &student.optimizer_state(), true).unwrap();
+        restored.observe(&shown[..40]);
+        student.observe(&shown[..40]);
         assert_eq!(restored.train_step(&data, &rows, 1e-3), student.train_step(&data, &rows, 1e-3));
         assert_eq!(restored.weights(), student.weights());
     }

@@ -183,13 +183,14 @@ impl Learner {
         let progress = (c.env_steps + transitions as u64) as f64 / c.total_env_steps.max(1) as f64;
         let learning_rate = ppo.learning_rate(progress);
         let (optimizer, device) = (&mut self.optimizer, &self.device);
+        let train_policy = c.version >= ppo.critic_warmup_iterations;
         let (model, stats) = match self.model.take().expect("the model is present between calls") {
             Network::State(m) => {
-                let (m, stats) = update(m, optimizer, &batch, &ppo, learning_rate, &mut c.rng, device);
+                let (m, stats) = update(m, optimizer, &batch, &ppo, learning_rate, train_policy, &mut c.rng, device);
                 (Network::State(m), stats)
             }
             Network::Vision(m) => {
-                let (m, stats) = update(m, optimizer, &batch, &ppo, learning_rate, &mut c.rng, device);
+                let (m, stats) = update(m, optimizer, &batch, &ppo, learning_rate, train_policy, &mut c.rng, device);
                 (Network::Vision(m), stats)
             }
         };

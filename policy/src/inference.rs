@@ -273,6 +273,15 @@ impl ActingPolicy {
         }
     }
 
+    /// Deterministic actions (means clipped to [-1, 1], as in evaluation) for raw state
+    /// observations and, for a vision policy, their camera images.
+    pub fn deterministic_actions(&self, raw_states: &[f32], images: &[u8]) -> Vec<f32> {
+        match self {
+            Self::State(p) => p.deterministic_actions(raw_states),
+            Self::Vision(p) => p.deterministic_actions(images, raw_states),
+        }
+    }
+
     /// The critic's values of raw state observations.
     pub fn values(&self, raw_states: &[f32]) -> Vec<f32> {
         match self {

@@ -1,7 +1,8 @@
-//! `dronerace distill`: a vision student learns to race from a state-based teacher by DAgger.
-//! Each round the environments fly `steps_per_round` steps — every step by the teacher with
+//! `dronerace distill`: a student learns to race from a teacher by DAgger — a vision student
+//! from a state-based policy, or a state-based student from the reference pilot (the warm start
+//! of `train`'s `[warm_start]`). Each round the environments fly `steps_per_round` steps — every step by the teacher with
 //! probability β = `teacher_decay`^round, else by the student (round 0: the teacher alone) —
-//! while the teacher labels every visited state with its mean action; the labelled states join
+//! while the teacher labels every visited state with its action; the labelled states join
 //! the data set (`learner::distill`), the task controller switches tracks on the round's
 //! rewards as in training, and the student takes `updates_per_round` regression steps on
 //! minibatches drawn from the whole data set. Like `train`: a progress line and `train.log`,
@@ -16,12 +17,16 @@ use std::time::Instant;
 use anyhow::{Context, bail, ensure};
 use learner::checkpoint::{Checkpoint, CheckpointDir, read_policy};
 use learner::distill::{DistillDataset, Student};
-use policy::{Agent, Policy, VisionPolicy, WeightsBlob};
+use policy::{ActingPolicy, Agent, Architecture, Policy, WeightsBlob};
 use racetracks::TrackGenerator;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use sim::{ACTION_DIM, EnvConfig, RaceEnv, RandomizationParams, RewardParams, STATE_OBS_DIM, VecEnv};
+use sim::{
+    ACTION_DIM, Controller, EnvConfig, PilotMemory, PilotParams, RaceEnv, RandomizationParams, ReferencePilot, RewardParams, STATE_OBS_DIM,
+    VecEnv,
+};
 use taskctl::{LocalTasks, SwitchParams, TaskController, TaskService};
 
 use crate::TrackSource;
@@ -32,12 +37,21 @@ use crate::validation::{EvalSettings, Validator};
 /// The student's name in the task controller.
 const ACTOR: &str = "distill";
 
+/// The `teacher` that names the reference pilot rather than a policy file.
+pub const PILOT_TEACHER: &str = "pilot";
+
 /// `dronerace distill --config FILE`: every field optional except the teacher.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DistillConfig {
-    /// The state-based teacher: a checkpoint or weights blob.
+    /// The teacher: a state-based policy (checkpoint or weights blob), or `pilot` for the
+    /// reference pilot.
     pub teacher: PathBuf,
+    /// The student's agent: `vision` (default) or `state`.
+    pub student: Agent,
+    /// Hidden widths of a student taught by the pilot (default: the `cpu` profile's); a
+    /// policy's student takes its teacher's.
+    pub hidden: Option<Vec<usize>>,
     /// Seed of everything (student init, environments, curriculum, sampling).
     pub seed: u64,
     /// Parallel environments. Default 32.
@@ -86,6 +100,8 @@ impl Default for DistillConfig {
     fn default() -> Self {
         Self {
             teacher: PathBuf::new(),
+            student: Agent::Vision,
+            hidden: None,
             seed: 0,
             envs: 32,
             steps_per_round: 100,
@@ -113,10 +129,26 @@ impl Default for DistillConfig {
 }
 
 impl DistillConfig {
-    /// Reads a config file; errors name the file and the field.
+    /// The defaults of a `student`: a vision student's as [`Default`]; a state-based
+    /// student's take SPEC's SB columns of randomisation (§3), reward (§6) and α = 1000 (§8).
+    pub fn defaults_for(student: Agent) -> Self {
+        match student {
+            Agent::Vision => Self::default(),
+            Agent::State => {
+                let env = EnvConfig::default();
+                let switching = SwitchParams { alpha: SwitchParams::default().alpha, ..Self::default().switching };
+                Self { student, env, switching, ..Self::default() }
+            }
+        }
+    }
+
+    /// Reads a config file over the defaults of the student it names; errors name the file and
+    /// the field.
     pub fn read(path: &Path) -> anyhow::Result<Self> {
         let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        crate::overrides::parse_over(&Self::default(), &text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+        let error = |e: String| anyhow::anyhow!("{}: {e}", path.display());
+        let student = crate::overrides::parse_over(&Self::default(), &text).map_err(error)?.student;
+        crate::overrides::parse_over(&Self::defaults_for(student), &text).map_err(error)
     }
 
     /// Writes the config as TOML, atomically.
@@ -125,8 +157,20 @@ impl DistillConfig {
         racetracks::files::write_atomic(path, text.as_bytes()).with_context(|| format!("writing {}", path.display()))
     }
 
+    /// True when the teacher is the reference pilot.
+    pub fn pilot_teaches(&self) -> bool {
+        self.teacher.as_os_str() == PILOT_TEACHER
+    }
+
     fn check(&self) -> anyhow::Result<()> {
-        ensure!(!self.teacher.as_os_str().is_empty(), "teacher: name the state-based policy to learn from (--teacher)");
+        ensure!(!self.teacher.as_os_str().is_empty(), "teacher: name the state-based policy to learn from, or `pilot` (--teacher)");
+        ensure!(
+            self.hidden.is_none() || self.pilot_teaches(),
+            "hidden: only a student of the pilot chooses its widths; a policy's student takes its teacher's"
+        );
+        if let Some(hidden) = &self.hidden {
+            ensure!(!hidden.is_empty() && !hidden.contains(&0), "hidden: {hidden:?} needs at least one layer, every width ≥ 1");
+        }
         ensure!(
             self.envs > 0 && self.steps_per_round > 0 && self.minibatch > 0 && self.capacity > 0,
             "envs, steps_per_round, minibatch and capacity must be ≥ 1"
@@ -182,14 +226,41 @@ struct Progress {
     best_validation: Option<f64>,
     rng: ChaCha8Rng,
     envs: Vec<RaceEnv>,
+    /// The pilots' memories when the pilot teaches (one per environment).
+    #[serde(default)]
+    pilots: Vec<Option<PilotMemory>>,
+}
+
+/// Who labels the visited states.
+enum Teacher {
+    /// A state-based policy, and its blob's bytes (saved in every checkpoint).
+    Policy(Box<Policy>, Vec<u8>),
+    /// The reference pilot, one per environment (it remembers its path and progress).
+    Pilot(Vec<ReferencePilot>),
+}
+
+impl Teacher {
+    /// The teacher's actions for the environments' current states.
+    fn labels(&mut self, env: &VecEnv) -> Vec<f32> {
+        match self {
+            Teacher::Policy(policy, _) => policy.deterministic_actions(&env.observations),
+            Teacher::Pilot(pilots) => pilots.par_iter_mut().zip(env.envs().par_iter()).flat_map_iter(|(p, e)| p.act(e)).collect(),
+        }
+    }
+
+    /// Tells the teacher that environment `i` starts an episode.
+    fn episode_started(&mut self, i: usize, env: &VecEnv) {
+        if let Teacher::Pilot(pilots) = self {
+            pilots[i].reset(&env.envs()[i]);
+        }
+    }
 }
 
 /// A distillation run in its directory.
 pub struct Distiller {
     config: DistillConfig,
     dir: PathBuf,
-    teacher_bytes: Vec<u8>,
-    teacher: Policy,
+    teacher: Teacher,
     student: Student,
     data: DistillDataset,
     env: VecEnv,
@@ -225,30 +296,45 @@ impl Distiller {
             "{} already holds checkpoints: resume it (--resume), or choose another run directory",
             dir.display()
         );
-        let teacher_blob = read_policy(&config.teacher).with_context(|| format!("teacher {}", config.teacher.display()))?;
-        if teacher_blob.architecture.agent != Agent::State {
-            bail!("teacher {}: a {} policy; the teacher must be state-based", config.teacher.display(), teacher_blob.architecture.agent);
-        }
-        if teacher_blob.architecture.observation_dim != STATE_OBS_DIM {
+        let teacher_blob = match config.pilot_teaches() {
+            true => None,
+            false => Some(read_policy(&config.teacher).with_context(|| format!("teacher {}", config.teacher.display()))?),
+        };
+        let architecture = match &teacher_blob {
+            Some(blob) => {
+                if blob.architecture.agent != Agent::State {
+                    bail!("teacher {}: a {} policy; the teacher must be state-based", config.teacher.display(), blob.architecture.agent);
+                }
+                // The teacher's frame is the student's.
+                config.env.observation_frame = blob.architecture.observation_frame;
+                Architecture { agent: config.student, ..blob.architecture.clone() }
+            }
+            None => {
+                let mut architecture = learner::config::Profile::cpu().architecture;
+                if let Some(hidden) = &config.hidden {
+                    architecture.hidden = hidden.clone();
+                }
+                architecture.set_observation_layout(config.env.observation_layout());
+                Architecture { agent: config.student, ..architecture }
+            }
+        };
+        if architecture.observation_dim != STATE_OBS_DIM {
             // The data set stores SPEC §5's 40 numbers per state (the student's critic input).
             bail!(
-                "teacher {}: observes {} numbers (obstacle gates or proximity readings); distillation takes teachers with SPEC §5's {STATE_OBS_DIM}-number observation",
+                "teacher {}: observes {} numbers (obstacle gates or proximity readings); distillation takes SPEC §5's {STATE_OBS_DIM}-number observation",
                 config.teacher.display(),
-                teacher_blob.architecture.observation_dim
+                architecture.observation_dim
             );
         }
-        config.env.observation_frame = teacher_blob.architecture.observation_frame;
-        config.env.obstacle_gates = 0;
-        config.env.proximity_gates = 0;
         config.write(&dir.join("config.toml"))?;
         let tasks = LocalTasks::new(config.tracks.task_controller(config.envs, config.generator, config.switching, config.seed)?, None);
         let registration = tasks.register(ACTOR, config.envs)?;
-        let env = VecEnv::new(registration.tracks, config.env, config.seed).with_images();
+        let env = with_images(VecEnv::new(registration.tracks, config.env, config.seed), config.student);
         let start = match &config.init_from {
             Some(path) => Some(read_policy(path).with_context(|| format!("init_from {}", path.display()))?),
             None => None,
         };
-        let student = Student::starting_from(&teacher_blob, start.as_ref(), config.initial_log_std, config.seed)
+        let student = Student::new(&architecture, teacher_blob.as_ref(), start.as_ref(), config.initial_log_std, config.seed)
             .with_context(|| config.init_from.as_ref().map_or(String::new(), |p| format!("init_from {}", p.display())))?;
         let progress = Progress {
             round: 0,
@@ -257,12 +343,19 @@ impl Distiller {
             best_validation: None,
             rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0xDA66_E400),
             envs: Vec::new(),
+            pilots: Vec::new(),
         };
         let data = DistillDataset::new(config.capacity);
-        let teacher_bytes = teacher_blob.to_bytes();
-        let (teacher, metrics, validator) = Self::around(&config, dir, &teacher_bytes)?;
+        let mut teacher = match teacher_blob {
+            Some(blob) => Teacher::Policy(Box::new(Policy::from_blob(&blob)?), blob.to_bytes()),
+            None => Teacher::Pilot(vec![ReferencePilot::new(PilotParams::default()); env.len()]),
+        };
+        for i in 0..env.len() {
+            teacher.episode_started(i, &env);
+        }
+        let (metrics, validator) = Self::around(&config, dir)?;
         let dir = dir.to_path_buf();
-        Ok(Self { config, dir, teacher_bytes, teacher, student, data, env, tasks, progress, checkpoints, metrics, validator })
+        Ok(Self { config, dir, teacher, student, data, env, tasks, progress, checkpoints, metrics, validator })
     }
 
     /// Continues the distillation in `dir` from its newest checkpoint.
@@ -272,24 +365,42 @@ impl Distiller {
         let path = checkpoints.latest().with_context(|| format!("{} has no checkpoint to resume from", dir.display()))?;
         let c = Checkpoint::read(&path)?;
         let section = |name: &str| c.get(name).with_context(|| format!("{}", path.display()));
-        let student = Student::restore(section("weights")?, section("optimizer")?).with_context(|| format!("{}", path.display()))?;
+        let student = Student::restore(section("weights")?, section("optimizer")?, config.pilot_teaches())
+            .with_context(|| format!("{}", path.display()))?;
         let data = DistillDataset::from_bytes(section("dataset")?).with_context(|| format!("{}", path.display()))?;
         let mut progress: Progress =
             serde_json::from_slice(section("distiller")?).with_context(|| format!("{}: distiller section", path.display()))?;
         let tasks = LocalTasks::new(TaskController::from_snapshot_bytes(section("taskctl")?, &path)?, None);
-        let env = VecEnv::from_envs(std::mem::take(&mut progress.envs)).with_images();
-        let teacher_bytes = section("teacher")?.to_vec();
-        let (teacher, metrics, validator) = Self::around(&config, dir, &teacher_bytes)?;
+        let env = with_images(VecEnv::from_envs(std::mem::take(&mut progress.envs)), config.student);
+        let teacher = match config.pilot_teaches() {
+            false => {
+                let bytes = section("teacher")?.to_vec();
+                Teacher::Policy(Box::new(Policy::from_blob(&WeightsBlob::from_bytes(&bytes)?)?), bytes)
+            }
+            true => {
+                ensure!(
+                    progress.pilots.len() == env.len(),
+                    "{}: {} pilots for {} environments",
+                    path.display(),
+                    progress.pilots.len(),
+                    env.len()
+                );
+                let pilots = std::mem::take(&mut progress.pilots).into_iter().zip(env.envs()).map(|(memory, e)| match memory {
+                    Some(memory) => ReferencePilot::recall(PilotParams::default(), e.track(), memory),
+                    None => ReferencePilot::new(PilotParams::default()),
+                });
+                Teacher::Pilot(pilots.collect())
+            }
+        };
+        let (metrics, validator) = Self::around(&config, dir)?;
         let dir = dir.to_path_buf();
-        Ok(Self { config, dir, teacher_bytes, teacher, student, data, env, tasks, progress, checkpoints, metrics, validator })
+        Ok(Self { config, dir, teacher, student, data, env, tasks, progress, checkpoints, metrics, validator })
     }
 
-    /// What start and resume build alike from the config and the teacher's bytes: the teacher,
-    /// the metrics files and the validator.
-    fn around(config: &DistillConfig, dir: &Path, teacher_bytes: &[u8]) -> anyhow::Result<(Policy, MetricsWriter, Option<Validator>)> {
-        let teacher = Policy::from_blob(&WeightsBlob::from_bytes(teacher_bytes)?)?;
+    /// What start and resume build alike from the config: the metrics files and the validator.
+    fn around(config: &DistillConfig, dir: &Path) -> anyhow::Result<(MetricsWriter, Option<Validator>)> {
         let metrics = MetricsWriter::open_with_columns(dir, &COLUMNS).with_context(|| format!("opening metrics in {}", dir.display()))?;
-        Ok((teacher, metrics, Validator::new(&config.eval)?))
+        Ok((metrics, Validator::new(&config.eval)?))
     }
 
     /// Rounds done.
@@ -383,13 +494,14 @@ impl Distiller {
     fn fly(&mut self) -> anyhow::Result<Flight> {
         let beta = self.config.teacher_decay.powi(self.progress.round.min(i32::MAX as u64) as i32);
         // Round 0 is the teacher's alone: the student's actions would not be used.
-        let student = if beta < 1.0 { Some(VisionPolicy::from_blob(&self.student.weights())?) } else { None };
+        let student = if beta < 1.0 { Some(ActingPolicy::from_blob(&self.student.weights())?) } else { None };
         let n = self.env.len();
         let mut rewards = vec![0.0f64; n];
         let mut flight = Flight::default();
         for _ in 0..self.config.steps_per_round {
-            let labels = self.teacher.deterministic_actions(&self.env.observations);
-            let student_actions = student.as_ref().map(|s| s.deterministic_actions(&self.env.images, &self.env.observations));
+            let labels = self.teacher.labels(&self.env);
+            let student_actions = student.as_ref().map(|s| s.deterministic_actions(&self.env.observations, &self.env.images));
+            self.student.observe(&self.env.observations);
             let mut actions = labels.clone();
             for i in 0..n {
                 let state = &self.env.observations[i * STATE_OBS_DIM..(i + 1) * STATE_OBS_DIM];
@@ -405,6 +517,7 @@ impl Distiller {
                 *total += f64::from(*r);
             }
             for f in &self.env.finished {
+                self.teacher.episode_started(f.env, &self.env);
                 flight.episodes += 1;
                 flight.laps += u64::from(f.stats.laps);
                 flight.crashes += usize::from(f.stats.crash.is_some());
@@ -412,6 +525,7 @@ impl Distiller {
         }
         for (env, track) in self.tasks.report(ACTOR, self.progress.rollout, &rewards)? {
             self.env.set_track(env, track);
+            self.teacher.episode_started(env, &self.env);
         }
         self.progress.rollout += 1;
         Ok(flight)
@@ -433,7 +547,10 @@ impl Distiller {
     #[allow(clippy::expect_used, reason = "environments and counters serialise")]
     pub fn checkpoint(&mut self) -> anyhow::Result<PathBuf> {
         let mut c = Checkpoint::default();
-        c.put("teacher", self.teacher_bytes.clone());
+        match &self.teacher {
+            Teacher::Policy(_, bytes) => c.put("teacher", bytes.clone()),
+            Teacher::Pilot(pilots) => self.progress.pilots = pilots.iter().map(ReferencePilot::memory).collect(),
+        }
         c.put("weights", self.student.weights().to_bytes());
         c.put("optimizer", self.student.optimizer_state());
         c.put("dataset", self.data.to_bytes());
@@ -441,7 +558,16 @@ impl Distiller {
         self.progress.envs = self.env.envs().to_vec();
         c.put("distiller", serde_json::to_vec(&self.progress).expect("environments and counters serialise"));
         self.progress.envs.clear();
+        self.progress.pilots.clear();
         Ok(self.checkpoints.save(&c, self.progress.round)?)
+    }
+}
+
+/// `env`, rendering camera images when the student sees them.
+fn with_images(env: VecEnv, student: Agent) -> VecEnv {
+    match student {
+        Agent::Vision => env.with_images(),
+        Agent::State => env,
     }
 }
 
@@ -465,10 +591,18 @@ pub fn progress_line(s: &RoundSummary, rounds: u64) -> String {
     )
 }
 
+/// What [`run`] ended with.
+pub struct DistillOutcome {
+    /// The student now.
+    pub student: WeightsBlob,
+    /// True when every round is done.
+    pub finished: bool,
+}
+
 /// Distils until every round is done, `rounds` more are done, or `stop` is raised; then
 /// checkpoints. A new run starts from `config` in `dir`; `resume` continues the one there.
 #[allow(clippy::print_stderr, reason = "the command's own terminal output")]
-pub fn run(dir: &Path, config: Option<DistillConfig>, rounds: Option<u64>, stop: &AtomicBool) -> anyhow::Result<WeightsBlob> {
+pub fn run(dir: &Path, config: Option<DistillConfig>, rounds: Option<u64>, stop: &AtomicBool) -> anyhow::Result<DistillOutcome> {
     let mut distiller = match config {
         Some(config) => {
             std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -485,5 +619,5 @@ pub fn run(dir: &Path, config: Option<DistillConfig>, rounds: Option<u64>, stop:
     }
     let path = distiller.checkpoint()?;
     eprintln!("checkpoint written to {} ({:.0} s of distillation so far)", path.display(), distiller.wall_seconds());
-    Ok(distiller.student())
+    Ok(DistillOutcome { student: distiller.student(), finished: distiller.finished() })
 }

@@ -4,8 +4,8 @@
 //! those same loops over an in-memory link (`trainer`), experiment files (`experiment`), config
 //! files as overrides of a config's own defaults (`overrides`), the
 //! progress line (`progress`), the three processes' commands and servers (`services`), the
-//! supervisor of `dronerace train` (`supervisor`) and the vision student's distillation
-//! (`distill`).
+//! supervisor of `dronerace train` (`supervisor`), distillation by DAgger (`distill`) and
+//! the imitation warm start of a run built on it (`warm_start`).
 
 pub mod actor_process;
 pub mod chaos;
@@ -23,6 +23,7 @@ pub mod train;
 pub mod trainer;
 pub mod transport_bench;
 pub mod validation;
+pub mod warm_start;
 
 pub use run::{IterationSummary, Run, TrackSource, TrainConfig, TrainError};
 pub use trainer::Trainer;

@@ -101,6 +101,9 @@ pub struct TrainConfig {
     /// Start from this trained policy (checkpoint or weights blob) instead of a fresh network:
     /// fine-tuning. Its architecture must match the profile's.
     pub init_from: Option<PathBuf>,
+    /// Imitate the reference pilot before PPO and start from the imitation (`[warm_start]`;
+    /// none by default). Exclusive with `init_from`.
+    pub warm_start: Option<crate::warm_start::WarmStart>,
     /// Kind of agent: `state` (default) or `vision` (SPEC §5's camera and CNN). A config file
     /// with `agent = "vision"` starts from [`TrainConfig::vision`], so everything it does not
     /// set takes its VB column.
@@ -127,6 +130,7 @@ impl Default for TrainConfig {
             network: Default::default(),
             eval: Default::default(),
             init_from: None,
+            warm_start: None,
             agent: Agent::State,
         }
     }
@@ -190,6 +194,9 @@ impl TrainConfig {
         }
         if let Some(ppo) = self.ppo {
             profile.ppo = ppo;
+        }
+        if let Some(warm_start) = &self.warm_start {
+            profile.ppo.critic_warmup_iterations = warm_start.critic_iterations;
         }
         if let Some(hidden) = &self.hidden {
             if hidden.is_empty() || hidden.contains(&0) {
@@ -255,6 +262,9 @@ pub enum TrainError {
     /// The actor's loop failed (training in one process).
     #[error(transparent)]
     ActorLoop(#[from] crate::actor_process::ActorProcessError),
+    /// The warm start could not be run (or was stopped).
+    #[error("warm start: {0:#}")]
+    WarmStart(anyhow::Error),
     /// Training in one process lost its turn order (a bug, reported rather than hidden).
     #[error("in-process training: {0}")]
     TurnOrder(String),

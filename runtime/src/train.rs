@@ -20,7 +20,7 @@ use crate::{TrainConfig, Trainer};
 /// resumed one needs a checkpoint to resume from.
 pub fn with_processes(
     dir: &Path,
-    config: TrainConfig,
+    mut config: TrainConfig,
     resume: bool,
     actors: usize,
     transport: Transport,
@@ -36,6 +36,7 @@ pub fn with_processes(
             dir.display()
         );
         let _ = std::fs::remove_file(dir.join("taskctl.snapshot"));
+        crate::warm_start::prepare(&mut config, dir)?;
         let text = toml::to_string(&config).context("serialising the config")?;
         let path = dir.join("config.toml");
         racetracks::files::write_atomic(&path, text.as_bytes()).with_context(|| format!("writing {}", path.display()))?;

@@ -20,7 +20,7 @@ pub use observation::{
     DEFAULT_PROXIMITY_RANGE, OBSTACLE_GATE_DIM, ObservationFrame, ObservationLayout, ObstacleOrder, PROXIMITY_DIM, STATE_OBS_DIM,
 };
 pub use params::{GRAVITY, QuadrotorParams, RaceParams};
-pub use pilot::{Controller, PilotParams, ReferencePilot};
+pub use pilot::{Controller, PilotMemory, PilotParams, ReferencePilot};
 pub use race::{ControllerModel, CrashCause, EnvConfig, EpisodeStats, RaceEnv, StartGate, StepOutcome};
 pub use randomization::RandomizationParams;
 pub use reward::{RewardParams, RewardTerms};

@@ -262,13 +262,40 @@ pub struct ReferencePilot {
     racing_line: Option<PilotPath>,
     /// From the episode's start to gate 0; dropped once gate 0 is passed.
     lead_in: Option<PilotPath>,
+    /// Where the lead-in starts (the episode's start position), while it is flown.
+    lead_in_from: Option<Vector3<f64>>,
     progress: usize,
+}
+
+/// What a pilot remembers of its episode beyond the track, so that a checkpoint can hold a
+/// pilot mid-flight in a few bytes: its paths are rebuilt from the track, deterministically.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PilotMemory {
+    /// Index of the path point the pilot is at.
+    progress: usize,
+    /// Start of the lead-in, while the pilot is still on it.
+    lead_in_from: Option<[f64; 3]>,
 }
 
 impl ReferencePilot {
     /// A pilot with the given tuning.
     pub fn new(params: PilotParams) -> Self {
-        Self { params, racing_line: None, lead_in: None, progress: 0 }
+        Self { params, racing_line: None, lead_in: None, lead_in_from: None, progress: 0 }
+    }
+
+    /// What this pilot remembers of its episode; `None` before its first reset.
+    pub fn memory(&self) -> Option<PilotMemory> {
+        self.racing_line.as_ref().map(|_| PilotMemory { progress: self.progress, lead_in_from: self.lead_in_from.map(Into::into) })
+    }
+
+    /// A pilot tuned by `params` in the middle of an episode on `track`, as [`Self::memory`]
+    /// left it: it acts from here exactly as the remembered pilot would.
+    pub fn recall(params: PilotParams, track: &Track, memory: PilotMemory) -> Self {
+        let racing_line = PilotPath::through_gates(track, &params);
+        let lead_in_from = memory.lead_in_from.map(Vector3::from);
+        let lead_in =
+            lead_in_from.map(|from| PilotPath::lead_in(track, &from, &start_heading(track), racing_line.points[0].speed, &params));
+        Self { params, racing_line: Some(racing_line), lead_in, lead_in_from, progress: memory.progress }
     }
 
     /// Samples of the closed path this pilot flies through `track`'s gates (for drawings).
@@ -277,13 +304,18 @@ impl ReferencePilot {
     }
 }
 
+/// The direction a drone faces at the start of `track`.
+fn start_heading(track: &Track) -> Vector3<f64> {
+    Vector3::new(track.start.yaw.cos(), track.start.yaw.sin(), 0.0)
+}
+
 impl Controller for ReferencePilot {
     fn reset(&mut self, env: &RaceEnv) {
         let track = env.track();
         let racing_line = PilotPath::through_gates(track, &self.params);
-        let yaw = track.start.yaw;
-        let heading = Vector3::new(yaw.cos(), yaw.sin(), 0.0);
-        self.lead_in = Some(PilotPath::lead_in(track, &env.body().position, &heading, racing_line.points[0].speed, &self.params));
+        let from = env.body().position;
+        self.lead_in = Some(PilotPath::lead_in(track, &from, &start_heading(track), racing_line.points[0].speed, &self.params));
+        self.lead_in_from = Some(from);
         self.racing_line = Some(racing_line);
         self.progress = 0;
     }
@@ -294,6 +326,7 @@ impl Controller for ReferencePilot {
         if self.lead_in.is_some() && env.stats().gates_passed > 0 {
             // Through gate 0: join the racing line where it leaves gate 0.
             self.lead_in = None;
+            self.lead_in_from = None;
             self.progress = 0;
         }
         let path = self.lead_in.as_ref().or(self.racing_line.as_ref()).expect("reset before act");
@@ -389,6 +422,32 @@ mod tests {
             assert!(!out.terminated, "crashed: {:?} at t = {}", out.crash, env.time());
         }
         assert!(env.stats().laps >= 2, "laps {}", env.stats().laps);
+    }
+
+    #[test]
+    fn a_recalled_pilot_flies_on_exactly_as_the_remembered_one() {
+        let config = EnvConfig { randomization: RandomizationParams::none(), ..EnvConfig::evaluation() };
+        let mut env = RaceEnv::new(oval(), config, 0, 0);
+        let mut pilot = ReferencePilot::default();
+        assert_eq!(pilot.memory(), None, "nothing to remember before a reset");
+        pilot.reset(&env);
+        // Once on the lead-in, once on the racing line (gate 0 passed by step 150).
+        for split in [20, 150] {
+            while env.stats().length < split {
+                let a = pilot.act(&env);
+                env.step(&a);
+            }
+            let memory = pilot.memory().unwrap();
+            assert_eq!(memory.lead_in_from.is_some(), split == 20);
+            let mut recalled = ReferencePilot::recall(PilotParams::default(), env.track(), memory);
+            let mut twin = env.clone();
+            for _ in 0..50 {
+                let (a, b) = (pilot.act(&env), recalled.act(&twin));
+                assert_eq!(a, b);
+                env.step(&a);
+                twin.step(&b);
+            }
+        }
     }
 
     #[test]

@@ -1,5 +1,5 @@
-//! `dronerace distill`: a vision student learns from a state-based teacher by DAgger
-//! (`runtime::distill`).
+//! `dronerace distill`: a student learns from a teacher by DAgger (`runtime::distill`): a
+//! vision student from a state-based policy, or a state-based student from the pilot.
 
 use std::path::PathBuf;
 
@@ -10,9 +10,14 @@ use runtime::distill::DistillConfig;
 /// Arguments of `dronerace distill`.
 #[derive(Args)]
 pub struct DistillArgs {
-    /// The state-based teacher: a checkpoint or weights blob (overrides the config).
+    /// The teacher: a state-based checkpoint or weights blob, or `pilot` for the reference
+    /// pilot (overrides the config).
     #[arg(long)]
     teacher: Option<PathBuf>,
+    /// The student: `vision` (default) or `state` (overrides the config; without a config, the
+    /// student's defaults).
+    #[arg(long, value_parser = super::train::parse_agent)]
+    student: Option<policy::Agent>,
     /// TOML configuration (every field optional; see runtime::distill::DistillConfig).
     #[arg(long)]
     config: Option<PathBuf>,
@@ -20,7 +25,7 @@ pub struct DistillArgs {
     #[arg(long, default_value = "runs/vision-student")]
     out: PathBuf,
     /// Continue the distillation in this directory from its newest checkpoint.
-    #[arg(long, conflicts_with_all = ["teacher", "config", "seed"])]
+    #[arg(long, conflicts_with_all = ["teacher", "student", "config", "seed"])]
     resume: Option<PathBuf>,
     /// Rounds of the whole run (overrides the config; with --resume, extends or shortens the
     /// run being resumed).
@@ -53,8 +58,11 @@ pub fn run(args: DistillArgs) -> anyhow::Result<()> {
         None => {
             let mut config = match &args.config {
                 Some(path) => DistillConfig::read(path)?,
-                None => DistillConfig::default(),
+                None => DistillConfig::defaults_for(args.student.unwrap_or(policy::Agent::Vision)),
             };
+            if let Some(student) = args.student {
+                config.student = student;
+            }
             if let Some(teacher) = &args.teacher {
                 config.teacher = teacher.clone();
             }
@@ -67,7 +75,7 @@ pub fn run(args: DistillArgs) -> anyhow::Result<()> {
             (args.out.clone(), Some(config))
         }
     };
-    let student = runtime::distill::run(&dir, config, args.rounds, &stop)?;
+    let student = runtime::distill::run(&dir, config, args.rounds, &stop)?.student;
     if let Some(path) = &args.save {
         super::write_atomic(path, &student.to_bytes()).with_context(|| format!("saving the student to {}", path.display()))?;
         println!("student (version {}) written to {}", student.version, path.display());

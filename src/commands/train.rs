@@ -55,11 +55,11 @@ pub struct TrainArgs {
 }
 
 /// The agent a command-line flag names.
-fn parse_agent(name: &str) -> anyhow::Result<policy::Agent> {
+pub(crate) fn parse_agent(name: &str) -> anyhow::Result<policy::Agent> {
     match name {
         "state" => Ok(policy::Agent::State),
         "vision" => Ok(policy::Agent::Vision),
-        other => anyhow::bail!("--agent: {other:?} is neither state nor vision"),
+        other => anyhow::bail!("{other:?} is neither state nor vision"),
     }
 }
 

@@ -238,14 +238,18 @@ impl UpdateStats {
 }
 
 /// One PPO update of `model` on `batch`: `n_epochs` × shuffled minibatches of
-/// [`minibatch_loss`] → backward → gradient-norm clipping → Adam step. Returns the updated
-/// model and its statistics.
+/// [`minibatch_loss`] → backward → gradient-norm clipping → Adam step. With `train_policy`
+/// false only the critic's parameters take the step (the policy's gradients are dropped before
+/// clipping, so neither Adam's moments nor weight decay touch them). Returns the updated model
+/// and its statistics.
+#[allow(clippy::too_many_arguments, reason = "the update's inputs, each used once")]
 pub fn update<N: PpoNetwork>(
     mut model: N,
     optimizer: &mut ModuleOptimizer,
     batch: &TrainingBatch,
     config: &PpoConfig,
     learning_rate: f64,
+    train_policy: bool,
     rng: &mut ChaCha8Rng,
     device: &Device,
 ) -> (N, UpdateStats) {
@@ -258,6 +262,9 @@ pub fn update<N: PpoNetwork>(
         for rows in indices.chunks(config.batch_size.min(batch.len())) {
             let (loss, parts) = minibatch_loss(&model, batch.minibatch(rows, device), config);
             let mut grads = GradientsParams::from_grads(loss.backward(), &model);
+            if !train_policy {
+                drop_gradients(&mut grads, ids.iter().enumerate().filter(|(i, _)| !critic.contains(i)).map(|(_, id)| *id));
+            }
             let squares = clip_grad_norm(&mut grads, &ids, &groups, config.max_grad_norm);
             model = optimizer.step(learning_rate, model, grads);
             stats.add_step(parts, &squares, critic.clone(), config.clip_range);
@@ -324,6 +331,17 @@ pub fn clip_grad_norm(grads: &mut GradientsParams, ids: &[(ParamId, usize)], gro
         }
     }
     squares
+}
+
+/// Removes the gradients of `params` (id and rank), so the optimiser leaves them as they are.
+fn drop_gradients(grads: &mut GradientsParams, params: impl Iterator<Item = (ParamId, usize)>) {
+    for (id, rank) in params {
+        match rank {
+            1 => drop(grads.remove::<1>(id)),
+            2 => drop(grads.remove::<2>(id)),
+            _ => drop(grads.remove::<4>(id)),
+        }
+    }
 }
 
 /// 1 − Var(returns − values) / Var(returns); NaN when the returns do not vary (SB3).
