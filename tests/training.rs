@@ -121,6 +121,7 @@ fn a_warm_started_run_starts_from_the_pilots_imitation_and_first_trains_its_crit
         updates_per_round: 4,
         minibatch: 32,
         critic_iterations: 1,
+        imitation_weight: 0.5,
         ..Default::default()
     };
     let eval = runtime::EvalSettings { tracks: 1, runs: 1, steps: 50, ..Default::default() };
@@ -142,6 +143,18 @@ fn a_warm_started_run_starts_from_the_pilots_imitation_and_first_trains_its_crit
     assert!(values(&after_one)[6..12] != values(&start)[6..12], "…and trains the critic");
     trainer.iteration_step().unwrap();
     assert!(actor(&trainer.learner().weights()) != actor(&start), "then the policy learns");
+    // The imitation term joins once the policy trains, and again after a resume (the learner
+    // takes the warm start's data set back).
+    trainer.checkpoint().unwrap();
+    drop(trainer);
+    let mut trainer = Trainer::resume(dir.path()).unwrap();
+    trainer.iteration_step().unwrap();
+    let metrics = std::fs::read_to_string(dir.path().join("metrics.csv")).unwrap();
+    let column = metrics.lines().next().unwrap().split(',').position(|c| c == "losses/imitation").unwrap();
+    let imitation: Vec<&str> = metrics.lines().skip(1).map(|l| l.split(',').nth(column).unwrap()).collect();
+    assert_eq!(imitation[0], "", "no term while the critic warms up");
+    assert!(imitation[1..].iter().all(|v| v.parse::<f64>().unwrap() > 0.0), "{imitation:?}");
+    assert_eq!(imitation.len(), 3);
     // The warm start is done once: a second run in another directory repeats it identically,
     // and a config that names both starting points is refused.
     let again = Trainer::start(config.clone(), &dir.path().join("again")).unwrap();

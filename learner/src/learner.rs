@@ -10,7 +10,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::config::Profile;
-use crate::ppo::{GaeInput, TrainingBatch, UpdateStats, gae, update};
+use crate::ppo::{GaeInput, ImitationSet, ImitationTerm, TrainingBatch, UpdateStats, UpdateStep, gae, update};
 
 /// A batch of chunks the learner refuses.
 #[derive(Debug, thiserror::Error)]
@@ -86,6 +86,9 @@ pub struct Learner {
     /// Always `Some` between calls; taken while burn's optimiser consumes and returns it.
     model: Option<Network>,
     optimizer: ModuleOptimizer,
+    /// Labelled states the policy keeps imitating, and the term's weight at the run's start
+    /// (not part of checkpoints: the run attaches it again from its warm start).
+    imitation: Option<(ImitationSet, f64)>,
 }
 
 impl Learner {
@@ -102,7 +105,7 @@ impl Learner {
             profile,
         };
         let optimizer = adam(&counters.profile);
-        Self { counters, device, model, optimizer }
+        Self { counters, device, model, optimizer, imitation: None }
     }
 
     /// A fresh learner (version 0, new optimiser) whose network and normaliser start from a
@@ -114,6 +117,18 @@ impl Learner {
         learner.counters.normalizer = blob.normalizer.clone();
         // `new`'s optimiser holds no moments yet, so it starts afresh for the imported ids.
         Ok(learner)
+    }
+
+    /// Adds the imitation term to every later update: the squared error to `set`'s labels,
+    /// weighted `weight` at the start of the run and annealed linearly to 0 at its end; refused
+    /// for states of another width than the policy's.
+    pub fn set_imitation(&mut self, set: ImitationSet, weight: f64) -> Result<(), LearnerError> {
+        let dim = self.counters.profile.architecture.observation_dim;
+        if set.obs_dim() != dim {
+            return Err(LearnerError::State(format!("imitation states have {} numbers; the policy reads {dim}", set.obs_dim())));
+        }
+        self.imitation = Some((set, weight));
+        Ok(())
     }
 
     /// Current policy version (number of updates so far).
@@ -183,14 +198,23 @@ impl Learner {
         let progress = (c.env_steps + transitions as u64) as f64 / c.total_env_steps.max(1) as f64;
         let learning_rate = ppo.learning_rate(progress);
         let (optimizer, device) = (&mut self.optimizer, &self.device);
-        let train_policy = c.version >= ppo.critic_warmup_iterations;
+        let step = UpdateStep {
+            learning_rate,
+            train_policy: c.version >= ppo.critic_warmup_iterations,
+            // Annealed with the run: full weight at the start, none at the end.
+            imitation: self.imitation.as_ref().map(|(set, weight)| ImitationTerm {
+                set,
+                normalizer: &c.normalizer,
+                weight: weight * (1.0 - progress.clamp(0.0, 1.0)),
+            }),
+        };
         let (model, stats) = match self.model.take().expect("the model is present between calls") {
             Network::State(m) => {
-                let (m, stats) = update(m, optimizer, &batch, &ppo, learning_rate, train_policy, &mut c.rng, device);
+                let (m, stats) = update(m, optimizer, &batch, &ppo, &step, &mut c.rng, device);
                 (Network::State(m), stats)
             }
             Network::Vision(m) => {
-                let (m, stats) = update(m, optimizer, &batch, &ppo, learning_rate, train_policy, &mut c.rng, device);
+                let (m, stats) = update(m, optimizer, &batch, &ppo, &step, &mut c.rng, device);
                 (Network::Vision(m), stats)
             }
         };
@@ -242,7 +266,7 @@ impl Learner {
         let optimizer = adam(&counters.profile)
             .from_bytes(Bytes::from_bytes_vec(optimizer.to_vec()))
             .map_err(|e| LearnerError::State(format!("optimiser: {e:?}")))?;
-        Ok(Self { counters, device, model, optimizer })
+        Ok(Self { counters, device, model, optimizer, imitation: None })
     }
 }
 

@@ -483,6 +483,7 @@ impl Run {
             actor_grad_norm: s.actor_grad_norm,
             critic_grad_norm: s.critic_grad_norm,
             log_std: s.log_std,
+            imitation_loss: s.imitation_loss,
             version_lag: timing.version_lag as f64,
             switches: summary.switches as f64,
             mean_q: timing.mean_q,

@@ -13,7 +13,9 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 
 use anyhow::{Context, bail, ensure};
-use learner::checkpoint::CheckpointDir;
+use learner::checkpoint::{Checkpoint, CheckpointDir};
+use learner::distill::DistillDataset;
+use learner::ppo::ImitationSet;
 use policy::Agent;
 use serde::{Deserialize, Serialize};
 use taskctl::SwitchParams;
@@ -45,6 +47,10 @@ pub struct WarmStart {
     /// (σ = 0.14): SPEC's −0.5 (σ = 0.61) shakes the imitation off every track — its first
     /// rollouts average 0 laps and a return of ~0 against 0.8 laps and ~60 at −2 (BENCHMARKS).
     pub initial_log_std: f64,
+    /// Weight of the imitation term in PPO's loss at the start of the run — the squared error
+    /// between the policy's means and the teacher's labels on the warm start's data set,
+    /// annealed linearly to 0 at the end (0: PPO alone). Default 0.
+    pub imitation_weight: f64,
     /// PPO iterations that then train the fresh critic alone (`ppo.critic_warmup_iterations`).
     /// Default 10.
     pub critic_iterations: u64,
@@ -62,6 +68,7 @@ impl Default for WarmStart {
             learning_rate: 1e-3,
             switch_window: 5,
             initial_log_std: -2.0,
+            imitation_weight: 0.0,
             critic_iterations: 10,
         }
     }
@@ -95,6 +102,9 @@ impl WarmStart {
             generator: run.generator,
             switching: SwitchParams { window: self.switch_window, ..run.switching },
             env: run.env,
+            // Each checkpoint holds the whole data set (~100 MB at the defaults): few, and one kept.
+            checkpoint_every: 10,
+            keep_checkpoints: 1,
             // One validation, of the finished student (how well the imitation flies), unless the
             // run validates nothing.
             eval: crate::EvalSettings { every: if run.eval.every == 0 { 0 } else { self.rounds.max(1) }, ..run.eval.clone() },
@@ -133,4 +143,20 @@ pub fn prepare(config: &mut TrainConfig, run_dir: &Path) -> anyhow::Result<()> {
     }
     config.init_from = Some(student_path);
     Ok(())
+}
+
+/// The warm start's labelled states for PPO's imitation term, when the run's `[warm_start]`
+/// asks for the term: the data set of the warm start's newest checkpoint in `run_dir`.
+pub fn imitation_set(config: &TrainConfig, run_dir: &Path) -> anyhow::Result<Option<(ImitationSet, f64)>> {
+    let Some(warm_start) = config.warm_start.as_ref().filter(|w| w.imitation_weight > 0.0) else { return Ok(None) };
+    let dir = warm_start_dir(run_dir).join("checkpoints");
+    let path = CheckpointDir::new(dir.clone(), 1)?
+        .latest()
+        .with_context(|| format!("{}: no warm-start checkpoint holds the data set the imitation term needs", dir.display()))?;
+    let checkpoint = Checkpoint::read(&path)?;
+    let data = DistillDataset::from_bytes(checkpoint.get("dataset")?).with_context(|| format!("{}", path.display()))?;
+    let rows: Vec<usize> = (0..data.len()).collect();
+    let set = ImitationSet::new(data.states(&rows), data.labels(&rows), sim::STATE_OBS_DIM, sim::ACTION_DIM)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    Ok(Some((set, warm_start.imitation_weight)))
 }

@@ -1,8 +1,11 @@
-//! PPO, readable top to bottom: GAE → losses → the update over epochs and minibatches.
+//! PPO, readable top to bottom: GAE → losses → the update over epochs and minibatches (with an
+//! optional imitation term).
 
 pub mod gae;
+pub mod imitation;
 pub mod loss;
 pub mod update;
 
 pub use gae::{Advantages, GaeInput, gae};
-pub use update::{TrainingBatch, UpdateStats, update};
+pub use imitation::{ImitationSet, ImitationTerm};
+pub use update::{TrainingBatch, UpdateStats, UpdateStep, update};

@@ -11,6 +11,7 @@ use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use super::imitation::ImitationTerm;
 use super::loss::{clipped_surrogate, log_prob, normalize_advantages, value_loss};
 use crate::config::PpoConfig;
 
@@ -66,6 +67,9 @@ pub struct UpdateStats {
     pub critic_grad_norm: f64,
     /// Mean of the policy's log standard deviation after the update (`policy/log_std`).
     pub log_std: f64,
+    /// Squared error of the imitation term before its weight, averaged (`losses/imitation`;
+    /// NaN without the term).
+    pub imitation_loss: f64,
     /// Gradient steps taken.
     pub gradient_steps: usize,
 }
@@ -102,6 +106,9 @@ pub trait PpoNetwork: Module {
     fn param_ids(&self) -> Vec<(ParamId, usize)>;
     /// Number of the critic's parameters, which come last before the log std in that order.
     fn critic_param_count(&self) -> usize;
+    /// Action means `[b, action_dim]` of normalised state observations alone, for the
+    /// imitation term; `None` for a network that needs more (the vision agent's images).
+    fn state_action_means(&self, states: Tensor<2>) -> Option<Tensor<2>>;
 }
 
 impl PpoNetwork for ActorCritic {
@@ -119,6 +126,10 @@ impl PpoNetwork for ActorCritic {
 
     fn critic_param_count(&self) -> usize {
         self.critic.param_ids().len()
+    }
+
+    fn state_action_means(&self, states: Tensor<2>) -> Option<Tensor<2>> {
+        Some(self.actor.forward(states))
     }
 }
 
@@ -138,6 +149,10 @@ impl PpoNetwork for VisionActorCritic {
 
     fn critic_param_count(&self) -> usize {
         self.critic.param_ids().len()
+    }
+
+    fn state_action_means(&self, _states: Tensor<2>) -> Option<Tensor<2>> {
+        None
     }
 }
 
@@ -237,40 +252,62 @@ impl UpdateStats {
     }
 }
 
+/// What one update does beyond the PPO settings.
+#[derive(Clone, Copy, Debug)]
+pub struct UpdateStep<'a> {
+    /// Adam's learning rate.
+    pub learning_rate: f64,
+    /// False: only the critic's parameters take the step (the policy's gradients are dropped
+    /// before clipping, so neither Adam's moments nor weight decay touch them).
+    pub train_policy: bool,
+    /// The imitation term added to every minibatch's loss (with a minibatch of labelled states
+    /// of the same size), when the policy trains.
+    pub imitation: Option<ImitationTerm<'a>>,
+}
+
 /// One PPO update of `model` on `batch`: `n_epochs` × shuffled minibatches of
-/// [`minibatch_loss`] → backward → gradient-norm clipping → Adam step. With `train_policy`
-/// false only the critic's parameters take the step (the policy's gradients are dropped before
-/// clipping, so neither Adam's moments nor weight decay touch them). Returns the updated model
-/// and its statistics.
-#[allow(clippy::too_many_arguments, reason = "the update's inputs, each used once")]
+/// [`minibatch_loss`] (plus the imitation term) → backward → gradient-norm clipping → Adam
+/// step, as `step` says. Returns the updated model and its statistics.
 pub fn update<N: PpoNetwork>(
     mut model: N,
     optimizer: &mut ModuleOptimizer,
     batch: &TrainingBatch,
     config: &PpoConfig,
-    learning_rate: f64,
-    train_policy: bool,
+    step: &UpdateStep,
     rng: &mut ChaCha8Rng,
     device: &Device,
 ) -> (N, UpdateStats) {
     let mut stats = UpdateStats::default();
+    let mut imitation_sum = 0.0;
     let mut indices: Vec<usize> = (0..batch.len()).collect();
     let ids = model.param_ids();
     let (groups, critic) = clip_groups(ids.len(), model.critic_param_count(), config);
     for _ in 0..config.n_epochs {
         indices.shuffle(rng);
         for rows in indices.chunks(config.batch_size.min(batch.len())) {
-            let (loss, parts) = minibatch_loss(&model, batch.minibatch(rows, device), config);
+            let (mut loss, parts) = minibatch_loss(&model, batch.minibatch(rows, device), config);
+            if let Some(term) = step.imitation.filter(|_| step.train_policy) {
+                let (states, labels) = term.set.minibatch(rows.len(), term.normalizer, rng, device);
+                if let Some(means) = model.state_action_means(states) {
+                    let squared_error = (means - labels).powf_scalar(2.0).mean();
+                    imitation_sum += f64::from(scalar(squared_error.clone()));
+                    loss = loss + squared_error.mul_scalar(term.weight);
+                }
+            }
             let mut grads = GradientsParams::from_grads(loss.backward(), &model);
-            if !train_policy {
+            if !step.train_policy {
                 drop_gradients(&mut grads, ids.iter().enumerate().filter(|(i, _)| !critic.contains(i)).map(|(_, id)| *id));
             }
             let squares = clip_grad_norm(&mut grads, &ids, &groups, config.max_grad_norm);
-            model = optimizer.step(learning_rate, model, grads);
+            model = optimizer.step(step.learning_rate, model, grads);
             stats.add_step(parts, &squares, critic.clone(), config.clip_range);
         }
     }
     stats.average();
+    stats.imitation_loss = match step.imitation.filter(|_| step.train_policy) {
+        Some(_) => imitation_sum / stats.gradient_steps.max(1) as f64,
+        None => f64::NAN,
+    };
     stats.explained_variance = explained_variance(&batch.old_values, &batch.returns);
     stats.log_std = f64::from(scalar(model.log_std().mean()));
     (model, stats)
@@ -418,6 +455,48 @@ mod tests {
         assert!(policy_grad.iter().all(|g| (f64::from(*g) - 3.0 * 0.5 / (6.0 + 1e-6)).abs() < 1e-6), "{policy_grad:?}");
         let value_grad = grads.get::<1>(critic_bias).unwrap().into_data().try_into_vec::<f32>().unwrap();
         assert!((value_grad[0] - 0.01).abs() < 1e-7, "the small group is untouched: {value_grad:?}");
+    }
+
+    #[test]
+    fn the_imitation_term_pulls_the_policy_to_its_labels_and_only_while_the_policy_trains() {
+        let device = Device::flex().autodiff();
+        let arch = policy::Architecture { hidden: vec![16], ..policy::Architecture::paper() };
+        let n = 64;
+        let states: Vec<f32> = (0..n * 40).map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0).collect();
+        // Zero advantages: the surrogate has no gradient, only the imitation term moves the actor.
+        let batch = TrainingBatch {
+            observations: states.clone(),
+            actions: vec![0.0; n * 4],
+            old_log_probs: vec![0.0; n],
+            advantages: vec![0.0; n],
+            returns: vec![0.0; n],
+            old_values: vec![0.0; n],
+            images: Vec::new(),
+        };
+        let set = crate::ppo::ImitationSet::new(states.clone(), vec![0.5; n * 4], 40, 4).unwrap();
+        let normalizer = policy::ObsNormalizer::new(40);
+        let config = PpoConfig { batch_size: 32, n_epochs: 4, ..PpoConfig::default() };
+        let error = |model: &ActorCritic| {
+            let means = model.actor.forward(Tensor::from_data(TensorData::new(states.clone(), [n, 40]), &device));
+            f64::from(scalar((means.sub_scalar(0.5)).powf_scalar(2.0).mean()))
+        };
+        let run = |imitation: bool, train_policy: bool| {
+            let model = ActorCritic::new(&arch, -0.5, 1, &device);
+            let before = error(&model);
+            let mut optimizer = burn::optim::AdamConfig::new().init();
+            let term = ImitationTerm { set: &set, normalizer: &normalizer, weight: 1.0 };
+            let step = UpdateStep { learning_rate: 1e-2, train_policy, imitation: imitation.then_some(term) };
+            let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(0);
+            let (model, stats) = update(model, &mut optimizer, &batch, &config, &step, &mut rng, &device);
+            (before, error(&model), stats.imitation_loss)
+        };
+        let (before, after, loss) = run(true, true);
+        assert!(after < 0.5 * before, "imitated: {before} → {after}");
+        assert!(loss < before && loss > after, "the logged loss averages the errors along the way: {before} > {loss} > {after}");
+        let (before, after, loss) = run(false, true);
+        assert!((after - before).abs() < 1e-3 * before && loss.is_nan(), "without the term nothing pulls: {before} → {after}");
+        let (before, after, loss) = run(true, false);
+        assert!(after == before && loss.is_nan(), "the critic's warm-up leaves the policy alone: {before} → {after}");
     }
 
     #[test]
