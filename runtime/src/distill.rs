@@ -1,7 +1,8 @@
 //! `dronerace distill`: a student learns to race from a teacher by DAgger — a vision student
-//! from a state-based policy, or a state-based student from the reference pilot (the warm start
-//! of `train`'s `[warm_start]`). Each round the environments fly `steps_per_round` steps — every step by the teacher with
-//! probability β = `teacher_decay`^round, else by the student (round 0: the teacher alone) —
+//! from a state-based policy, or a state-based student from the reference pilot (the warm
+//! start of `train`'s `[warm_start]`). Each round the environments fly `steps_per_round` steps
+//! — every step by the teacher with probability β = `teacher_decay`^round, else by the student
+//! (round 0: the teacher alone) —
 //! while the teacher labels every visited state with its action; the labelled states join
 //! the data set (`learner::distill`), the task controller switches tracks on the round's
 //! rewards as in training, and the student takes `updates_per_round` regression steps on
@@ -130,14 +131,15 @@ impl Default for DistillConfig {
 
 impl DistillConfig {
     /// The defaults of a `student`: a vision student's as [`Default`]; a state-based
-    /// student's take SPEC's SB columns of randomisation (§3), reward (§6) and α = 1000 (§8).
+    /// student's take SPEC's SB columns of randomisation (§3), reward (§6) and α = 1000 (§8),
+    /// and the log std −2 that PPO from an imitation starts with (`warm_start`).
     pub fn defaults_for(student: Agent) -> Self {
         match student {
             Agent::Vision => Self::default(),
             Agent::State => {
                 let env = EnvConfig::default();
                 let switching = SwitchParams { alpha: SwitchParams::default().alpha, ..Self::default().switching };
-                Self { student, env, switching, ..Self::default() }
+                Self { student, env, switching, initial_log_std: -2.0, ..Self::default() }
             }
         }
     }

@@ -3,7 +3,9 @@
 //! random network — a policy that already flies half the tracks and has to get faster and
 //! surer, rather than one that must first discover gates by crashing on 96 tracks at once. The
 //! student's critic is fresh, so the first PPO iterations train the critic alone
-//! (`critic_iterations`, which sets `ppo.critic_warmup_iterations`).
+//! (`critic_iterations`, which sets `ppo.critic_warmup_iterations`); after them PPO's loss
+//! keeps an imitation term on the warm start's data set (`imitation_weight`, annealed to 0),
+//! without which PPO drifts off the imitation faster than it improves on it.
 //!
 //! The imitation runs in `RUN/warm-start/` with its own checkpoints, metrics and progress
 //! line; started again after an interruption, it resumes there. Its student is written to
@@ -49,7 +51,8 @@ pub struct WarmStart {
     pub initial_log_std: f64,
     /// Weight of the imitation term in PPO's loss at the start of the run — the squared error
     /// between the policy's means and the teacher's labels on the warm start's data set,
-    /// annealed linearly to 0 at the end (0: PPO alone). Default 0.
+    /// annealed linearly to 0 at the end (0: PPO alone). Default 10, chosen on validation
+    /// (`experiments/warm-start.toml`: 0 lets PPO drift off the imitation, 1 holds it weakly).
     pub imitation_weight: f64,
     /// PPO iterations that then train the fresh critic alone (`ppo.critic_warmup_iterations`).
     /// Default 10.
@@ -68,7 +71,7 @@ impl Default for WarmStart {
             learning_rate: 1e-3,
             switch_window: 5,
             initial_log_std: -2.0,
-            imitation_weight: 0.0,
+            imitation_weight: 10.0,
             critic_iterations: 10,
         }
     }
