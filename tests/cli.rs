@@ -72,6 +72,33 @@ fn eval_prints_and_writes_json_and_markdown() {
 }
 
 #[test]
+fn a_retuned_pilot_flies_as_its_tuning_file_says_and_a_bad_file_is_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let mean_lap = |tuning: Option<&str>| {
+        let out = dir.path().join("eval");
+        let mut args = vec!["eval", "--controller", "pilot", "--runs", "2", "--steps", "1000", "--out", out.to_str().unwrap()];
+        let kidney = library_file("kidney.toml");
+        args.extend(["--tracks", &kidney]);
+        let path = dir.path().join("tuning.toml");
+        if let Some(text) = tuning {
+            std::fs::write(&path, text).unwrap();
+            args.extend(["--pilot-tuning", path.to_str().unwrap()]);
+        }
+        let o = dronerace(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let report: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("eval.json")).unwrap()).unwrap();
+        report["mean_lap"].as_f64().unwrap()
+    };
+    // A pilot capped at 5 m/s laps slower than the default one (9 m/s).
+    let (default, slow) = (mean_lap(None), mean_lap(Some("max_speed = 5.0")));
+    assert!(slow > 1.2 * default, "{slow} s against {default} s");
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, "max_sped = 5.0").unwrap();
+    let o = dronerace(&["eval", "--pilot-tuning", bad.to_str().unwrap(), "--tracks", &library_file("kidney.toml"), "--runs", "1"]);
+    assert!(!o.status.success() && stderr(&o).contains("bad.toml") && stderr(&o).contains("max_sped"), "{}", stderr(&o));
+}
+
+#[test]
 fn replay_writes_one_row_per_step_and_stops_at_a_crash() {
     let dir = tempfile::tempdir().unwrap();
     let actions = dir.path().join("actions.csv");

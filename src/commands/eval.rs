@@ -40,6 +40,10 @@ pub struct EvalArgs {
     /// Checkpoint or weights blob of the policy (with `--controller policy`).
     #[arg(long)]
     policy: Option<PathBuf>,
+    /// TOML file of the reference pilot's tuning (`sim::PilotParams`; every field optional),
+    /// to fly a retuned pilot (with `--controller pilot`).
+    #[arg(long)]
+    pilot_tuning: Option<PathBuf>,
     /// Directory for `eval.json` and `eval.md`.
     #[arg(long, default_value = "runs/eval")]
     out: PathBuf,
@@ -65,7 +69,17 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.steps > 0, "--steps must be at least 1");
     let tracks = load_tracks(&args.tracks)?;
     let config = EvalConfig { runs: args.runs, steps: args.steps, seed: args.seed, ..EvalConfig::default() };
-    let (name, make) = controller_factory(args.controller, args.policy.as_deref())?;
+    let (name, make) = match (&args.pilot_tuning, args.controller) {
+        (None, kind) => controller_factory(kind, args.policy.as_deref())?,
+        (Some(path), ControllerKind::Pilot) => {
+            let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+            let params = runtime::overrides::parse_over(&::sim::PilotParams::default(), &text)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+            let make: ControllerFactory = Box::new(move || Box::new(ReferencePilot::new(params)));
+            (format!("pilot ({})", path.display()), make)
+        }
+        (Some(_), ControllerKind::Policy) => anyhow::bail!("--pilot-tuning retunes the pilot; it does not apply to --controller policy"),
+    };
     let started = std::time::Instant::now();
     let report = evaluate(&name, &tracks, make.as_ref(), &config);
     let markdown = report.to_markdown();
