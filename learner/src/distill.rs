@@ -12,18 +12,18 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use burn::module::Module;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Bytes, Device, Tensor, TensorData};
 use policy::vision::IMAGE_SIDE;
-use policy::{ActorCritic, Agent, Architecture, ObsNormalizer, VisionActorCritic, WeightsBlob, pixels_to_unit};
+use policy::{Agent, Architecture, ObsNormalizer, WeightsBlob, pixels_to_unit};
 use rand::Rng;
 use rayon::prelude::*;
 use sim::camera::IMAGE_PIXELS;
 use sim::nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use sim::{ACTION_DIM, RaceEnv, STATE_OBS_DIM, Track};
 
-use crate::learner::LearnerError;
+use crate::learner::{LearnerError, Network};
+use crate::ppo::update::scalar;
 
 /// The frame of a serialised data set.
 const DATASET_FRAME: frames::FrameKind = frames::FrameKind { magic: b"DRDAGGER", format: 1, name: "distillation data set" };
@@ -210,12 +210,6 @@ impl DistillDataset {
     }
 }
 
-/// The student's network: a state-based or a vision actor-critic.
-enum StudentNet {
-    State(ActorCritic),
-    Vision(VisionActorCritic),
-}
-
 /// A student under supervised training: its actor regresses the teacher's actions. Taught by a
 /// state-based policy, it takes the teacher's critic (same state input, so that PPO can start
 /// from the student) and its normaliser, frozen. Taught by a scripted teacher (the reference
@@ -223,7 +217,7 @@ enum StudentNet {
 /// ([`Student::observe`]), as PPO would.
 pub struct Student {
     /// Always `Some` between calls; taken while burn's optimiser consumes and returns it.
-    model: Option<StudentNet>,
+    model: Option<Network>,
     optimizer: ModuleOptimizer,
     architecture: Architecture,
     normalizer: ObsNormalizer,
@@ -257,11 +251,9 @@ impl Student {
         if let Some(blob) = start {
             blob.check_architecture(&architecture).map_err(start_error)?;
         }
-        let mut model = match (architecture.agent, start) {
-            (Agent::State, None) => StudentNet::State(ActorCritic::new(&architecture, initial_log_std, seed, &device)),
-            (Agent::Vision, None) => StudentNet::Vision(VisionActorCritic::new(&architecture, initial_log_std, seed, &device)),
-            (Agent::State, Some(blob)) => StudentNet::State(blob.model(&device).map_err(start_error)?.train()),
-            (Agent::Vision, Some(blob)) => StudentNet::Vision(blob.vision_model(&device).map_err(start_error)?.train()),
+        let mut model = match start {
+            None => Network::new(&architecture, initial_log_std, seed, &device),
+            Some(blob) => Network::from_blob(blob, &device).map_err(start_error)?,
         };
         let normalizer = match teacher {
             None => start.map_or_else(|| ObsNormalizer::new(architecture.observation_dim), |blob| blob.normalizer.clone()),
@@ -271,8 +263,8 @@ impl Student {
                 teacher.check_architecture(&Architecture { agent: Agent::State, ..architecture.clone() }).map_err(teacher_error)?;
                 let critic = teacher.model(&device).map_err(teacher_error)?.critic;
                 match &mut model {
-                    StudentNet::State(m) => m.critic = critic,
-                    StudentNet::Vision(m) => m.critic = critic,
+                    Network::State(m) => m.critic = critic,
+                    Network::Vision(m) => m.critic = critic,
                 }
                 teacher.normalizer.clone()
             }
@@ -293,11 +285,7 @@ impl Student {
     pub fn restore(weights: &[u8], optimizer: &[u8], learns_normalizer: bool) -> Result<Self, LearnerError> {
         let blob = WeightsBlob::from_bytes(weights).map_err(|e| LearnerError::State(e.to_string()))?;
         let device = Device::flex().autodiff();
-        let state = |e: policy::BlobError| LearnerError::State(e.to_string());
-        let model = match blob.architecture.agent {
-            Agent::State => StudentNet::State(blob.model(&device).map_err(state)?.train()),
-            Agent::Vision => StudentNet::Vision(blob.vision_model(&device).map_err(state)?.train()),
-        };
+        let model = Network::from_blob(&blob, &device).map_err(|e| LearnerError::State(e.to_string()))?;
         let optimizer = student_adam()
             .from_bytes(Bytes::from_bytes_vec(optimizer.to_vec()))
             .map_err(|e| LearnerError::State(format!("student optimiser: {e:?}")))?;
@@ -313,7 +301,7 @@ impl Student {
     }
 
     #[allow(clippy::expect_used, reason = "the model is present between calls")]
-    fn model(&self) -> &StudentNet {
+    fn model(&self) -> &Network {
         self.model.as_ref().expect("the model is present between calls")
     }
 
@@ -324,10 +312,7 @@ impl Student {
 
     /// The student as a weights blob of its agent.
     pub fn weights(&self) -> WeightsBlob {
-        match self.model() {
-            StudentNet::State(m) => WeightsBlob::from_model(self.version, &self.architecture, &self.normalizer, m),
-            StudentNet::Vision(m) => WeightsBlob::from_vision_model(self.version, &self.architecture, &self.normalizer, m),
-        }
+        self.model().blob(self.version, &self.architecture, &self.normalizer)
     }
 
     /// The optimiser's moments, for exact resume.
@@ -355,32 +340,27 @@ impl Student {
         let labels = Tensor::<2>::from_data(TensorData::new(data.labels(rows), [n, ACTION_DIM]), &self.device);
         let squared_error = |means: Tensor<2>| (means - labels).powi_scalar(2).mean();
         let (loss, model) = match self.model.take().expect("the model is present between calls") {
-            StudentNet::State(model) => {
+            Network::State(model) => {
                 let loss = squared_error(model.actor.forward(states));
-                let value = scalar(&loss);
+                let value = f64::from(scalar(loss.clone()));
                 let grads = GradientsParams::from_grads(loss.backward(), &model);
-                (value, StudentNet::State(self.optimizer.step(learning_rate, model, grads)))
+                (value, Network::State(self.optimizer.step(learning_rate, model, grads)))
             }
-            StudentNet::Vision(model) => {
+            Network::Vision(model) => {
                 let images = Tensor::<4>::from_data(
                     TensorData::new(pixels_to_unit(&data.images(rows)), [n, 1, IMAGE_SIDE, IMAGE_SIDE]),
                     &self.device,
                 );
                 let loss = squared_error(model.actor_mean(images, states));
-                let value = scalar(&loss);
+                let value = f64::from(scalar(loss.clone()));
                 let grads = GradientsParams::from_grads(loss.backward(), &model);
-                (value, StudentNet::Vision(self.optimizer.step(learning_rate, model, grads)))
+                (value, Network::Vision(self.optimizer.step(learning_rate, model, grads)))
             }
         };
         self.model = Some(model);
         self.version += 1;
         loss
     }
-}
-
-#[allow(clippy::expect_used, reason = "float outputs")]
-fn scalar(loss: &Tensor<1>) -> f64 {
-    f64::from(loss.clone().into_data().try_into_vec::<f32>().expect("float outputs")[0])
 }
 
 #[cfg(test)]

@@ -4,7 +4,7 @@ use burn::module::Module;
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::tensor::{Bytes, Device};
-use policy::{ActorCritic, Agent, ObsNormalizer, RolloutChunk, VisionActorCritic, WeightsBlob};
+use policy::{ActorCritic, Agent, Architecture, ObsNormalizer, RolloutChunk, VisionActorCritic, WeightsBlob};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -53,29 +53,35 @@ struct Counters {
     rng: ChaCha8Rng,
 }
 
-/// The network being trained, whichever agent.
-enum Network {
+/// The network being trained, whichever agent (by PPO here, by regression in `distill`).
+pub(crate) enum Network {
     State(ActorCritic),
     Vision(VisionActorCritic),
 }
 
 impl Network {
-    /// A fresh network of `profile`'s agent.
-    fn new(profile: &Profile, seed: u64, device: &Device) -> Self {
-        let (arch, log_std) = (&profile.architecture, profile.ppo.initial_log_std);
+    /// A fresh network of `arch`'s agent (seeded, log std `initial_log_std`).
+    pub(crate) fn new(arch: &Architecture, initial_log_std: f64, seed: u64, device: &Device) -> Self {
         match arch.agent {
-            Agent::State => Self::State(ActorCritic::new(arch, log_std, seed, device)),
-            Agent::Vision => Self::Vision(VisionActorCritic::new(arch, log_std, seed, device)),
+            Agent::State => Self::State(ActorCritic::new(arch, initial_log_std, seed, device)),
+            Agent::Vision => Self::Vision(VisionActorCritic::new(arch, initial_log_std, seed, device)),
         }
     }
 
     /// The network in `blob`, in training mode.
-    fn from_blob(blob: &WeightsBlob, device: &Device) -> Result<Self, LearnerError> {
-        let state = |e: policy::BlobError| LearnerError::State(e.to_string());
+    pub(crate) fn from_blob(blob: &WeightsBlob, device: &Device) -> Result<Self, policy::BlobError> {
         Ok(match blob.architecture.agent {
-            Agent::State => Self::State(blob.model(device).map_err(state)?.train()),
-            Agent::Vision => Self::Vision(blob.vision_model(device).map_err(state)?.train()),
+            Agent::State => Self::State(blob.model(device)?.train()),
+            Agent::Vision => Self::Vision(blob.vision_model(device)?.train()),
         })
+    }
+
+    /// The network as a weights blob of its agent.
+    pub(crate) fn blob(&self, version: u64, arch: &Architecture, normalizer: &ObsNormalizer) -> WeightsBlob {
+        match self {
+            Network::State(m) => WeightsBlob::from_model(version, arch, normalizer, m),
+            Network::Vision(m) => WeightsBlob::from_vision_model(version, arch, normalizer, m),
+        }
     }
 }
 
@@ -95,7 +101,7 @@ impl Learner {
     /// A fresh learner for a run of `total_env_steps` (the learning-rate schedule's length).
     pub fn new(profile: Profile, total_env_steps: u64, seed: u64) -> Self {
         let device = Device::flex().autodiff();
-        let model = Some(Network::new(&profile, seed, &device));
+        let model = Some(Network::new(&profile.architecture, profile.ppo.initial_log_std, seed, &device));
         let counters = Counters {
             version: 0,
             env_steps: 0,
@@ -113,7 +119,7 @@ impl Learner {
     pub fn from_policy(profile: Profile, total_env_steps: u64, seed: u64, blob: &WeightsBlob) -> Result<Self, LearnerError> {
         blob.check_architecture(&profile.architecture).map_err(|e| LearnerError::State(e.to_string()))?;
         let mut learner = Self::new(profile, total_env_steps, seed);
-        learner.model = Some(Network::from_blob(blob, &learner.device)?);
+        learner.model = Some(Network::from_blob(blob, &learner.device).map_err(|e| LearnerError::State(e.to_string()))?);
         learner.counters.normalizer = blob.normalizer.clone();
         // `new`'s optimiser holds no moments yet, so it starts afresh for the imported ids.
         Ok(learner)
@@ -150,10 +156,7 @@ impl Learner {
     #[allow(clippy::expect_used, reason = "the model is present between calls")]
     pub fn weights(&self) -> WeightsBlob {
         let c = &self.counters;
-        match self.model.as_ref().expect("the model is present between calls") {
-            Network::State(m) => WeightsBlob::from_model(c.version, &c.profile.architecture, &c.normalizer, m),
-            Network::Vision(m) => WeightsBlob::from_vision_model(c.version, &c.profile.architecture, &c.normalizer, m),
-        }
+        self.model.as_ref().expect("the model is present between calls").blob(c.version, &c.profile.architecture, &c.normalizer)
     }
 
     /// One PPO iteration on admitted chunks (their versions were checked where they arrived,
@@ -262,7 +265,7 @@ impl Learner {
         let blob = WeightsBlob::from_bytes(weights).map_err(|e| LearnerError::State(e.to_string()))?;
         blob.check_architecture(&counters.profile.architecture).map_err(|e| LearnerError::State(e.to_string()))?;
         let device = Device::flex().autodiff();
-        let model = Some(Network::from_blob(&blob, &device)?);
+        let model = Some(Network::from_blob(&blob, &device).map_err(|e| LearnerError::State(e.to_string()))?);
         let optimizer = adam(&counters.profile)
             .from_bytes(Bytes::from_bytes_vec(optimizer.to_vec()))
             .map_err(|e| LearnerError::State(format!("optimiser: {e:?}")))?;

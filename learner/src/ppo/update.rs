@@ -396,8 +396,9 @@ pub fn explained_variance(values: &[f32], returns: &[f32]) -> f64 {
     1.0 - var_residual / var_returns
 }
 
+/// The value of a one-element tensor.
 #[allow(clippy::expect_used, reason = "float scalar")]
-fn scalar(t: Tensor<1>) -> f32 {
+pub(crate) fn scalar(t: Tensor<1>) -> f32 {
     t.into_data().try_into_vec::<f32>().expect("float scalar")[0]
 }
 
