@@ -3,6 +3,7 @@
 //! rollout chunk actors send back.
 
 pub mod architecture;
+pub mod averaging;
 pub mod blob;
 pub mod dense;
 pub mod inference;

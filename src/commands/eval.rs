@@ -94,20 +94,32 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
 /// Arguments of `dronerace export-policy`.
 #[derive(Args)]
 pub struct ExportArgs {
-    /// Checkpoint (or weights blob) to take the policy from.
-    checkpoint: PathBuf,
+    /// Checkpoint (or weights blob) to take the policy from; several (of one run) export the
+    /// mean of their weights, under the newest one's normaliser (stochastic weight averaging).
+    #[arg(required = true)]
+    checkpoints: Vec<PathBuf>,
     /// Weights blob to write: architecture, normaliser, version and weights only.
     #[arg(long)]
     out: PathBuf,
 }
 
-/// Writes the policy of a checkpoint as a stand-alone weights blob (what `eval --policy`,
-/// `train --init-from` and actors read), without optimiser, environments or curriculum.
+/// Writes the policy of a checkpoint — or the weight average of several — as a stand-alone
+/// weights blob (what `eval --policy`, `train --init-from` and actors read), without
+/// optimiser, environments or curriculum.
 pub fn export(args: ExportArgs) -> anyhow::Result<()> {
-    let blob = learner::checkpoint::read_policy(&args.checkpoint)?;
+    let blobs = args
+        .checkpoints
+        .iter()
+        .map(|path| learner::checkpoint::read_policy(path).with_context(|| format!("reading {}", path.display())))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let blob = match blobs.as_slice() {
+        [one] => one.clone(),
+        many => policy::averaging::average(many).context("averaging the policies")?,
+    };
     let bytes = blob.to_bytes();
     write_atomic(&args.out, &bytes)?;
-    println!("wrote {} (policy v{}, {} bytes)", args.out.display(), blob.version, bytes.len());
+    let of = if blobs.len() > 1 { format!("mean of {} policies, newest ", blobs.len()) } else { String::new() };
+    println!("wrote {} ({of}policy v{}, {} bytes)", args.out.display(), blob.version, bytes.len());
     Ok(())
 }
 

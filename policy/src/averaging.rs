@@ -1,0 +1,163 @@
+//! The parameter-wise mean of several policies of one run (stochastic weight averaging).
+//!
+//! Checkpoints of one PPO run were trained against different normaliser statistics, so a
+//! first-layer weight means something slightly different in each. Each policy's normaliser is
+//! therefore folded into its first layers (so they act on raw observations), the folded
+//! parameters are averaged, and the mean is expressed again under the newest policy's
+//! normaliser. Apart from the normaliser's clip at ±10 standard deviations, the result is
+//! exactly the average of the policies' first layers as functions of the raw observation.
+
+use crate::architecture::Agent;
+use crate::blob::{BlobError, WeightsBlob};
+
+/// The parameter-wise mean of `blobs` (state-based agents of one architecture); version,
+/// normaliser and parameter ids are the newest blob's (highest version).
+pub fn average(blobs: &[WeightsBlob]) -> Result<WeightsBlob, BlobError> {
+    let newest = blobs.iter().max_by_key(|b| b.version).ok_or_else(|| BlobError::Malformed("no policies to average".into()))?;
+    for blob in blobs {
+        blob.check_agent(Agent::State)?;
+        blob.check_architecture(&newest.architecture)?;
+    }
+    let names = WeightsBlob::tensor_names(&newest.architecture);
+    let first_layers: Vec<(usize, usize)> = ["actor", "critic"]
+        .iter()
+        .filter_map(|net| {
+            let weight = names.iter().position(|n| *n == format!("{net}.0.weight"))?;
+            let bias = names.iter().position(|n| *n == format!("{net}.0.bias"))?;
+            Some((weight, bias))
+        })
+        .collect();
+    let mut sums: Vec<Vec<f64>> = newest.params.iter().map(|p| vec![0.0; p.values.len()]).collect();
+    for blob in blobs {
+        let mut params: Vec<Vec<f64>> = blob.params.iter().map(|p| p.values.iter().map(|&v| f64::from(v)).collect()).collect();
+        for &(weight, bias) in &first_layers {
+            fold(blob, &mut params, weight, bias);
+        }
+        for (sum, values) in sums.iter_mut().zip(&params) {
+            for (s, v) in sum.iter_mut().zip(values) {
+                *s += v;
+            }
+        }
+    }
+    let n = blobs.len() as f64;
+    for sum in &mut sums {
+        sum.iter_mut().for_each(|s| *s /= n);
+    }
+    for &(weight, bias) in &first_layers {
+        unfold(newest, &mut sums, weight, bias);
+    }
+    let mut mean = newest.clone();
+    for (param, values) in mean.params.iter_mut().zip(sums) {
+        param.values = values.into_iter().map(|v| v as f32).collect();
+    }
+    Ok(mean)
+}
+
+/// Per-input (mean, standard deviation) of a blob's normaliser.
+fn statistics(blob: &WeightsBlob) -> impl Iterator<Item = (f64, f64)> + '_ {
+    let n = &blob.normalizer;
+    n.mean.iter().zip(&n.var).map(|(&m, &v)| (m, (v + n.epsilon).sqrt()))
+}
+
+/// Rewrites a first layer `W`, `b` (`W` is `[inputs, outputs]`, row-major) of normalised
+/// inputs as the same affine map of raw inputs: `W'ᵢ = Wᵢ / sᵢ`, `b' = b − Σᵢ mᵢ W'ᵢ`.
+fn fold(blob: &WeightsBlob, params: &mut [Vec<f64>], weight: usize, bias: usize) {
+    let outputs = params[bias].len();
+    for (i, (mean, scale)) in statistics(blob).enumerate() {
+        for o in 0..outputs {
+            let w = params[weight][i * outputs + o] / scale;
+            params[weight][i * outputs + o] = w;
+            params[bias][o] -= mean * w;
+        }
+    }
+}
+
+/// The inverse of [`fold`] under `blob`'s normaliser.
+fn unfold(blob: &WeightsBlob, params: &mut [Vec<f64>], weight: usize, bias: usize) {
+    let outputs = params[bias].len();
+    for (i, (mean, scale)) in statistics(blob).enumerate() {
+        for o in 0..outputs {
+            let w = params[weight][i * outputs + o];
+            params[bias][o] += mean * w;
+            params[weight][i * outputs + o] = w * scale;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{ActorCritic, Architecture, ObsNormalizer, Policy};
+    use burn::tensor::Device;
+
+    fn small(hidden: Vec<usize>) -> Architecture {
+        Architecture { hidden, ..Architecture::paper() }
+    }
+
+    fn blob(seed: u64, version: u64, normalizer: ObsNormalizer) -> WeightsBlob {
+        let arch = small(vec![16, 16]);
+        let model = ActorCritic::new(&arch, -0.5, seed, &Device::default());
+        WeightsBlob::from_model(version, &arch, &normalizer, &model)
+    }
+
+    fn skewed_normalizer(dim: usize, shift: f64) -> ObsNormalizer {
+        let mut n = ObsNormalizer::new(dim);
+        n.mean = (0..dim).map(|i| shift + 0.1 * i as f64).collect();
+        n.var = (0..dim).map(|i| 0.5 + shift * 0.3 + 0.05 * i as f64).collect();
+        n
+    }
+
+    fn observations(dim: usize) -> Vec<f32> {
+        (0..dim * 8).map(|i| ((i * 29) % 17) as f32 * 0.2 - 1.5).collect()
+    }
+
+    fn max_difference(a: &[f32], b: &[f32]) -> f32 {
+        a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+    }
+
+    #[test]
+    fn the_mean_of_two_policies_under_one_normaliser_is_the_elementwise_mean() {
+        let dim = small(vec![16, 16]).observation_dim;
+        let (a, b) = (blob(1, 10, skewed_normalizer(dim, 0.4)), blob(2, 20, skewed_normalizer(dim, 0.4)));
+        let mean = average(&[a.clone(), b.clone()]).unwrap();
+        assert_eq!(mean.version, 20);
+        for ((m, x), y) in mean.params.iter().zip(&a.params).zip(&b.params) {
+            for ((&m, &x), &y) in m.values.iter().zip(&x.values).zip(&y.values) {
+                assert!((m - (x + y) / 2.0).abs() < 1e-5, "{m} against {}", (x + y) / 2.0);
+            }
+        }
+    }
+
+    #[test]
+    fn one_function_under_two_normalisers_averages_to_itself() {
+        let dim = small(vec![16, 16]).observation_dim;
+        let original = blob(3, 5, skewed_normalizer(dim, 0.2));
+        // The same policy re-expressed under other statistics: fold under the old, unfold under the new.
+        let mut restated = original.clone();
+        restated.version = 6;
+        restated.normalizer = skewed_normalizer(dim, 1.3);
+        let mut params: Vec<Vec<f64>> = original.params.iter().map(|p| p.values.iter().map(|&v| f64::from(v)).collect()).collect();
+        fold(&original, &mut params, 0, 1);
+        unfold(&restated, &mut params, 0, 1);
+        for (p, values) in restated.params.iter_mut().zip(params) {
+            p.values = values.into_iter().map(|v| v as f32).collect();
+        }
+        let raw = observations(dim);
+        let expected = Policy::from_blob(&original).unwrap().deterministic_actions(&raw);
+        let restated_actions = Policy::from_blob(&restated).unwrap().deterministic_actions(&raw);
+        assert!(max_difference(&expected, &restated_actions) < 1e-4);
+        let mean = average(&[original, restated]).unwrap();
+        let averaged = Policy::from_blob(&mean).unwrap().deterministic_actions(&raw);
+        assert!(max_difference(&expected, &averaged) < 1e-4, "{expected:?} against {averaged:?}");
+    }
+
+    #[test]
+    fn policies_of_different_shapes_or_none_are_refused() {
+        let dim = small(vec![16, 16]).observation_dim;
+        let narrow = blob(1, 1, skewed_normalizer(dim, 0.0));
+        let arch = small(vec![32, 16]);
+        let wide = WeightsBlob::from_model(2, &arch, &skewed_normalizer(dim, 0.0), &ActorCritic::new(&arch, -0.5, 1, &Device::default()));
+        assert!(matches!(average(&[narrow, wide]), Err(BlobError::Architecture { .. })));
+        assert!(matches!(average(&[]), Err(BlobError::Malformed(_))));
+    }
+}
