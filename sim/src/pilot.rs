@@ -304,6 +304,36 @@ impl ReferencePilot {
     }
 }
 
+/// A sample of the reference pilot's closed racing line with the gate it leads to: where a
+/// training episode can start in flight ([`crate::StartGate::Flying`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LinePoint {
+    /// Position (m).
+    pub position: Vector3<f64>,
+    /// Unit direction of travel.
+    pub direction: Vector3<f64>,
+    /// The default pilot's planned speed here (m/s).
+    pub speed: f64,
+    /// The next gate along the line.
+    pub target: usize,
+}
+
+/// The default-tuned reference pilot's closed racing line through `track`'s gates, sample by
+/// sample (each segment from gate i to gate i + 1 has the same number of samples).
+pub fn racing_line_points(track: &Track) -> Vec<LinePoint> {
+    let path = PilotPath::through_gates(track, &PilotParams::default());
+    path.points
+        .iter()
+        .enumerate()
+        .map(|(k, q)| LinePoint {
+            position: q.position,
+            direction: q.tangent,
+            speed: q.speed,
+            target: track.next_index(k / SAMPLES_PER_SEGMENT),
+        })
+        .collect()
+}
+
 /// The direction a drone faces at the start of `track`.
 fn start_heading(track: &Track) -> Vector3<f64> {
     Vector3::new(track.start.yaw.cos(), track.start.yaw.sin(), 0.0)
