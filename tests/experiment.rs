@@ -24,6 +24,7 @@ eval = { every = 1, tracks = 2, runs = 2, steps = 100 }
 [test]
 runs = 1
 steps = 50
+validation_tracks = 3
 
 [[variant]]
 name = "world"
@@ -76,6 +77,9 @@ fn an_interrupted_experiment_resumes_without_redoing_finished_runs_and_reports()
     // Every deployment's ending is kept, for failure analyses without re-flying the policies.
     let kept: usize = resumed["best_policy"]["tracks"].as_array().unwrap().iter().map(|t| t["deployments"].as_array().unwrap().len()).sum();
     assert_eq!(kept, 40);
+    // The final policy also flew the validation set the variants are chosen by: 3 tracks × 10.
+    assert_eq!(resumed["final_validation"]["outcomes"]["deployments"], 30);
+    assert_eq!(resumed["final_validation"]["tracks"][0]["track"], "val-8000000");
 
     // A third call has nothing left to do.
     let third = run(&experiment, &out, None);
@@ -140,6 +144,7 @@ eval = { every = 1, runs = 1, steps = 50, library = ["Figure8", "BigS"] }
 [test]
 runs = 1
 steps = 20
+validation_tracks = 0
 
 [[variant]]
 name = "first"
@@ -166,6 +171,9 @@ fn a_sequential_experiment_starts_each_stage_from_the_last_and_tracks_every_vali
     let first: runtime::TrainConfig =
         toml::from_str(&std::fs::read_to_string(Experiment::run_dir(&out, "first", 0).join("config.toml")).unwrap()).unwrap();
     assert_eq!(first.init_from, None, "stage 1 starts fresh");
+    let result: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(Experiment::run_dir(&out, "first", 0).join("test.json")).unwrap()).unwrap();
+    assert!(result["final_validation"].is_null(), "validation_tracks = 0 skips the final validation");
 
     let (curves, boundaries) = runtime::experiment::sequential_track_curves(&experiment, &out, 0).unwrap();
     assert_eq!(boundaries, vec![256]);

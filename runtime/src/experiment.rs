@@ -50,13 +50,21 @@ pub struct TestSettings {
     pub runs: usize,
     /// Steps per deployment. Default 1000.
     pub steps: u32,
+    /// Validation tracks (the validation seed range) the final policy also flies, 10
+    /// deployments each: the score variants are chosen by. A test score is ~40 nearly
+    /// all-or-nothing tracks (standard error ~8 points), training-time validation 20; 100
+    /// halve the first's noise. Default 100; 0 skips it.
+    pub validation_tracks: usize,
 }
 
 impl Default for TestSettings {
     fn default() -> Self {
-        Self { track_seed: racetracks::track_sets::TEST_SEED, runs: 25, steps: 1000 }
+        Self { track_seed: racetracks::track_sets::TEST_SEED, runs: 25, steps: 1000, validation_tracks: 100 }
     }
 }
+
+/// Deployments per track of the final policy's validation ([`TestSettings::validation_tracks`]).
+const FINAL_VALIDATION_RUNS: usize = 10;
 
 /// An experiment file.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -169,6 +177,10 @@ pub struct RunResult {
     pub final_policy: EvalReport,
     /// `best.bin` on the test set, every deployment included.
     pub best_policy: EvalReport,
+    /// The final policy on [`TestSettings::validation_tracks`] validation tracks (none in
+    /// results written before it existed, or when switched off).
+    #[serde(default)]
+    pub final_validation: Option<EvalReport>,
 }
 
 /// What one call of [`run_experiment`] did.
@@ -247,16 +259,19 @@ pub fn run_experiment(
     Ok(log)
 }
 
-/// Flies the final policy and `best.bin` of a finished run on the test set.
+/// Flies the final policy and `best.bin` of a finished run on the test set, and the final
+/// policy on the larger validation set.
 fn test_run(trainer: &Trainer, variant: &str, seed: u64, test: &TestSettings) -> Result<RunResult, TrainError> {
     let tracks: Vec<Arc<sim::Track>> = racetracks::test_set(test.track_seed)?.into_iter().map(Arc::new).collect();
     let config = EvalConfig { runs: test.runs, steps: test.steps, ..EvalConfig::default() };
-    let fly = |blob: &policy::WeightsBlob, name: &str| -> Result<EvalReport, TrainError> {
-        let policy = Arc::new(Policy::from_blob(blob)?);
-        // Deployments stay in: where each one ended is what failure analyses read
-        // (docs/python/crash_offsets.py), and re-flying a run's policies costs minutes.
-        Ok(evaluate(name, &tracks, &|| Box::new(PolicyController::new(policy.clone())), &config))
-    };
+    let fly_on =
+        |tracks: &[Arc<sim::Track>], config: &EvalConfig, blob: &policy::WeightsBlob, name: &str| -> Result<EvalReport, TrainError> {
+            let policy = Arc::new(Policy::from_blob(blob)?);
+            // Deployments stay in: where each one ended is what failure analyses read
+            // (docs/python/crash_offsets.py), and re-flying a run's policies costs minutes.
+            Ok(evaluate(name, tracks, &|| Box::new(PolicyController::new(policy.clone())), config))
+        };
+    let fly = |blob: &policy::WeightsBlob, name: &str| fly_on(&tracks, &config, blob, name);
     let final_blob = trainer.learner().weights();
     let best_path = trainer.dir().join("checkpoints").join("best.bin");
     let best_blob = if best_path.exists() { learner::checkpoint::read_policy(&best_path)? } else { final_blob.clone() };
@@ -270,6 +285,13 @@ fn test_run(trainer: &Trainer, variant: &str, seed: u64, test: &TestSettings) ->
         best_version: best_blob.version,
         final_policy: fly(&final_blob, "final")?,
         best_policy: fly(&best_blob, "best")?,
+        final_validation: if test.validation_tracks == 0 {
+            None
+        } else {
+            let validation: Vec<Arc<sim::Track>> = racetracks::validation_set(test.validation_tracks)?.into_iter().map(Arc::new).collect();
+            let config = EvalConfig { runs: FINAL_VALIDATION_RUNS, steps: test.steps, ..EvalConfig::default() };
+            Some(fly_on(&validation, &config, &final_blob, "final")?)
+        },
     })
 }
 
@@ -402,11 +424,12 @@ pub fn markdown_report(experiment: &Experiment, summaries: &[VariantSummary]) ->
     out.push_str(&format!(
         "Seeds {:?}; test set: library + generated from seed {}, {} deployments × {} steps per track. \
          `best` is the checkpoint with the highest validation S_pw; mean ± sample standard deviation over seeds, \
-         then each seed's value.\n\n",
-        experiment.seeds, experiment.test.track_seed, experiment.test.runs, experiment.test.steps
+         then each seed's value. The final policy also flies {} validation tracks × {FINAL_VALIDATION_RUNS} deployments \
+         (\"final, validation\"): choose variants by that, not by the test set.\n\n",
+        experiment.seeds, experiment.test.track_seed, experiment.test.runs, experiment.test.steps, experiment.test.validation_tracks
     ));
-    out.push_str("| variant | runs done | env steps | wall time (min) | best validation S_pw | test success (best) | test S_pw (best) | test success (final) | test S_pw (final) |\n");
-    out.push_str("|---|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+    out.push_str("| variant | runs done | env steps | wall time (min) | best validation S_pw | test success (best) | test S_pw (best) | test success (final) | test S_pw (final) | success (final, validation) | S_pw (final, validation) |\n");
+    out.push_str("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
     let spread = |values: Vec<f64>, percent: bool| -> String {
         if values.is_empty() {
             return "–".into();
@@ -424,8 +447,9 @@ pub fn markdown_report(experiment: &Experiment, summaries: &[VariantSummary]) ->
         let r = &v.results;
         let steps: Vec<String> = r.iter().map(|x| format!("{:.1}M", x.env_steps as f64 / 1e6)).collect();
         let minutes: Vec<String> = r.iter().map(|x| format!("{:.0}", x.wall_seconds / 60.0)).collect();
+        let validation: Vec<&EvalReport> = r.iter().filter_map(|x| x.final_validation.as_ref()).collect();
         out.push_str(&format!(
-            "| {} | {} of {} | {} | {} | {} | {} | {} | {} | {} |\n",
+            "| {} | {} of {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
             v.name,
             r.len(),
             r.len() + v.unfinished.len(),
@@ -436,6 +460,8 @@ pub fn markdown_report(experiment: &Experiment, summaries: &[VariantSummary]) ->
             spread(r.iter().map(|x| x.best_policy.s_pw).collect(), false),
             spread(r.iter().map(|x| x.final_policy.success_rate).collect(), true),
             spread(r.iter().map(|x| x.final_policy.s_pw).collect(), false),
+            spread(validation.iter().map(|x| x.success_rate).collect(), true),
+            spread(validation.iter().map(|x| x.s_pw).collect(), false),
         ));
     }
     out.push_str("\n## How the test deployments of `best` ended (all seeds together)\n\n");
