@@ -322,6 +322,27 @@ pub fn clip_groups(params: usize, critic_params: usize, config: &PpoConfig) -> (
     (groups, critic)
 }
 
+/// Runs `$body` with `$D` bound to a parameter's rank as a constant: 1, 2, or 4 (convolution
+/// kernels), the ranks burn's gradient store is read with.
+macro_rules! with_rank {
+    ($rank:expr, $D:ident => $body:expr) => {
+        match $rank {
+            1 => {
+                const $D: usize = 1;
+                $body
+            }
+            2 => {
+                const $D: usize = 2;
+                $body
+            }
+            _ => {
+                const $D: usize = 4;
+                $body
+            }
+        }
+    };
+}
+
 /// Gradient-norm clipping (torch `clip_grad_norm_`) over groups of parameters of rank 1, 2 or
 /// 4 (convolution kernels): `groups[i]` is
 /// the group of `ids[i]`, and each group whose norm exceeds `max` is scaled by
@@ -331,11 +352,7 @@ pub fn clip_grad_norm(grads: &mut GradientsParams, ids: &[(ParamId, usize)], gro
     let squares: Vec<f64> = ids
         .iter()
         .map(|&(id, rank)| {
-            let sum = match rank {
-                1 => grads.get::<1>(id).map(|g| scalar(g.powf_scalar(2.0).sum())),
-                2 => grads.get::<2>(id).map(|g| scalar(g.powf_scalar(2.0).sum())),
-                _ => grads.get::<4>(id).map(|g| scalar(g.powf_scalar(2.0).sum())),
-            };
+            let sum = with_rank!(rank, D => grads.get::<D>(id).map(|g| scalar(g.powf_scalar(2.0).sum())));
             f64::from(sum.unwrap_or(0.0))
         })
         .collect();
@@ -346,25 +363,10 @@ pub fn clip_grad_norm(grads: &mut GradientsParams, ids: &[(ParamId, usize)], gro
     }
     for (&(id, rank), &group) in ids.iter().zip(groups) {
         let coefficient = max / (group_squares[group].sqrt() + 1e-6);
-        if coefficient >= 1.0 {
-            continue;
-        }
-        match rank {
-            1 => {
-                if let Some(g) = grads.remove::<1>(id) {
-                    grads.register(id, g.mul_scalar(coefficient));
-                }
-            }
-            2 => {
-                if let Some(g) = grads.remove::<2>(id) {
-                    grads.register(id, g.mul_scalar(coefficient));
-                }
-            }
-            _ => {
-                if let Some(g) = grads.remove::<4>(id) {
-                    grads.register(id, g.mul_scalar(coefficient));
-                }
-            }
+        if coefficient < 1.0 {
+            with_rank!(rank, D => if let Some(g) = grads.remove::<D>(id) {
+                grads.register(id, g.mul_scalar(coefficient));
+            });
         }
     }
     squares
@@ -373,11 +375,7 @@ pub fn clip_grad_norm(grads: &mut GradientsParams, ids: &[(ParamId, usize)], gro
 /// Removes the gradients of `params` (id and rank), so the optimiser leaves them as they are.
 fn drop_gradients(grads: &mut GradientsParams, params: impl Iterator<Item = (ParamId, usize)>) {
     for (id, rank) in params {
-        match rank {
-            1 => drop(grads.remove::<1>(id)),
-            2 => drop(grads.remove::<2>(id)),
-            _ => drop(grads.remove::<4>(id)),
-        }
+        with_rank!(rank, D => drop(grads.remove::<D>(id)));
     }
 }
 
