@@ -23,6 +23,6 @@ pub use params::{GRAVITY, QuadrotorParams, RaceParams};
 pub use pilot::{Controller, PilotMemory, PilotParams, ReferencePilot};
 pub use race::{ControllerModel, CrashCause, EnvConfig, EpisodeStats, RaceEnv, StartGate, StepOutcome};
 pub use randomization::RandomizationParams;
-pub use reward::{RewardParams, RewardTerms};
+pub use reward::{ProgressDistance, RewardParams, RewardTerms};
 pub use track::{Arena, Gate, Pose, Track};
 pub use vec_env::{ACTION_DIM, VecEnv};

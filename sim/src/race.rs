@@ -332,7 +332,8 @@ impl RaceEnv {
         let action = action.map(|a| a.clamp(-1.0, 1.0));
         let gate = self.track.gates[self.target];
         let start = self.quad.body.position;
-        let distance_before = (start - gate.position).norm();
+        let measure = self.config.reward.progress_distance;
+        let distance_before = measure.to_gate(&gate, &start);
 
         let command = Command::from_action(&action, &self.config.quadrotor);
         let crash = self.integrate(&command);
@@ -351,7 +352,8 @@ impl RaceEnv {
         let w = self.quad.body.body_rates;
         let reward = self.config.reward.terms(&StepFacts {
             distance_before,
-            distance_after: (end - gate.position).norm(),
+            // A pass leaves by the gate's front: its last step is measured to the centre.
+            distance_after: if passed.is_some() { (end - gate.position).norm() } else { measure.to_gate(&gate, &end) },
             pass_error: passed.map(|c| c.error),
             crashed: crash.is_some(),
             body_rates_xy: [w.x, w.y],
@@ -502,6 +504,7 @@ impl RaceEnv {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::reward::ProgressDistance;
     use crate::track::{Arena, Gate, Pose};
 
     /// Two gates on the x axis, 6 m apart, facing +x then -x; no randomisation.
@@ -584,6 +587,19 @@ mod tests {
             assert_eq!(env.body(), restored.body());
             assert_eq!(env.target_gate(), restored.target_gate());
         }
+    }
+
+    #[test]
+    fn a_pass_earns_the_same_progress_whichever_distance_measures_it() {
+        let progress = |measure| {
+            let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
+            env.config.reward.progress_distance = measure;
+            place(&mut env, Vector3::new(-0.05, 0.3, 2.0), Vector3::new(10.0, 0.0, 0.0));
+            let out = env.step(&hover_action(&env));
+            assert!(out.passed_gate.is_some());
+            out.reward.progress
+        };
+        assert_eq!(progress(ProgressDistance::Approach), progress(ProgressDistance::Centre));
     }
 
     #[test]

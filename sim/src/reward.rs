@@ -2,7 +2,13 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::track::GATE_HALF_OPENING;
+use nalgebra::Vector3;
+
+use crate::track::{GATE_HALF_OPENING, Gate};
+
+/// How far behind a gate's centre the [`ProgressDistance::Approach`] detour point lies (m):
+/// room to turn round into the gate after flying past or through it the wrong way.
+pub const APPROACH_DEPTH: f64 = 1.5;
 
 /// Which formulas the progress and pass terms use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -14,6 +20,33 @@ pub enum RewardVariant {
     VisionBased,
 }
 
+/// The distance to the target gate that progress `d_{t-1} - d_t` is measured by.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ProgressDistance {
+    /// Straight to the gate centre (SPEC §5).
+    #[default]
+    Centre,
+    /// Straight to the centre from behind the gate plane; from in front of it (the side a
+    /// pass leaves by), by way of a point [`APPROACH_DEPTH`] behind the centre. With
+    /// `centre`, a gate that must be flown round (the next gate faces the drone, 18 % of the
+    /// test set's gates) pays the detour as negative progress; here the detour is progress.
+    /// Beyond the thesis.
+    Approach,
+}
+
+impl ProgressDistance {
+    /// The distance from `p` to `gate` under this measure (m).
+    pub fn to_gate(self, gate: &Gate, p: &Vector3<f64>) -> f64 {
+        let offset = p - gate.position;
+        let normal = gate.normal();
+        match self {
+            ProgressDistance::Approach if offset.dot(&normal) >= 0.0 => (offset + normal * APPROACH_DEPTH).norm() + APPROACH_DEPTH,
+            _ => offset.norm(),
+        }
+    }
+}
+
 /// Reward weights; `Default` is the state-based column of SPEC §5.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -22,6 +55,8 @@ pub struct RewardParams {
     pub variant: RewardVariant,
     /// λ_prog, per metre of progress towards the target gate centre.
     pub progress: f64,
+    /// The distance progress is measured by. Default `centre` (SPEC §5).
+    pub progress_distance: ProgressDistance,
     /// λ_pass, on passing the target gate.
     pub pass: f64,
     /// λ_error, per metre of traversal error (vision-based only).
@@ -54,6 +89,7 @@ impl RewardParams {
         Self {
             variant: RewardVariant::StateBased,
             progress: 1.0,
+            progress_distance: ProgressDistance::Centre,
             pass: 1.0,
             pass_error: 0.0,
             crash: -4.0,
@@ -71,6 +107,7 @@ impl RewardParams {
         Self {
             variant: RewardVariant::VisionBased,
             progress: 0.8,
+            progress_distance: ProgressDistance::Centre,
             pass: 4.0,
             pass_error: -1.0,
             crash: -4.0,
@@ -108,9 +145,9 @@ impl ActionFilter {
 /// What happened in one step, as far as the reward needs to know.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StepFacts {
-    /// Distance to the step's target-gate centre at the start of the step (m).
+    /// Distance to the step's target gate at the start of the step (m; [`ProgressDistance`]).
     pub distance_before: f64,
-    /// Distance to the same gate centre at the end of the step (m).
+    /// Distance to the same gate at the end of the step (m; to its centre when the step passed it).
     pub distance_after: f64,
     /// Traversal error e_t when the target gate was passed (m).
     pub pass_error: Option<f64>,
@@ -229,6 +266,26 @@ mod tests {
         assert!(close(t.progress, 0.8 * -0.3));
         let t = p.terms(&StepFacts { pass_error: Some(0.3), ..facts() });
         assert!(close(t.pass, 4.0 - 0.3));
+    }
+
+    #[test]
+    fn the_approach_distance_makes_flying_round_a_gate_progress() {
+        // A gate at the origin facing +x (passes go from x < 0 to x >= 0); left is +y.
+        let gate = Gate::new(Vector3::zeros(), 0.0);
+        let behind = Vector3::new(-2.0, 1.0, 0.5);
+        let (centre, approach) = (ProgressDistance::Centre, ProgressDistance::Approach);
+        assert_eq!(approach.to_gate(&gate, &behind), centre.to_gate(&gate, &behind), "behind the plane: straight to the centre");
+        // Beside the frame, first in front of the gate, then behind it: no progress to the
+        // centre, but round the gate towards its back side under the approach distance.
+        let (front, back) = (Vector3::new(2.0, 2.0, 0.0), Vector3::new(-2.0, 2.0, 0.0));
+        assert!(close(centre.to_gate(&gate, &front), centre.to_gate(&gate, &back)));
+        let via = (front - Vector3::new(-APPROACH_DEPTH, 0.0, 0.0)).norm() + APPROACH_DEPTH;
+        assert!(close(approach.to_gate(&gate, &front), via));
+        assert!(approach.to_gate(&gate, &front) - approach.to_gate(&gate, &back) > 2.5);
+        // Never shorter than the straight line.
+        for p in [front, Vector3::new(0.1, 0.0, 0.0), Vector3::new(5.0, -3.0, 1.0)] {
+            assert!(approach.to_gate(&gate, &p) >= centre.to_gate(&gate, &p));
+        }
     }
 
     #[test]
