@@ -48,9 +48,9 @@ pub enum StartGate {
     Random,
     /// Half the episodes at the track's start; the other half in flight, at a uniformly drawn
     /// sample of the reference pilot's racing line, moving along it at 0.5–1.5× the pilot's
-    /// planned speed there, towards the gate it leads to. A training choice beyond the thesis:
-    /// the last gates of a lap are reached at racing speed as often as the first (in evaluation
-    /// most failures are on the first lap's last two gates; BENCHMARKS.md).
+    /// planned speed there, towards the gate it leads to. A training choice beyond the thesis,
+    /// so that the last gates of a lap are reached at racing speed as often as the first; it
+    /// did not help at the proxy recipe (BENCHMARKS.md, "Training episodes that start in flight").
     Flying,
 }
 
