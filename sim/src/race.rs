@@ -354,6 +354,7 @@ impl RaceEnv {
             distance_before,
             // A pass leaves by the gate's front: its last step is measured to the centre.
             distance_after: if passed.is_some() { (end - gate.position).norm() } else { measure.to_gate(&gate, &end) },
+            step_seconds: self.config.race.dt,
             pass_error: passed.map(|c| c.error),
             crashed: crash.is_some(),
             body_rates_xy: [w.x, w.y],
