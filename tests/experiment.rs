@@ -1,5 +1,6 @@
 //! Experiments as files: two variants × two seeds of a tiny run, interrupted part-way, then run
-//! again (finished runs skipped, the interrupted one resumed), then reported (Markdown and plot).
+//! again (finished runs skipped, the interrupted one resumed), then reported (Markdown and plot);
+//! two runners on one directory share the grid out.
 
 // Test code: a panic is how a failure is reported.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::print_stdout, clippy::print_stderr)]
@@ -96,6 +97,30 @@ fn an_interrupted_experiment_resumes_without_redoing_finished_runs_and_reports()
     }
     let png = std::fs::read(out.join("curves.png")).unwrap();
     assert_eq!(&png[1..4], b"PNG");
+}
+
+#[test]
+fn two_runners_on_one_directory_split_the_grid() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("tiny.toml");
+    std::fs::write(&file, FILE).unwrap();
+    let out = dir.path().join("out");
+    let experiment = Experiment::read(&file).unwrap();
+    let (a, b) = std::thread::scope(|s| {
+        let a = s.spawn(|| run(&experiment, &out, None));
+        let b = s.spawn(|| run(&experiment, &out, None));
+        (a.join().unwrap(), b.join().unwrap())
+    });
+    let mut trained: Vec<_> = a.started.iter().chain(&b.started).cloned().collect();
+    trained.sort();
+    let mut all: Vec<_> =
+        [("heading", 0), ("heading", 1), ("world", 0), ("world", 1)].iter().map(|&(v, s)| Experiment::run_dir(&out, v, s)).collect();
+    all.sort();
+    assert_eq!(trained, all, "every run trained by exactly one runner: {a:?} {b:?}");
+    assert_eq!(a.finished.len() + b.finished.len(), 4);
+    for run in &all {
+        assert!(run.join("test.json").exists() && !run.join(runtime::run_lock::LOCK_FILE).exists(), "{}", run.display());
+    }
 }
 
 #[test]

@@ -26,6 +26,7 @@ use sim::eval::{EvalConfig, EvalReport, OutcomeCounts, evaluate};
 
 use crate::overrides::merge;
 use crate::run::{IterationSummary, TrainConfig, TrainError};
+use crate::run_lock::{LockError, RunLock};
 use crate::trainer::Trainer;
 use learner::checkpoint::CheckpointDir;
 
@@ -194,6 +195,8 @@ pub struct RunLog {
     pub started: Vec<PathBuf>,
     /// Runs finished (and tested) in this call.
     pub finished: Vec<PathBuf>,
+    /// Runs left alone because another runner holds them ([`RunLock`]).
+    pub busy: Vec<PathBuf>,
     /// True when `stop` ended the call before every run was done.
     pub interrupted: bool,
 }
@@ -201,7 +204,10 @@ pub struct RunLog {
 /// Runs every seed × variant of `experiment` under `out` (seed-major, so an interrupted grid
 /// has compared every variant on the first seeds), until all are done or
 /// `stop` is raised (then the current run checkpoints and the call returns). `on_iteration`
-/// sees every iteration's summary (for a progress line).
+/// sees every iteration's summary (for a progress line). Each run is claimed with a
+/// [`RunLock`] while it trains, so runners started on the same `out` split the grid; a
+/// sequential experiment's later stages wait for a runner that reaches them after the earlier
+/// ones are done.
 pub fn run_experiment(
     experiment: &Experiment,
     out: &Path,
@@ -220,6 +226,31 @@ pub fn run_experiment(
                 log.interrupted = true;
                 return Ok(log);
             }
+            if experiment.sequential
+                && stage > 0
+                && !Experiment::run_dir(out, &experiment.variants[stage - 1].name, seed).join("test.json").exists()
+            {
+                // The previous stage is another runner's and not done: so is the rest of this seed.
+                log.busy.push(dir);
+                break;
+            }
+            std::fs::create_dir_all(&dir).map_err(|e| ExperimentError::Io(format!("{}: {e}", dir.display())))?;
+            let _claim = match RunLock::acquire(&dir) {
+                Ok(claim) => claim,
+                Err(LockError::Held { .. }) => {
+                    log.busy.push(dir);
+                    if experiment.sequential {
+                        break;
+                    }
+                    continue;
+                }
+                Err(e) => return Err(ExperimentError::Io(e.to_string())),
+            };
+            if dir.join("test.json").exists() {
+                // Finished by another runner between the first look and the claim.
+                log.skipped.push(dir);
+                continue;
+            }
             let mut config = experiment.config(variant, seed).map_err(ExperimentError::Invalid)?;
             if experiment.sequential && stage > 0 {
                 // The previous stage is done (stages run in order): start from where it ended.
@@ -235,7 +266,6 @@ pub fn run_experiment(
                 log.resumed.push(dir.clone());
                 Trainer::resume(&dir).map_err(failed)?
             } else {
-                std::fs::create_dir_all(&dir).map_err(|e| ExperimentError::Io(format!("{}: {e}", dir.display())))?;
                 log.started.push(dir.clone());
                 Trainer::start(config, &dir).map_err(failed)?
             };

@@ -17,6 +17,7 @@ pub mod overrides;
 pub mod pilot;
 pub mod progress;
 pub mod run;
+pub mod run_lock;
 pub mod services;
 pub mod supervisor;
 pub mod train;

@@ -14,7 +14,8 @@ use runtime::services::stop_flag;
 #[derive(Subcommand)]
 pub enum ExperimentCommand {
     /// Train every variant × seed of FILE under --out (done runs are skipped, interrupted ones
-    /// resumed), test each finished run, then write the report.
+    /// resumed, runs another runner holds left to it), test each finished run, then write the
+    /// report.
     Run {
         /// Experiment file (TOML: description, seeds, [base], [[variant]] name + set).
         file: PathBuf,
@@ -45,10 +46,11 @@ pub fn run(command: ExperimentCommand) -> anyhow::Result<()> {
                 eprintln!("{run}: {}", runtime::progress::progress_line(summary, f64::NAN));
             })?;
             eprintln!(
-                "experiment: {} runs finished now, {} were done already, {} resumed{}",
+                "experiment: {} runs finished now, {} were done already, {} resumed, {} held by other runners{}",
                 log.finished.len(),
                 log.skipped.len(),
                 log.resumed.len(),
+                log.busy.len(),
                 if log.interrupted || stop.load(Ordering::SeqCst) { "; interrupted: run it again to continue" } else { "" }
             );
             report(&experiment, &out)
