@@ -6,6 +6,7 @@ pub mod architecture;
 pub mod averaging;
 pub mod blob;
 pub mod dense;
+pub mod ensemble;
 pub mod inference;
 pub mod network;
 pub mod normalizer;
@@ -19,6 +20,7 @@ pub use architecture::{Agent, Architecture};
 pub use blob::{BlobError, WeightsBlob};
 /// The burn device networks are built on (the CPU).
 pub use burn::tensor::Device;
+pub use ensemble::EnsembleController;
 pub use inference::{
     Acting, ActingPolicy, ControllerFactory, HALF_LN_2PI, Policy, PolicyController, VisionPolicy, VisionPolicyController,
     controller_factory, gaussian_log_prob, pixels_to_unit,

@@ -37,9 +37,10 @@ pub struct EvalArgs {
     /// Seed of the start perturbations.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Checkpoint or weights blob of the policy (with `--controller policy`).
-    #[arg(long)]
-    policy: Option<PathBuf>,
+    /// Checkpoint or weights blob of the policy (with `--controller policy`); several
+    /// state-based ones fly as an ensemble, the mean of their actions.
+    #[arg(long, num_args = 1..)]
+    policy: Vec<PathBuf>,
     /// TOML file of the reference pilot's tuning (`sim::PilotParams`; every field optional),
     /// to fly a retuned pilot (with `--controller pilot`).
     #[arg(long)]
@@ -63,6 +64,17 @@ pub fn controller_factory(kind: ControllerKind, policy: Option<&Path>) -> anyhow
     })
 }
 
+/// The mean action of several state-based policies, with a name for reports.
+fn ensemble_factory(paths: &[PathBuf]) -> anyhow::Result<(String, ControllerFactory)> {
+    let blobs = paths
+        .iter()
+        .map(|path| learner::checkpoint::read_policy(path).with_context(|| format!("reading {}", path.display())))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let ensemble = policy::EnsembleController::from_blobs(&blobs).context("an ensemble takes state-based policies")?;
+    let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
+    Ok((format!("ensemble of {} policies ({})", paths.len(), names.join(", ")), ensemble.factory()))
+}
+
 /// Runs the evaluation, prints the table and writes JSON and Markdown.
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.runs > 0, "--runs must be at least 1");
@@ -70,7 +82,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let tracks = load_tracks(&args.tracks)?;
     let config = EvalConfig { runs: args.runs, steps: args.steps, seed: args.seed, ..EvalConfig::default() };
     let (name, make) = match (&args.pilot_tuning, args.controller) {
-        (None, kind) => controller_factory(kind, args.policy.as_deref())?,
+        (None, ControllerKind::Policy) if args.policy.len() > 1 => ensemble_factory(&args.policy)?,
+        (None, kind) => controller_factory(kind, args.policy.first().map(PathBuf::as_path))?,
         (Some(path), ControllerKind::Pilot) => {
             let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
             let params = runtime::overrides::parse_over(&::sim::PilotParams::default(), &text)
