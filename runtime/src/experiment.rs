@@ -446,6 +446,26 @@ fn mean_std(values: &[f64]) -> (f64, f64) {
     (mean, var.sqrt())
 }
 
+/// A column cell: mean ± sample standard deviation over seeds, then each seed's value (as a
+/// percentage with `percent`); one seed's value alone, "–" for none.
+fn spread(values: Vec<f64>, percent: bool) -> String {
+    if values.is_empty() {
+        return "–".into();
+    }
+    let scale = if percent { 100.0 } else { 1.0 };
+    let (m, s) = mean_std(&values);
+    let each: Vec<String> = values.iter().map(|v| if percent { format!("{:.0}", v * scale) } else { format!("{v:.4}") }).collect();
+    // One seed has no spread to show: "± 0" would claim one.
+    if values.len() == 1 {
+        return if percent { format!("{} %", each[0]) } else { each[0].clone() };
+    }
+    if percent {
+        format!("{:.0} ± {:.0} % ({})", m * scale, s * scale, each.join(", "))
+    } else {
+        format!("{m:.4} ± {s:.4} ({})", each.join(", "))
+    }
+}
+
 /// `report.md`: per variant, the seeds, budget, wall time, best validation S_pw and the test
 /// set's success and S_pw (mean ± sample standard deviation over seeds, then each seed's), with
 /// the crash breakdown of the chosen (`best.bin`) policies.
@@ -460,19 +480,6 @@ pub fn markdown_report(experiment: &Experiment, summaries: &[VariantSummary]) ->
     ));
     out.push_str("| variant | runs done | env steps | wall time (min) | best validation S_pw | test success (best) | test S_pw (best) | test success (final) | test S_pw (final) | success (final, validation) | S_pw (final, validation) |\n");
     out.push_str("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
-    let spread = |values: Vec<f64>, percent: bool| -> String {
-        if values.is_empty() {
-            return "–".into();
-        }
-        let scale = if percent { 100.0 } else { 1.0 };
-        let (m, s) = mean_std(&values);
-        let each: Vec<String> = values.iter().map(|v| if percent { format!("{:.0}", v * scale) } else { format!("{v:.4}") }).collect();
-        if percent {
-            format!("{:.0} ± {:.0} % ({})", m * scale, s * scale, each.join(", "))
-        } else {
-            format!("{m:.4} ± {s:.4} ({})", each.join(", "))
-        }
-    };
     for v in summaries {
         let r = &v.results;
         let steps: Vec<String> = r.iter().map(|x| format!("{:.1}M", x.env_steps as f64 / 1e6)).collect();
@@ -537,6 +544,15 @@ mod tests {
         name = "body"
         set = { env.observation_frame = "body", ppo.batch_size = 64 }
     "#;
+
+    #[test]
+    fn report_cells_show_a_spread_only_over_several_seeds() {
+        assert_eq!(spread(vec![0.6, 0.34, 0.46], true), "47 ± 13 % (60, 34, 46)");
+        assert_eq!(spread(vec![0.1042, 0.0529], false), "0.0786 ± 0.0363 (0.1042, 0.0529)");
+        assert_eq!(spread(vec![0.586], true), "59 %");
+        assert_eq!(spread(vec![0.0933], false), "0.0933");
+        assert_eq!(spread(vec![], true), "–");
+    }
 
     #[test]
     fn variants_merge_over_the_base_key_by_key() {
