@@ -6,6 +6,7 @@ use std::sync::Arc;
 
 use crate::race::{EnvConfig, RaceEnv};
 use crate::randomization::RandomizationParams;
+use crate::reward::RewardParams;
 use crate::track::{Pose, Track};
 
 /// Column names of the replay CSV, in order.
@@ -45,7 +46,9 @@ pub fn replay(track: Arc<Track>, start: Option<Pose>, actions: &[[f64; 4]]) -> V
         Some(start) => Arc::new(Track { start, ..(*track).clone() }),
         None => track,
     };
-    let mut config = EnvConfig { randomization: RandomizationParams::none(), ..EnvConfig::default() };
+    // SPEC §5's reward, not the training default: replays are what independent
+    // implementations are checked against.
+    let mut config = EnvConfig { randomization: RandomizationParams::none(), reward: RewardParams::state_based(), ..EnvConfig::default() };
     // Replays run as long as their action file; only a crash ends them early.
     config.race.max_episode_steps = u32::MAX;
     let mut env = RaceEnv::new(track, config, 0, 0);

@@ -55,7 +55,8 @@ pub struct RewardParams {
     pub variant: RewardVariant,
     /// λ_prog, per metre of progress towards the target gate centre.
     pub progress: f64,
-    /// The distance progress is measured by. Default `centre` (SPEC §5).
+    /// The distance progress is measured by: `centre` in both of SPEC §5's columns; training's
+    /// state-based default (`EnvConfig::default`) is `approach`.
     pub progress_distance: ProgressDistance,
     /// Closing speed above which progress earns nothing more (m/s); `None` (SPEC §5) pays every
     /// metre. A cap takes away the reward for flying faster than it, not the penalty for moving
