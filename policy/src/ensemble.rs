@@ -1,9 +1,10 @@
 //! Several state-based policies flying as one: the mean of their mean actions.
 //!
-//! Policies of different seeds fail on different tracks (issue 10: eight proxy policies each fly
-//! 34–66 of 100 validation tracks, together 93), which is what averaging the decisions of several
-//! models — bagging — is for. Each member reads the observation in its own frame and through its
-//! own normaliser, so members need not share anything but the action space.
+//! Policies of different seeds fail on different tracks (issue 10: nine proxy policies each fly
+//! 34–63 of 100 validation tracks, together 93), which is what averaging the decisions of several
+//! models — bagging — is for; measured, an ensemble flies about what a majority of its members
+//! fly, not their union (BENCHMARKS.md). Each member reads the observation in its own frame and
+//! through its own normaliser, so members need not share anything but the action space.
 
 use std::sync::Arc;
 
@@ -28,7 +29,7 @@ impl EnsembleController {
         Ok(Self { members: Arc::new(members) })
     }
 
-    /// The ensemble's action for one raw observation per member.
+    /// The mean of the members' deterministic actions in `env`'s present state.
     fn mean_action(&self, env: &RaceEnv) -> [f32; 4] {
         let mut sum = [0.0f32; 4];
         for member in self.members.iter() {
