@@ -1,0 +1,68 @@
+#!/usr/bin/env python3
+"""Success by how many loop-around gates a track has.
+
+    dronerace tracks generate --seed 8000000 --count 100 --out val100
+    dronerace eval --controller policy --policy P --tracks val100 --runs 10 --out ev
+    python3 docs/python/loop_around.py val100 ev/eval.json [more reports …]
+
+A loop-around gate faces the drone as it leaves the previous gate: the previous gate's centre
+lies in front of it (on the side a pass leaves by), so the only way through is round its frame.
+For each report (a `dronerace eval` eval.json, or an experiment run's test.json, whose
+`final_validation` is read), the mean success over the tracks with none, one, and two or more
+such gates. Tracks are matched by name, or by the seed that ends a generated track's name
+(`val-8000000` in a run's validation, `informed-8000000` in the generated files).
+Standard library only (Python 3.11+).
+"""
+import json
+import math
+import pathlib
+import re
+import sys
+import tomllib
+
+
+def loop_around_gates(track):
+    """Number of gates whose front faces the previous gate's centre (horizontal plane)."""
+    gates = track["gate"]
+    count = 0
+    for i, gate in enumerate(gates):
+        previous = gates[i - 1]["position"]
+        x, y = gate["position"][0], gate["position"][1]
+        yaw = math.radians(gate["yaw_deg"])
+        if (previous[0] - x) * math.cos(yaw) + (previous[1] - y) * math.sin(yaw) > 0:
+            count += 1
+    return count
+
+
+def seed_key(name):
+    """The number a generated track's name ends with, or the whole name."""
+    match = re.search(r"(\d+)$", name)
+    return match.group(1) if match else name
+
+
+def main():
+    if len(sys.argv) < 3:
+        sys.exit(__doc__)
+    loops = {}
+    for path in pathlib.Path(sys.argv[1]).glob("*.toml"):
+        track = tomllib.loads(path.read_text())
+        loops[seed_key(track["name"])] = loop_around_gates(track)
+    groups = {"none": lambda n: n == 0, "one": lambda n: n == 1, "two or more": lambda n: n >= 2}
+    sizes = {g: sum(1 for n in loops.values() if test(n)) for g, test in groups.items()}
+    print("tracks: " + ", ".join(f"{g} {sizes[g]}" for g in groups))
+    for report_path in sys.argv[2:]:
+        report = json.loads(pathlib.Path(report_path).read_text())
+        report = report.get("final_validation") or report
+        success = {seed_key(t["track"]): t["success_rate"] for t in report["tracks"]}
+        missing = set(loops) - set(success)
+        if missing:
+            sys.exit(f"{report_path}: no result for {len(missing)} of the tracks, e.g. {sorted(missing)[0]}")
+        cells = []
+        for g, test in groups.items():
+            rates = [success[k] for k, n in loops.items() if test(n)]
+            cells.append(f"{g} {100 * sum(rates) / len(rates):.0f} %" if rates else f"{g} –")
+        print(f"{report_path}: " + ", ".join(cells))
+
+
+if __name__ == "__main__":
+    main()
