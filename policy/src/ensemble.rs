@@ -29,19 +29,6 @@ impl EnsembleController {
         Ok(Self { members: Arc::new(members) })
     }
 
-    /// The mean of the members' deterministic actions in `env`'s present state.
-    fn mean_action(&self, env: &RaceEnv) -> [f32; 4] {
-        let mut sum = [0.0f32; 4];
-        for member in self.members.iter() {
-            let action = member.deterministic_actions(&env.observation_in(member.observation_layout()));
-            for (s, a) in sum.iter_mut().zip(action) {
-                *s += a;
-            }
-        }
-        let n = self.members.len() as f32;
-        sum.map(|s| s / n)
-    }
-
     /// A factory of controllers sharing these members (what `sim::eval::evaluate` takes).
     pub fn factory(self) -> ControllerFactory {
         Box::new(move || Box::new(self.clone()))
@@ -51,8 +38,17 @@ impl EnsembleController {
 impl Controller for EnsembleController {
     fn reset(&mut self, _env: &RaceEnv) {}
 
+    /// The mean of the members' deterministic actions.
     fn act(&mut self, env: &RaceEnv) -> [f32; 4] {
-        self.mean_action(env)
+        let mut sum = [0.0f32; 4];
+        for member in self.members.iter() {
+            let action = member.deterministic_actions(&env.observation_in(member.observation_layout()));
+            for (s, a) in sum.iter_mut().zip(action) {
+                *s += a;
+            }
+        }
+        let n = self.members.len() as f32;
+        sum.map(|s| s / n)
     }
 }
 

@@ -47,6 +47,7 @@ impl RunLock {
     pub fn acquire(dir: &Path) -> Result<Self, LockError> {
         let path = dir.join(LOCK_FILE);
         let io = |e: std::io::Error| LockError::Io { path: path.display().to_string(), message: e.to_string() };
+        let held = |holder: &str| LockError::Held { path: path.display().to_string(), holder: holder.trim().to_owned() };
         let me = format!("{} {}", this_host(), std::process::id());
         // Two attempts: the second after removing a stale claim (if another runner removes it
         // and claims first, the second attempt reports that runner as the holder).
@@ -59,7 +60,7 @@ impl RunLock {
                 Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
                     let holder = std::fs::read_to_string(&path).unwrap_or_default();
                     if !is_stale(&holder) {
-                        return Err(LockError::Held { path: path.display().to_string(), holder: holder.trim().to_owned() });
+                        return Err(held(&holder));
                     }
                     match std::fs::remove_file(&path) {
                         Ok(()) => {}
@@ -70,8 +71,7 @@ impl RunLock {
                 Err(e) => return Err(io(e)),
             }
         }
-        let holder = std::fs::read_to_string(&path).unwrap_or_default();
-        Err(LockError::Held { path: path.display().to_string(), holder: holder.trim().to_owned() })
+        Err(held(&std::fs::read_to_string(&path).unwrap_or_default()))
     }
 }
 

@@ -64,12 +64,14 @@ pub fn controller_factory(kind: ControllerKind, policy: Option<&Path>) -> anyhow
     })
 }
 
+/// The policies of several checkpoints or weights blobs, an error naming the file that fails.
+fn read_policies(paths: &[PathBuf]) -> anyhow::Result<Vec<policy::WeightsBlob>> {
+    paths.iter().map(|path| learner::checkpoint::read_policy(path).with_context(|| format!("reading {}", path.display()))).collect()
+}
+
 /// The mean action of several state-based policies, with a name for reports.
 fn ensemble_factory(paths: &[PathBuf]) -> anyhow::Result<(String, ControllerFactory)> {
-    let blobs = paths
-        .iter()
-        .map(|path| learner::checkpoint::read_policy(path).with_context(|| format!("reading {}", path.display())))
-        .collect::<anyhow::Result<Vec<_>>>()?;
+    let blobs = read_policies(paths)?;
     let ensemble = policy::EnsembleController::from_blobs(&blobs).context("an ensemble takes state-based policies")?;
     let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
     Ok((format!("ensemble of {} policies ({})", paths.len(), names.join(", ")), ensemble.factory()))
@@ -120,11 +122,7 @@ pub struct ExportArgs {
 /// weights blob (what `eval --policy`, `train --init-from` and actors read), without
 /// optimiser, environments or curriculum.
 pub fn export(args: ExportArgs) -> anyhow::Result<()> {
-    let blobs = args
-        .checkpoints
-        .iter()
-        .map(|path| learner::checkpoint::read_policy(path).with_context(|| format!("reading {}", path.display())))
-        .collect::<anyhow::Result<Vec<_>>>()?;
+    let blobs = read_policies(&args.checkpoints)?;
     let blob = match blobs.as_slice() {
         [one] => one.clone(),
         many => policy::averaging::average(many).context("averaging the policies")?,
