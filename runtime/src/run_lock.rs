@@ -2,14 +2,14 @@
 //! machine or on several sharing a file system — split a grid instead of training the same run
 //! twice.
 //!
-//! The claim is a file `run.lock` created exclusively (`O_CREAT | O_EXCL`, atomic on local file
-//! systems and NFSv3+) holding `host pid`. It is removed when the claim is dropped. A process
+//! The claim is a file `run.lock` holding `host pid`, made by hard-linking a written draft to
+//! that name (atomic, and failing if the name exists, on local file systems and NFS). It is removed when the claim is dropped. A process
 //! killed with `-9` leaves it behind: on the same host a claim whose process is gone is stale and
 //! is taken over; a claim from another host is never second-guessed (the message names the file
 //! to delete once that host is known to be done).
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// The file name of a run directory's claim.
 pub const LOCK_FILE: &str = "run.lock";
@@ -49,20 +49,34 @@ impl RunLock {
         let io = |e: std::io::Error| LockError::Io { path: path.display().to_string(), message: e.to_string() };
         let held = |holder: &str| LockError::Held { path: path.display().to_string(), holder: holder.trim().to_owned() };
         let me = format!("{} {}", this_host(), std::process::id());
+        // The claim appears with its contents in one step (a hard link of a written file, which
+        // fails if the name exists), so another runner never reads a half-written claim.
+        static NEXT: AtomicU64 = AtomicU64::new(0);
+        let draft = dir.join(format!("{LOCK_FILE}.{}.{}", std::process::id(), NEXT.fetch_add(1, Ordering::Relaxed)));
+        std::fs::write(&draft, me.as_bytes()).map_err(io)?;
+        let result = Self::link(&draft, &path, &held, &io);
+        let _ = std::fs::remove_file(&draft);
+        result
+    }
+
+    /// Links `draft` to `path`, taking over a stale claim once.
+    fn link(
+        draft: &Path,
+        path: &Path,
+        held: &dyn Fn(&str) -> LockError,
+        io: &dyn Fn(std::io::Error) -> LockError,
+    ) -> Result<Self, LockError> {
         // Two attempts: the second after removing a stale claim (if another runner removes it
         // and claims first, the second attempt reports that runner as the holder).
         for _ in 0..2 {
-            match std::fs::OpenOptions::new().write(true).create_new(true).open(&path) {
-                Ok(mut file) => {
-                    file.write_all(me.as_bytes()).map_err(io)?;
-                    return Ok(Self { path });
-                }
+            match std::fs::hard_link(draft, path) {
+                Ok(()) => return Ok(Self { path: path.to_path_buf() }),
                 Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
-                    let holder = std::fs::read_to_string(&path).unwrap_or_default();
+                    let holder = std::fs::read_to_string(path).unwrap_or_default();
                     if !is_stale(&holder) {
                         return Err(held(&holder));
                     }
-                    match std::fs::remove_file(&path) {
+                    match std::fs::remove_file(path) {
                         Ok(()) => {}
                         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
                         Err(e) => return Err(io(e)),
@@ -71,7 +85,7 @@ impl RunLock {
                 Err(e) => return Err(io(e)),
             }
         }
-        Err(held(&std::fs::read_to_string(&path).unwrap_or_default()))
+        Err(held(&std::fs::read_to_string(path).unwrap_or_default()))
     }
 }
 
@@ -87,8 +101,8 @@ fn this_host() -> String {
     std::fs::read_to_string("/proc/sys/kernel/hostname").map(|h| h.trim().to_owned()).unwrap_or_default()
 }
 
-/// Whether a claim's `host pid` line names a process of this host that no longer exists; an
-/// unreadable line (a runner killed between creating and writing the file) counts as stale.
+/// Whether a claim's `host pid` line names a process of this host that no longer exists; a line
+/// that is not `host pid` (claims are never written partly) counts as stale.
 fn is_stale(holder: &str) -> bool {
     let mut words = holder.split_whitespace();
     let (Some(host), Some(pid)) = (words.next(), words.next().and_then(|p| p.parse::<u32>().ok())) else {
