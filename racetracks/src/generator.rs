@@ -20,6 +20,10 @@ pub struct TrackGenParams {
     pub control_points: usize,
     /// Gates N_g per track. Default 6.
     pub gates: usize,
+    /// When set, each track's gate count is drawn uniformly from `gates..=gates_max` (one draw
+    /// from the track's seed, before its first attempt): denser tracks beside SPEC's. Default
+    /// unset = SPEC §7's fixed N_g, the same tracks bit for bit.
+    pub gates_max: Option<usize>,
     /// Spline smoothing factor s. Default 4.0.
     pub smoothing: f64,
     /// Padding δ_b kept from the x and y bounds by control points and gates (m). Default 2.0.
@@ -38,6 +42,7 @@ impl Default for TrackGenParams {
             bounds: Arena::default(),
             control_points: 6,
             gates: 6,
+            gates_max: None,
             smoothing: 4.0,
             boundary_padding: 2.0,
             min_control_spacing: 3.0,
@@ -97,11 +102,19 @@ impl TrackGenerator {
     /// Generates the track of `seed`, named `name`.
     pub fn generate(&self, seed: u64, name: &str) -> Result<Generated, GenerateError> {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let gates = match self.params.gates_max {
+            None => self.params.gates,
+            Some(max) if max >= self.params.gates => rng.random_range(self.params.gates..=max),
+            Some(max) => {
+                let last_reason = format!("gates_max ({max}) is below gates ({})", self.params.gates);
+                return Err(GenerateError { kind: self.kind, seed, attempts: 0, last_reason });
+            }
+        };
         let mut last_reason = String::from("no attempt made");
         for attempt in 1..=self.params.max_attempts {
             let candidate = match self.kind {
-                GeneratorKind::Informed => self.informed_candidate(&mut rng),
-                GeneratorKind::Uniform => Ok((self.uniform_candidate(&mut rng), Vec::new())),
+                GeneratorKind::Informed => self.informed_candidate(&mut rng, gates),
+                GeneratorKind::Uniform => Ok((self.uniform_candidate(&mut rng, gates), Vec::new())),
             };
             let accepted = candidate.and_then(|(gates, points)| Ok((self.accept(gates, name)?, points)));
             match accepted {
@@ -124,8 +137,8 @@ impl TrackGenerator {
         [b.min.z + GATE_HALF_OUTER, b.max.z - GATE_HALF_OUTER]
     }
 
-    /// Steps 1–3 of SPEC §7: control points, spline, gates (with the control points).
-    fn informed_candidate(&self, rng: &mut ChaCha8Rng) -> Result<(Vec<Gate>, Vec<Vector3<f64>>), String> {
+    /// Steps 1–3 of SPEC §7: control points, spline, `gates` gates (with the control points).
+    fn informed_candidate(&self, rng: &mut ChaCha8Rng, gates: usize) -> Result<(Vec<Gate>, Vec<Vector3<f64>>), String> {
         let p = &self.params;
         let ([x0, x1], [y0, y1]) = self.padded_xy();
         let (z0, z1) = (p.bounds.min.z, p.bounds.max.z);
@@ -146,14 +159,14 @@ impl TrackGenerator {
         let shift = p.bounds.centre() - mean;
         points.iter_mut().for_each(|q| *q += shift);
         let fit = fit_closed_curve(&points, p.smoothing).map_err(|e| format!("spline: {e}"))?;
-        Ok((place_gates(&fit.curve, p.gates, self.gate_z_range()), points))
+        Ok((place_gates(&fit.curve, gates, self.gate_z_range()), points))
     }
 
-    /// The baseline: N_g positions uniform in the padded box (heights as gates allow), yaws uniform.
-    fn uniform_candidate(&self, rng: &mut ChaCha8Rng) -> Vec<Gate> {
+    /// The baseline: `gates` positions uniform in the padded box (heights as gates allow), yaws uniform.
+    fn uniform_candidate(&self, rng: &mut ChaCha8Rng, gates: usize) -> Vec<Gate> {
         let ([x0, x1], [y0, y1]) = self.padded_xy();
         let [z0, z1] = self.gate_z_range();
-        (0..self.params.gates)
+        (0..gates)
             .map(|_| {
                 let position = Vector3::new(rng.random_range(x0..=x1), rng.random_range(y0..=y1), rng.random_range(z0..=z1));
                 Gate::new(position, rng.random_range(-std::f64::consts::PI..std::f64::consts::PI))
@@ -212,6 +225,25 @@ mod tests {
         let a = g.generate(7, "a").unwrap().track;
         assert_eq!(a, g.generate(7, "a").unwrap().track);
         assert_ne!(a.gates, g.generate(8, "a").unwrap().track.gates);
+    }
+
+    #[test]
+    fn a_gate_range_draws_every_count_in_it_and_unset_keeps_the_spec_tracks() {
+        let spec = TrackGenerator::default();
+        let params = TrackGenParams { gates_max: Some(8), ..TrackGenParams::default() };
+        let ranged = TrackGenerator { kind: GeneratorKind::Informed, params };
+        let counts: Vec<usize> = (0..60).map(|seed| ranged.generate(seed, "r").unwrap().track.gates.len()).collect();
+        for n in 6..=8 {
+            assert!(counts.contains(&n), "no track with {n} gates in {counts:?}");
+        }
+        assert!(counts.iter().all(|n| (6..=8).contains(n)), "{counts:?}");
+        let same = TrackGenParams { gates_max: Some(6), ..TrackGenParams::default() };
+        let pinned = TrackGenerator { kind: GeneratorKind::Informed, params: same }.generate(5, "r").unwrap().track;
+        assert_eq!(pinned.gates.len(), 6);
+        assert_eq!(spec.generate(5, "r").unwrap().track.gates.len(), 6);
+        let below = TrackGenParams { gates_max: Some(5), ..TrackGenParams::default() };
+        let err = TrackGenerator { kind: GeneratorKind::Uniform, params: below }.generate(1, "x").unwrap_err();
+        assert!(err.to_string().contains("gates_max (5) is below gates (6)"), "{err}");
     }
 
     #[test]

@@ -50,6 +50,12 @@ pub enum TracksCommand {
         /// Generator.
         #[arg(long, value_enum, default_value = "informed")]
         generator: Generator,
+        /// Gates per track (SPEC §7's N_g).
+        #[arg(long, default_value_t = 6)]
+        gates: usize,
+        /// Draw each track's gate count uniformly from `--gates` up to this.
+        #[arg(long)]
+        gates_max: Option<usize>,
     },
     /// Write the evaluation test set: the library topped up with generated tracks to 40.
     Testset {
@@ -103,8 +109,9 @@ pub fn run(command: TracksCommand) -> anyhow::Result<()> {
             Ok(())
         }
         TracksCommand::Fit { points, smoothing } => fit(&points, smoothing),
-        TracksCommand::Generate { seed, count, out, generator } => {
-            let generator = TrackGenerator { kind: generator.into(), params: TrackGenParams::default() };
+        TracksCommand::Generate { seed, count, out, generator, gates, gates_max } => {
+            let params = TrackGenParams { gates, gates_max, ..TrackGenParams::default() };
+            let generator = TrackGenerator { kind: generator.into(), params };
             let started = Instant::now();
             let attempts = generate_into(&generator, seed, count, &out, |i| {
                 let name = format!("{:?}-{}", generator.kind, seed + i as u64).to_lowercase();
