@@ -194,6 +194,18 @@ fn a_run_with_obstacle_gates_and_proximity_learns_from_68_numbers_and_resumes_bi
 }
 
 #[test]
+fn a_privileged_critic_reads_68_numbers_its_actor_40_and_the_run_resumes_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = straight_and_resumed(|| TrainConfig { privileged_critic: true, ..tiny_obstacle_config() }, dir.path());
+    assert!(weights(&b) == weights(&a), "the next iteration's weights equal an uninterrupted run's");
+    let blob = a.learner().weights();
+    let critic_first = 2 * (blob.architecture.hidden.len() + 1);
+    assert_eq!((blob.params[0].shape[0], blob.params[critic_first].shape[0]), (40, 68));
+    let policy = policy::Policy::from_blob(&blob).unwrap();
+    assert_eq!(policy.observation_layout().dim(), 68);
+}
+
+#[test]
 fn a_run_directory_with_checkpoints_is_not_overwritten() {
     let dir = tempfile::tempdir().unwrap();
     let mut t = Trainer::start(tiny_config(), dir.path()).unwrap();

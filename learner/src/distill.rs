@@ -341,7 +341,7 @@ impl Student {
         let squared_error = |means: Tensor<2>| (means - labels).powi_scalar(2).mean();
         let (loss, model) = match self.model.take().expect("the model is present between calls") {
             Network::State(model) => {
-                let loss = squared_error(model.actor.forward(states));
+                let loss = squared_error(model.action_means(states));
                 let value = f64::from(scalar(loss.clone()));
                 let grads = GradientsParams::from_grads(loss.backward(), &model);
                 (value, Network::State(self.optimizer.step(learning_rate, model, grads)))

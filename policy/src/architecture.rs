@@ -56,6 +56,11 @@ pub struct Architecture {
     /// Kind of agent; blobs written before this field existed were state-based.
     #[serde(default)]
     pub agent: Agent,
+    /// The numbers after SPEC §5's 40 (obstacle gates, proximity readings) are read by the
+    /// critic only: an asymmetric actor–critic whose actor flies on SPEC's observation. Blobs
+    /// written before this field existed fed both networks the whole observation.
+    #[serde(default)]
+    pub privileged_critic: bool,
 }
 
 /// Serde's default for [`Architecture::proximity_range`].
@@ -77,6 +82,7 @@ impl Architecture {
             proximity_gates: 0,
             proximity_range: sim::DEFAULT_PROXIMITY_RANGE,
             agent: Agent::State,
+            privileged_critic: false,
         }
     }
 
@@ -108,15 +114,23 @@ impl Architecture {
         self.observation_dim = layout.dim();
     }
 
+    /// Length of the observation prefix the actor reads: all of it, or SPEC §5's 40 numbers
+    /// under a privileged critic.
+    pub fn actor_input_dim(&self) -> usize {
+        if self.privileged_critic { self.observation_dim.min(sim::STATE_OBS_DIM) } else { self.observation_dim }
+    }
+
+    /// Layer widths of the state-based actor (`inputs`, hidden…, actions) and critic (…, 1).
+    pub fn mlp_dims(&self) -> (Vec<usize>, Vec<usize>) {
+        let dims = |inputs: usize, out: usize| [vec![inputs], self.hidden.clone(), vec![out]].concat();
+        (dims(self.actor_input_dim(), self.action_dim), dims(self.observation_dim, 1))
+    }
+
     /// Number of trainable scalars (actor, critic and the log std).
     pub fn parameter_count(&self) -> usize {
-        let mlp = |out: usize| {
-            let mut dims = vec![self.observation_dim];
-            dims.extend(&self.hidden);
-            dims.push(out);
-            dims.windows(2).map(|w| w[0] * w[1] + w[1]).sum::<usize>()
-        };
-        mlp(self.action_dim) + mlp(1) + self.action_dim
+        let mlp = |dims: Vec<usize>| dims.windows(2).map(|w| w[0] * w[1] + w[1]).sum::<usize>();
+        let (actor, critic) = self.mlp_dims();
+        mlp(actor) + mlp(critic) + self.action_dim
     }
 }
 
@@ -130,5 +144,16 @@ mod tests {
         let actor = 40 * 512 + 512 + 512 * 512 + 512 + 512 * 4 + 4;
         let critic = 40 * 512 + 512 + 512 * 512 + 512 + 512 + 1;
         assert_eq!(Architecture::paper().parameter_count(), actor + critic + 4);
+    }
+
+    #[test]
+    fn a_privileged_critic_keeps_the_extra_inputs_from_the_actor() {
+        let mut arch = Architecture { hidden: vec![8], ..Architecture::paper() };
+        arch.set_observation_layout(sim::ObservationLayout { obstacle_gates: 2, ..arch.observation_layout() });
+        assert_eq!((arch.observation_dim, arch.actor_input_dim()), (64, 64));
+        arch.privileged_critic = true;
+        assert_eq!(arch.actor_input_dim(), 40);
+        assert_eq!(arch.mlp_dims(), (vec![40, 8, 4], vec![64, 8, 1]));
+        assert_eq!(arch.parameter_count(), (40 * 8 + 8 + 8 * 4 + 4) + (64 * 8 + 8 + 8 + 1) + 4);
     }
 }

@@ -63,7 +63,9 @@ fn statistics(blob: &WeightsBlob) -> impl Iterator<Item = (f64, f64)> + '_ {
 /// inputs as the same affine map of raw inputs: `W'ᵢ = Wᵢ / sᵢ`, `b' = b − Σᵢ mᵢ W'ᵢ`.
 fn fold(blob: &WeightsBlob, params: &mut [Vec<f64>], weight: usize, bias: usize) {
     let outputs = params[bias].len();
-    for (i, (mean, scale)) in statistics(blob).enumerate() {
+    // A layer may read a prefix of the observation (the actor under a privileged critic).
+    let inputs = params[weight].len() / outputs;
+    for (i, (mean, scale)) in statistics(blob).take(inputs).enumerate() {
         for o in 0..outputs {
             let w = params[weight][i * outputs + o] / scale;
             params[weight][i * outputs + o] = w;
@@ -75,7 +77,8 @@ fn fold(blob: &WeightsBlob, params: &mut [Vec<f64>], weight: usize, bias: usize)
 /// The inverse of [`fold`] under `blob`'s normaliser.
 fn unfold(blob: &WeightsBlob, params: &mut [Vec<f64>], weight: usize, bias: usize) {
     let outputs = params[bias].len();
-    for (i, (mean, scale)) in statistics(blob).enumerate() {
+    let inputs = params[weight].len() / outputs;
+    for (i, (mean, scale)) in statistics(blob).take(inputs).enumerate() {
         for o in 0..outputs {
             let w = params[weight][i * outputs + o];
             params[bias][o] += mean * w;
@@ -95,9 +98,12 @@ mod tests {
     }
 
     fn blob(seed: u64, version: u64, normalizer: ObsNormalizer) -> WeightsBlob {
-        let arch = small(vec![16, 16]);
-        let model = ActorCritic::new(&arch, -0.5, seed, &Device::default());
-        WeightsBlob::from_model(version, &arch, &normalizer, &model)
+        blob_of(&small(vec![16, 16]), seed, version, normalizer)
+    }
+
+    fn blob_of(arch: &Architecture, seed: u64, version: u64, normalizer: ObsNormalizer) -> WeightsBlob {
+        let model = ActorCritic::new(arch, -0.5, seed, &Device::default());
+        WeightsBlob::from_model(version, arch, &normalizer, &model)
     }
 
     fn skewed_normalizer(dim: usize, shift: f64) -> ObsNormalizer {
@@ -128,27 +134,45 @@ mod tests {
         }
     }
 
-    #[test]
-    fn one_function_under_two_normalisers_averages_to_itself() {
-        let dim = small(vec![16, 16]).observation_dim;
-        let original = blob(3, 5, skewed_normalizer(dim, 0.2));
-        // The same policy re-expressed under other statistics: fold under the old, unfold under the new.
+    /// The same policy re-expressed under other statistics (fold under the old, unfold under
+    /// the new) acts as before, and its mean with the original is the original.
+    fn averages_to_itself_under_two_normalisers(arch: &Architecture) {
+        let dim = arch.observation_dim;
+        let original = blob_of(arch, 3, 5, skewed_normalizer(dim, 0.2));
         let mut restated = original.clone();
         restated.version = 6;
         restated.normalizer = skewed_normalizer(dim, 1.3);
         let mut params: Vec<Vec<f64>> = original.params.iter().map(|p| p.values.iter().map(|&v| f64::from(v)).collect()).collect();
-        fold(&original, &mut params, 0, 1);
-        unfold(&restated, &mut params, 0, 1);
+        let critic_first = 2 * (arch.hidden.len() + 1);
+        for (weight, bias) in [(0, 1), (critic_first, critic_first + 1)] {
+            fold(&original, &mut params, weight, bias);
+            unfold(&restated, &mut params, weight, bias);
+        }
         for (p, values) in restated.params.iter_mut().zip(params) {
             p.values = values.into_iter().map(|v| v as f32).collect();
         }
         let raw = observations(dim);
-        let expected = Policy::from_blob(&original).unwrap().deterministic_actions(&raw);
-        let restated_actions = Policy::from_blob(&restated).unwrap().deterministic_actions(&raw);
+        let (expected, expected_values) = Policy::from_blob(&original).unwrap().means_and_values(&raw);
+        let (restated_actions, restated_values) = Policy::from_blob(&restated).unwrap().means_and_values(&raw);
         assert!(max_difference(&expected, &restated_actions) < 1e-4);
+        assert!(max_difference(&expected_values, &restated_values) < 1e-3);
         let mean = average(&[original, restated]).unwrap();
-        let averaged = Policy::from_blob(&mean).unwrap().deterministic_actions(&raw);
+        let averaged = Policy::from_blob(&mean).unwrap().means_and_values(&raw).0;
         assert!(max_difference(&expected, &averaged) < 1e-4, "{expected:?} against {averaged:?}");
+    }
+
+    #[test]
+    fn one_function_under_two_normalisers_averages_to_itself() {
+        averages_to_itself_under_two_normalisers(&small(vec![16, 16]));
+    }
+
+    #[test]
+    fn an_actor_reading_a_prefix_folds_only_that_prefix() {
+        // Under a privileged critic the actor's first layer reads 40 of the 52 numbers.
+        let mut arch = small(vec![16, 16]);
+        arch.set_observation_layout(sim::ObservationLayout { obstacle_gates: 1, ..arch.observation_layout() });
+        arch.privileged_critic = true;
+        averages_to_itself_under_two_normalisers(&arch);
     }
 
     #[test]

@@ -85,6 +85,11 @@ impl Mlp {
         dims.windows(2).flat_map(|w| [vec![w[0], w[1]], vec![w[1]]]).collect()
     }
 
+    /// Width of the input the first layer reads.
+    pub fn input_dim(&self) -> usize {
+        self.layers.first().map_or(0, |l| l.weight.dims()[0])
+    }
+
     /// `[batch, in] → [batch, out]`.
     pub fn forward(&self, mut x: Tensor<2>) -> Tensor<2> {
         let last = self.layers.len() - 1;
@@ -143,24 +148,28 @@ impl ActorCritic {
     /// same seed gives the same weights.
     pub fn new(arch: &Architecture, initial_log_std: f64, seed: u64, device: &Device) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let dims = |out: usize| {
-            let mut d = vec![arch.observation_dim];
-            d.extend(&arch.hidden);
-            d.push(out);
-            d
-        };
+        let (actor, critic) = arch.mlp_dims();
         Self {
-            actor: Mlp::new(&dims(arch.action_dim), 0.01, arch.negative_slope, &mut rng, device),
-            critic: Mlp::new(&dims(1), 1.0, arch.negative_slope, &mut rng, device),
+            actor: Mlp::new(&actor, 0.01, arch.negative_slope, &mut rng, device),
+            critic: Mlp::new(&critic, 1.0, arch.negative_slope, &mut rng, device),
             log_std: parameter(vec![initial_log_std as f32; arch.action_dim], [arch.action_dim], device),
         }
     }
 
     /// Action means `[batch, action_dim]` and values `[batch]` of normalised observations.
     pub fn forward(&self, observations: Tensor<2>) -> (Tensor<2>, Tensor<1>) {
-        let mean = self.actor.forward(observations.clone());
+        let mean = self.action_means(observations.clone());
         let value = self.critic.forward(observations).squeeze_dim(1);
         (mean, value)
+    }
+
+    /// Action means `[batch, action_dim]` of normalised observations: the actor reads the
+    /// prefix it was built for (all of it unless the critic is privileged).
+    pub fn action_means(&self, observations: Tensor<2>) -> Tensor<2> {
+        let inputs = self.actor.input_dim();
+        let [batch, dim] = observations.dims();
+        let visible = if inputs < dim { observations.slice([0..batch, 0..inputs]) } else { observations };
+        self.actor.forward(visible)
     }
 
     /// Every parameter's id and rank, in [`ActorCritic::export`] order, without copying values.
@@ -182,9 +191,9 @@ impl ActorCritic {
 
     /// Parameter shapes of `arch`, in [`ActorCritic::export`] order.
     pub fn shapes(arch: &Architecture) -> Vec<Vec<usize>> {
-        let dims = |out: usize| [vec![arch.observation_dim], arch.hidden.clone(), vec![out]].concat();
-        let mut shapes = Mlp::shapes(&dims(arch.action_dim));
-        shapes.extend(Mlp::shapes(&dims(1)));
+        let (actor, critic) = arch.mlp_dims();
+        let mut shapes = Mlp::shapes(&actor);
+        shapes.extend(Mlp::shapes(&critic));
         shapes.push(vec![arch.action_dim]);
         shapes
     }
@@ -231,6 +240,23 @@ mod tests {
         let arch = Architecture { hidden: vec![8, 6], ..Architecture::paper() };
         let exported: Vec<Vec<usize>> = ActorCritic::new(&arch, -0.5, 2, &Device::flex()).export().into_iter().map(|p| p.shape).collect();
         assert_eq!(ActorCritic::shapes(&arch), exported);
+    }
+
+    #[test]
+    fn a_privileged_critics_extra_inputs_move_the_value_but_not_the_action() {
+        let mut arch = Architecture { hidden: vec![8], ..Architecture::paper() };
+        arch.set_observation_layout(sim::ObservationLayout { obstacle_gates: 1, ..arch.observation_layout() });
+        arch.privileged_critic = true;
+        let model = ActorCritic::new(&arch, -0.5, 4, &Device::flex());
+        let observation = |extra: f32| {
+            let values: Vec<f32> = (0..arch.observation_dim).map(|i| if i < 40 { 0.05 * i as f32 - 1.0 } else { extra }).collect();
+            Tensor::<2>::from_data(TensorData::new(values, [1, arch.observation_dim]), &Device::flex())
+        };
+        let (mean_a, value_a) = model.forward(observation(0.0));
+        let (mean_b, value_b) = model.forward(observation(2.0));
+        assert_eq!(mean_a.into_data(), mean_b.into_data());
+        assert_ne!(value_a.into_data(), value_b.into_data());
+        assert_eq!(ActorCritic::shapes(&arch)[0], vec![40, 8]);
     }
 
     #[test]

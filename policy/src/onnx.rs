@@ -1,7 +1,8 @@
 //! ONNX export of a state-based policy's deterministic actor, for flight stacks and companion
 //! computers that run ONNX Runtime or TensorRT instead of dronerace.
 //!
-//! The graph takes `observation` `[batch, 40]` in raw units (the policy's observation frame)
+//! The graph takes `observation` `[batch, n]` in raw units (the policy's observation frame;
+//! n = SPEC §5's 40 plus whatever else the actor reads, nothing else under a privileged critic)
 //! and returns `action` `[batch, 4]`: the normaliser in double precision exactly as
 //! [`ObsNormalizer::normalize`](crate::ObsNormalizer::normalize) computes it (cast, subtract
 //! the mean, divide by `sqrt(var + epsilon)`, clip, cast back), then the actor's layers as `Gemm`
@@ -186,10 +187,13 @@ pub fn actor_model(blob: &WeightsBlob) -> Result<Vec<u8>, BlobError> {
     blob.check_agent(Agent::State)?;
     let arch = &blob.architecture;
     let n = &blob.normalizer;
-    let std: Vec<f64> = n.var.iter().map(|v| (v + n.epsilon).sqrt()).collect();
+    // The actor reads a prefix of the observation (all of it unless the critic is privileged):
+    // the deployed model takes just that.
+    let inputs = arch.actor_input_dim();
+    let std: Vec<f64> = n.var[..inputs].iter().map(|v| (v + n.epsilon).sqrt()).collect();
     let mut initializer = vec![
-        doubles("obs_mean", &[arch.observation_dim], &n.mean),
-        doubles("obs_std", &[arch.observation_dim], &std),
+        doubles("obs_mean", &[inputs], &n.mean[..inputs]),
+        doubles("obs_std", &[inputs], &std),
         doubles("obs_clip_low", &[], &[-n.clip]),
         doubles("obs_clip_high", &[], &[n.clip]),
         floats("action_low", &[], &[-1.0]),
@@ -225,12 +229,13 @@ pub fn actor_model(blob: &WeightsBlob) -> Result<Vec<u8>, BlobError> {
         node: nodes,
         name: "dronerace_actor".into(),
         initializer,
-        input: vec![batch_of("observation", arch.observation_dim)],
+        input: vec![batch_of("observation", inputs)],
         output: vec![batch_of("action", arch.action_dim)],
     };
     let frame = arch.observation_frame.name();
+    let extras_read = !arch.privileged_critic;
     let obstacles = match arch.obstacle_gates {
-        0 => String::new(),
+        k if k == 0 || !extras_read => String::new(),
         k => {
             let which = match arch.obstacle_order {
                 sim::ObstacleOrder::Nearest => "nearest other gates",
@@ -240,7 +245,7 @@ pub fn actor_model(blob: &WeightsBlob) -> Result<Vec<u8>, BlobError> {
         }
     };
     let proximity = match arch.proximity_gates {
-        0 => String::new(),
+        k if k == 0 || !extras_read => String::new(),
         k => format!(", then {k} proximity readings [w*u, w] of the nearest gate frames (w = 1 - d / {} m)", arch.proximity_range),
     };
     Ok(ModelProto {
@@ -249,10 +254,38 @@ pub fn actor_model(blob: &WeightsBlob) -> Result<Vec<u8>, BlobError> {
         producer_version: env!("CARGO_PKG_VERSION").into(),
         doc_string: format!(
             "dronerace policy v{}: raw {}-number state observation in the {frame} frame{obstacles}{proximity} -> mean action in [-1, 1]",
-            blob.version, arch.observation_dim
+            blob.version, inputs
         ),
         graph: Some(graph),
         opset_import: vec![OperatorSetIdProto { domain: String::new(), version: OPSET }],
     }
     .encode_to_vec())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{ActorCritic, Architecture, ObsNormalizer};
+    use burn::tensor::Device;
+
+    /// Width of the model's `observation` input and of its normaliser.
+    fn input_widths(blob: &WeightsBlob) -> (i64, Vec<i64>) {
+        let model = ModelProto::decode(actor_model(blob).unwrap().as_slice()).unwrap();
+        let graph = model.graph.unwrap();
+        let shape = graph.input[0].r#type.clone().unwrap().tensor_type.unwrap().shape.unwrap();
+        let mean = graph.initializer.iter().find(|t| t.name == "obs_mean").unwrap();
+        (shape.dim[1].dim_value.unwrap(), mean.dims.clone())
+    }
+
+    #[test]
+    fn the_model_reads_what_the_actor_reads() {
+        let mut arch = Architecture { hidden: vec![8], ..Architecture::paper() };
+        arch.set_observation_layout(sim::ObservationLayout { obstacle_gates: 1, ..arch.observation_layout() });
+        let blob = |arch: &Architecture| {
+            WeightsBlob::from_model(1, arch, &ObsNormalizer::new(arch.observation_dim), &ActorCritic::new(arch, -0.5, 1, &Device::flex()))
+        };
+        assert_eq!(input_widths(&blob(&arch)), (52, vec![52]));
+        arch.privileged_critic = true;
+        assert_eq!(input_widths(&blob(&arch)), (40, vec![40]));
+    }
 }

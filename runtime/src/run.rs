@@ -78,6 +78,9 @@ pub struct TrainConfig {
     pub envs: Option<usize>,
     /// Hidden layer widths of actor and critic (default: the profile's, e.g. `[256, 256]`).
     pub hidden: Option<Vec<usize>>,
+    /// Show the observation's numbers beyond SPEC §5's 40 (`env.obstacle_gates`,
+    /// `env.proximity_gates`) to the critic only: the actor flies on SPEC's observation.
+    pub privileged_critic: bool,
     /// PPO settings replacing the profile's (missing fields take SPEC §10's values).
     pub ppo: Option<PpoConfig>,
     /// Training tracks.
@@ -119,6 +122,7 @@ impl Default for TrainConfig {
             seed: 0,
             envs: None,
             hidden: None,
+            privileged_critic: false,
             ppo: None,
             tracks: TrackSource::Generated,
             generator: TrackGenerator::default(),
@@ -211,6 +215,17 @@ impl TrainConfig {
         }
         profile.architecture.set_observation_layout(self.env.observation_layout());
         profile.architecture.agent = self.agent;
+        if self.privileged_critic {
+            if self.agent != Agent::State {
+                return Err(TrainError::Config("privileged_critic: only the state-based agent's actor reads the state observation".into()));
+            }
+            if profile.architecture.observation_dim <= sim::STATE_OBS_DIM {
+                return Err(TrainError::Config(
+                    "privileged_critic: the observation has nothing beyond SPEC §5's 40 numbers to keep from the actor; set env.obstacle_gates or env.proximity_gates".into(),
+                ));
+            }
+            profile.architecture.privileged_critic = true;
+        }
         if profile.envs == 0 || profile.ppo.n_steps == 0 || profile.ppo.batch_size == 0 || profile.ppo.n_epochs == 0 {
             return Err(TrainError::Config("envs, ppo.n_steps, ppo.batch_size and ppo.n_epochs must be ≥ 1".into()));
         }
@@ -542,5 +557,21 @@ impl Run {
     /// Estimated seconds to the end of the run at the given rate.
     pub fn eta_seconds(&self, env_steps: u64, sps: f64) -> f64 {
         self.config.total_env_steps.saturating_sub(env_steps) as f64 / sps.max(1e-9)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_privileged_critic_needs_extra_inputs_and_a_state_based_agent() {
+        let refused = |text: &str| TrainConfig::from_toml(text).unwrap().resolved_profile().unwrap_err().to_string();
+        assert!(refused("privileged_critic = true").contains("nothing beyond SPEC §5's 40"));
+        let vision = "agent = \"vision\"\nprivileged_critic = true\n[env]\nobstacle_gates = 1\n";
+        assert!(refused(vision).contains("only the state-based"), "{}", refused(vision));
+        let text = "privileged_critic = true\n[env]\nobstacle_gates = 2\nobstacle_order = \"track\"\n";
+        let arch = TrainConfig::from_toml(text).unwrap().resolved_profile().unwrap().architecture;
+        assert_eq!((arch.observation_dim, arch.actor_input_dim(), arch.privileged_critic), (64, 40, true));
     }
 }

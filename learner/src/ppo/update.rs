@@ -129,7 +129,7 @@ impl PpoNetwork for ActorCritic {
     }
 
     fn state_action_means(&self, states: Tensor<2>) -> Option<Tensor<2>> {
-        Some(self.actor.forward(states))
+        Some(self.action_means(states))
     }
 }
 
