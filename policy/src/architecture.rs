@@ -58,8 +58,9 @@ pub struct Architecture {
     pub agent: Agent,
     /// The numbers after SPEC §5's 40 (obstacle gates, proximity readings) are read by the
     /// critic only: an asymmetric actor–critic whose actor flies on SPEC's observation. Blobs
-    /// written before this field existed fed both networks the whole observation.
-    #[serde(default)]
+    /// written before this field existed fed both networks the whole observation (and blobs
+    /// without one are written without the field, readable by those versions).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub privileged_critic: bool,
 }
 
