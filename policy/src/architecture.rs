@@ -121,10 +121,14 @@ impl Architecture {
         if self.privileged_critic { self.observation_dim.min(sim::STATE_OBS_DIM) } else { self.observation_dim }
     }
 
+    /// Layer widths of an MLP of this architecture's hidden layers: `inputs`, hidden…, `outputs`.
+    pub fn layer_dims(&self, inputs: usize, outputs: usize) -> Vec<usize> {
+        [vec![inputs], self.hidden.clone(), vec![outputs]].concat()
+    }
+
     /// Layer widths of the state-based actor (`inputs`, hidden…, actions) and critic (…, 1).
     pub fn mlp_dims(&self) -> (Vec<usize>, Vec<usize>) {
-        let dims = |inputs: usize, out: usize| [vec![inputs], self.hidden.clone(), vec![out]].concat();
-        (dims(self.actor_input_dim(), self.action_dim), dims(self.observation_dim, 1))
+        (self.layer_dims(self.actor_input_dim(), self.action_dim), self.layer_dims(self.observation_dim, 1))
     }
 
     /// Number of trainable scalars (actor, critic and the log std).

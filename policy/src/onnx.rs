@@ -233,9 +233,10 @@ pub fn actor_model(blob: &WeightsBlob) -> Result<Vec<u8>, BlobError> {
         output: vec![batch_of("action", arch.action_dim)],
     };
     let frame = arch.observation_frame.name();
-    let extras_read = !arch.privileged_critic;
-    let obstacles = match arch.obstacle_gates {
-        k if k == 0 || !extras_read => String::new(),
+    // What the model's input holds after SPEC §5's 40: nothing under a privileged critic.
+    let read = |k: usize| if arch.privileged_critic { 0 } else { k };
+    let obstacles = match read(arch.obstacle_gates) {
+        0 => String::new(),
         k => {
             let which = match arch.obstacle_order {
                 sim::ObstacleOrder::Nearest => "nearest other gates",
@@ -244,8 +245,8 @@ pub fn actor_model(blob: &WeightsBlob) -> Result<Vec<u8>, BlobError> {
             format!(" with the corners of the {k} {which} after SPEC §5's 40")
         }
     };
-    let proximity = match arch.proximity_gates {
-        k if k == 0 || !extras_read => String::new(),
+    let proximity = match read(arch.proximity_gates) {
+        0 => String::new(),
         k => format!(", then {k} proximity readings [w*u, w] of the nearest gate frames (w = 1 - d / {} m)", arch.proximity_range),
     };
     Ok(ModelProto {

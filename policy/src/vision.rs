@@ -72,18 +72,12 @@ impl VisionActorCritic {
             weight: parameter(orthogonal(CONV_OUTPUT, EMBEDDING, gain, &mut rng), [CONV_OUTPUT, EMBEDDING], device),
             bias: Some(parameter(vec![0.0; EMBEDDING], [EMBEDDING], device)),
         };
-        let dims = |input: usize, out: usize| {
-            let mut d = vec![input];
-            d.extend(&arch.hidden);
-            d.push(out);
-            d
-        };
         let slope = arch.negative_slope;
         Self {
             convolutions,
             embedding,
-            actor: Mlp::new(&dims(EMBEDDING + PROPRIOCEPTION, arch.action_dim), 0.01, slope, &mut rng, device),
-            critic: Mlp::new(&dims(arch.observation_dim, 1), 1.0, slope, &mut rng, device),
+            actor: Mlp::new(&arch.layer_dims(EMBEDDING + PROPRIOCEPTION, arch.action_dim), 0.01, slope, &mut rng, device),
+            critic: Mlp::new(&arch.layer_dims(arch.observation_dim, 1), 1.0, slope, &mut rng, device),
             log_std: parameter(vec![initial_log_std as f32; arch.action_dim], [arch.action_dim], device),
             negative_slope: slope,
         }
@@ -160,9 +154,8 @@ impl VisionActorCritic {
             channels = out;
         }
         shapes.extend(Mlp::shapes(&[CONV_OUTPUT, EMBEDDING]));
-        let dims = |input: usize, out: usize| [vec![input], arch.hidden.clone(), vec![out]].concat();
-        shapes.extend(Mlp::shapes(&dims(EMBEDDING + PROPRIOCEPTION, arch.action_dim)));
-        shapes.extend(Mlp::shapes(&dims(arch.observation_dim, 1)));
+        shapes.extend(Mlp::shapes(&arch.layer_dims(EMBEDDING + PROPRIOCEPTION, arch.action_dim)));
+        shapes.extend(Mlp::shapes(&arch.layer_dims(arch.observation_dim, 1)));
         shapes.push(vec![arch.action_dim]);
         shapes
     }

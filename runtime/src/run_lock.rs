@@ -41,31 +41,36 @@ pub enum LockError {
     },
 }
 
+impl LockError {
+    /// The claim at `path` is held by the process its `holder` line names.
+    fn held(path: &Path, holder: &str) -> Self {
+        Self::Held { path: path.display().to_string(), holder: holder.trim().to_owned() }
+    }
+
+    /// Reading or writing the claim at `path` failed.
+    fn io(path: &Path, error: std::io::Error) -> Self {
+        Self::Io { path: path.display().to_string(), message: error.to_string() }
+    }
+}
+
 impl RunLock {
     /// Claims `dir` (which must exist) for this process, taking over a stale claim of a dead
     /// process on this host.
     pub fn acquire(dir: &Path) -> Result<Self, LockError> {
         let path = dir.join(LOCK_FILE);
-        let io = |e: std::io::Error| LockError::Io { path: path.display().to_string(), message: e.to_string() };
-        let held = |holder: &str| LockError::Held { path: path.display().to_string(), holder: holder.trim().to_owned() };
         let me = format!("{} {}", this_host(), std::process::id());
         // The claim appears with its contents in one step (a hard link of a written file, which
         // fails if the name exists), so another runner never reads a half-written claim.
         static NEXT: AtomicU64 = AtomicU64::new(0);
         let draft = dir.join(format!("{LOCK_FILE}.{}.{}", std::process::id(), NEXT.fetch_add(1, Ordering::Relaxed)));
-        std::fs::write(&draft, me.as_bytes()).map_err(io)?;
-        let result = Self::link(&draft, &path, &held, &io);
+        std::fs::write(&draft, me.as_bytes()).map_err(|e| LockError::io(&path, e))?;
+        let result = Self::link(&draft, &path);
         let _ = std::fs::remove_file(&draft);
         result
     }
 
     /// Links `draft` to `path`, taking over a stale claim once.
-    fn link(
-        draft: &Path,
-        path: &Path,
-        held: &dyn Fn(&str) -> LockError,
-        io: &dyn Fn(std::io::Error) -> LockError,
-    ) -> Result<Self, LockError> {
+    fn link(draft: &Path, path: &Path) -> Result<Self, LockError> {
         // Two attempts: the second after removing a stale claim (if another runner removes it
         // and claims first, the second attempt reports that runner as the holder).
         for _ in 0..2 {
@@ -74,18 +79,18 @@ impl RunLock {
                 Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
                     let holder = std::fs::read_to_string(path).unwrap_or_default();
                     if !is_stale(&holder) {
-                        return Err(held(&holder));
+                        return Err(LockError::held(path, &holder));
                     }
                     match std::fs::remove_file(path) {
                         Ok(()) => {}
                         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-                        Err(e) => return Err(io(e)),
+                        Err(e) => return Err(LockError::io(path, e)),
                     }
                 }
-                Err(e) => return Err(io(e)),
+                Err(e) => return Err(LockError::io(path, e)),
             }
         }
-        Err(held(&std::fs::read_to_string(path).unwrap_or_default()))
+        Err(LockError::held(path, &std::fs::read_to_string(path).unwrap_or_default()))
     }
 }
 
