@@ -75,6 +75,24 @@ fn an_interrupted_distillation_resumes_bit_for_bit() {
 }
 
 #[test]
+fn takeover_hands_the_steps_a_student_strays_on_back_to_the_teacher() {
+    // β = 0 from round 1 on: without intervention the student flies every step.
+    let share_after_round_0 = |takeover: Option<f64>| {
+        let dir = tempfile::tempdir().unwrap();
+        let mut d = Distiller::start(DistillConfig { teacher_decay: 0.0, takeover, ..tiny_config() }, dir.path()).unwrap();
+        d.round_step().unwrap();
+        d.round_step().unwrap().teacher_share
+    };
+    assert_eq!(share_after_round_0(None), 0.0);
+    // A fresh student's actions are nowhere near the teacher's: any strictness takes every step.
+    assert_eq!(share_after_round_0(Some(0.0)), 1.0);
+    // Actions lie in [−1, 1], so no two differ by more than 2: the student keeps every step.
+    assert_eq!(share_after_round_0(Some(2.0)), 0.0);
+    let share = share_after_round_0(Some(0.05));
+    assert!(share > 0.0 && share <= 1.0, "{share}");
+}
+
+#[test]
 fn a_state_student_of_the_pilot_resumes_bit_for_bit_with_its_pilots_mid_flight() {
     let config = || DistillConfig {
         teacher: runtime::distill::PILOT_TEACHER.into(),

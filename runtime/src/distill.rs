@@ -2,7 +2,8 @@
 //! from a state-based policy, or a state-based student from the reference pilot (the warm
 //! start of `train`'s `[warm_start]`). Each round the environments fly `steps_per_round` steps
 //! — every step by the teacher with probability β = `teacher_decay`^round, else by the student
-//! (round 0: the teacher alone) —
+//! (round 0: the teacher alone), and with `takeover` set by the teacher also wherever the
+//! student's action strays further than that from the teacher's —
 //! while the teacher labels every visited state with its action; the labelled states join
 //! the data set (`learner::distill`), the task controller switches tracks on the round's
 //! rewards as in training, and the student takes `updates_per_round` regression steps on
@@ -63,6 +64,12 @@ pub struct DistillConfig {
     pub rounds: u64,
     /// β of round r is `teacher_decay`^r: the share of steps the teacher flies. Default 0.8.
     pub teacher_decay: f64,
+    /// Expert intervention: on a step the student flies, the teacher flies instead when any
+    /// component of the student's action differs from the teacher's label by more than this
+    /// (actions are in [−1, 1]). Keeps the student's flights near the teacher's, so the data
+    /// set holds states it can recover from rather than the run-up to its crashes. Default
+    /// none (pure DAgger).
+    pub takeover: Option<f64>,
     /// Samples the data set keeps (reservoir sampling beyond). Default 1,000,000 (~250 MB).
     pub capacity: usize,
     /// Regression steps per round. Default 160.
@@ -108,6 +115,7 @@ impl Default for DistillConfig {
             steps_per_round: 100,
             rounds: 60,
             teacher_decay: 0.8,
+            takeover: None,
             capacity: 1_000_000,
             updates_per_round: 160,
             minibatch: 64,
@@ -178,6 +186,9 @@ impl DistillConfig {
             "envs, steps_per_round, minibatch and capacity must be ≥ 1"
         );
         ensure!((0.0..=1.0).contains(&self.teacher_decay), "teacher_decay: {} is not in [0, 1]", self.teacher_decay);
+        if let Some(t) = self.takeover {
+            ensure!(t >= 0.0, "takeover: {t} must be ≥ 0 (the largest allowed difference from the teacher's action)");
+        }
         ensure!(self.learning_rate > 0.0, "learning_rate: {} must be positive", self.learning_rate);
         Ok(())
     }
@@ -490,7 +501,8 @@ impl Distiller {
     }
 
     /// Flies every environment `steps_per_round` steps — each step by the teacher with
-    /// probability β = decay^round, else by the student — offering every visited state with the
+    /// probability β = decay^round, else by the student unless `takeover` hands it back to
+    /// the teacher — offering every visited state with the
     /// teacher's label to the data set; then reports the round's rewards to the task controller
     /// and applies its switches.
     fn fly(&mut self) -> anyhow::Result<Flight> {
@@ -509,8 +521,15 @@ impl Distiller {
                 let state = &self.env.observations[i * STATE_OBS_DIM..(i + 1) * STATE_OBS_DIM];
                 let rows = i * ACTION_DIM..(i + 1) * ACTION_DIM;
                 self.data.offer(&self.env.envs()[i], state, &labels[rows.clone()], &mut self.progress.rng);
+                let student_flies = student_actions.as_ref().is_some_and(|s| {
+                    self.progress.rng.random::<f64>() >= beta
+                        && self
+                            .config
+                            .takeover
+                            .is_none_or(|t| s[rows.clone()].iter().zip(&labels[rows.clone()]).all(|(a, b)| (a - b).abs() <= t as f32))
+                });
                 match &student_actions {
-                    Some(s) if self.progress.rng.random::<f64>() >= beta => actions[rows.clone()].copy_from_slice(&s[rows]),
+                    Some(s) if student_flies => actions[rows.clone()].copy_from_slice(&s[rows]),
                     _ => flight.teacher_steps += 1,
                 }
             }

@@ -96,6 +96,7 @@ impl WarmStart {
             steps_per_round: self.steps_per_round,
             rounds: self.rounds,
             teacher_decay: self.teacher_decay,
+            takeover: None,
             updates_per_round: self.updates_per_round,
             minibatch: self.minibatch,
             learning_rate: self.learning_rate,
