@@ -341,7 +341,8 @@ pub fn sequential_track_curves(experiment: &Experiment, out: &Path, seed: u64) -
     let mut boundaries = Vec::new();
     let mut offset = 0u64;
     for (stage, variant) in experiment.variants.iter().enumerate() {
-        let path = Experiment::run_dir(out, &variant.name, seed).join("validation.csv");
+        let run = Experiment::run_dir(out, &variant.name, seed);
+        let path = run.join("validation.csv");
         let Ok(text) = std::fs::read_to_string(&path) else { break };
         if stage > 0 {
             boundaries.push(offset);
@@ -365,7 +366,9 @@ pub fn sequential_track_curves(experiment: &Experiment, out: &Path, seed: u64) -
                 None => curves.push(TrackCurve { track, points: vec![(at, success)] }),
             }
         }
-        offset += last_steps;
+        // The stage ends where its training did, which is past its last validation unless its
+        // length is a multiple of the validation interval.
+        offset += last_steps.max(trained_env_steps(&run.join("metrics.csv")));
     }
     for c in &mut curves {
         c.points.sort_by_key(|p| p.0);
@@ -417,6 +420,14 @@ pub fn summarise(experiment: &Experiment, out: &Path) -> Result<Vec<VariantSumma
         summaries.push(summary);
     }
     Ok(summaries)
+}
+
+/// The most env steps any row of a metrics file records (0 without the file or the column).
+fn trained_env_steps(metrics: &Path) -> u64 {
+    let Ok(text) = std::fs::read_to_string(metrics) else { return 0 };
+    let mut lines = text.lines();
+    let Some(steps) = lines.next().unwrap_or_default().split(',').position(|h| h == "env_steps") else { return 0 };
+    lines.filter_map(|line| line.split(',').nth(steps)?.parse::<u64>().ok()).max().unwrap_or(0)
 }
 
 /// `(env_steps, eval/S_pw)` of every evaluated iteration in a metrics file (empty if none).
@@ -579,6 +590,22 @@ mod tests {
         assert!(error.contains("learning_rate"), "{error}");
         e.variants[1].set = toml::from_str("profile = \"gpu\"").unwrap();
         assert!(e.check().unwrap_err().contains("gpu"));
+    }
+
+    #[test]
+    fn a_later_stage_starts_where_the_earlier_one_stopped_training_not_where_it_last_validated() {
+        let out = tempfile::tempdir().unwrap();
+        let e: Experiment = toml::from_str("seeds = [0]\nsequential = true\n[[variant]]\nname = \"a\"\n[[variant]]\nname = \"b\"").unwrap();
+        for (stage, last_iteration) in [("a", "3,300"), ("b", "2,200")] {
+            let run = Experiment::run_dir(out.path(), stage, 0);
+            std::fs::create_dir_all(&run).unwrap();
+            // Validated at 200 steps, trained on to the last row's.
+            std::fs::write(run.join("validation.csv"), "iteration,env_steps,track,success\n2,200,Figure8,1\n").unwrap();
+            std::fs::write(run.join("metrics.csv"), format!("iteration,env_steps,eval/S_pw\n2,200,0.5\n{last_iteration},\n")).unwrap();
+        }
+        let (curves, boundaries) = sequential_track_curves(&e, out.path(), 0).unwrap();
+        assert_eq!(boundaries, vec![300]);
+        assert_eq!(curves[0].points, vec![(200, 1.0), (500, 1.0)]);
     }
 
     #[test]

@@ -75,7 +75,7 @@ fn report(experiment: &Experiment, dir: &std::path::Path) -> anyhow::Result<()> 
             crate::plot::draw_track_curves(
                 &curves,
                 &boundaries,
-                &format!("validation success per track; stages {}", stages.join(" → ")),
+                &format!("validation success per track; stages {}", stages.join(" > ")),
                 &path,
             )?;
             println!("wrote {}", path.display());
