@@ -44,20 +44,22 @@ class Timer(BaseCallback):
     def _on_training_start(self):
         self.mark = time.perf_counter()
         self.update_start = None
+        self.iteration = 0
+        self.samples = self.model.n_steps * self.training_env.num_envs
 
     def _on_rollout_start(self):
         now = time.perf_counter()
         if self.update_start is not None:
             update = now - self.update_start
             total = now - self.mark
-            print(f"iteration {self.iteration}: {24000 / total:,.0f} env-steps/s, "
+            print(f"iteration {self.iteration}: {self.samples / total:,.0f} env-steps/s, "
                   f"collection {self.collect:.2f} s, update {update:.2f} s", flush=True)
         self.mark = now
 
     def _on_rollout_end(self):
         self.update_start = time.perf_counter()
         self.collect = self.update_start - self.mark
-        self.iteration = getattr(self, "iteration", 0) + 1
+        self.iteration += 1
 
     def _on_step(self):
         return True

@@ -422,24 +422,30 @@ pub fn summarise(experiment: &Experiment, out: &Path) -> Result<Vec<VariantSumma
     Ok(summaries)
 }
 
+/// A metrics file's text and the index of each of `names` in its header; `None` without the
+/// file or with a column missing.
+fn metrics_columns<const N: usize>(metrics: &Path, names: [&str; N]) -> Option<(String, [usize; N])> {
+    let text = std::fs::read_to_string(metrics).ok()?;
+    let header: Vec<&str> = text.lines().next().unwrap_or_default().split(',').collect();
+    let mut columns = [0; N];
+    for (column, name) in columns.iter_mut().zip(names) {
+        *column = header.iter().position(|h| *h == name)?;
+    }
+    Some((text, columns))
+}
+
 /// The most env steps any row of a metrics file records (0 without the file or the column).
 fn trained_env_steps(metrics: &Path) -> u64 {
-    let Ok(text) = std::fs::read_to_string(metrics) else { return 0 };
-    let mut lines = text.lines();
-    let Some(steps) = lines.next().unwrap_or_default().split(',').position(|h| h == "env_steps") else { return 0 };
-    lines.filter_map(|line| line.split(',').nth(steps)?.parse::<u64>().ok()).max().unwrap_or(0)
+    let Some((text, [steps])) = metrics_columns(metrics, ["env_steps"]) else { return 0 };
+    text.lines().skip(1).filter_map(|line| line.split(',').nth(steps)?.parse::<u64>().ok()).max().unwrap_or(0)
 }
 
 /// `(env_steps, eval/S_pw)` of every evaluated iteration in a metrics file (empty if none).
 /// A resumed run repeats iterations after its last checkpoint; the later row wins.
 pub fn validation_curve(metrics: &Path) -> Result<Vec<CurvePoint>, ExperimentError> {
-    let Ok(text) = std::fs::read_to_string(metrics) else { return Ok(Vec::new()) };
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
-    let column = |name: &str| header.iter().position(|h| *h == name);
-    let (Some(steps), Some(s_pw)) = (column("env_steps"), column("eval/S_pw")) else { return Ok(Vec::new()) };
+    let Some((text, [steps, s_pw])) = metrics_columns(metrics, ["env_steps", "eval/S_pw"]) else { return Ok(Vec::new()) };
     let mut points: std::collections::BTreeMap<u64, f64> = Default::default();
-    for line in lines {
+    for line in text.lines().skip(1) {
         let cells: Vec<&str> = line.split(',').collect();
         let (Some(x), Some(y)) = (cells.get(steps), cells.get(s_pw)) else { continue };
         if let (Ok(x), Ok(y)) = (x.parse::<u64>(), y.parse::<f64>()) {
