@@ -164,29 +164,34 @@ fn a_warm_started_run_starts_from_the_pilots_imitation_and_first_trains_its_crit
     assert!(err.contains("init_from") && err.contains("warm_start"), "{err}");
 }
 
-/// The tiny run with the two nearest other gates and one proximity reading in the observation.
+/// The tiny run with the two nearest other gates, one proximity reading and two racing-line
+/// points in the observation (40 + 24 + 4 + 6 numbers).
 fn tiny_obstacle_config() -> TrainConfig {
     let mut config = tiny_config();
     config.env.obstacle_gates = 2;
     config.env.proximity_gates = 1;
+    config.env.line_points = 2;
     config
 }
 
 #[test]
-fn a_run_with_obstacle_gates_and_proximity_learns_from_68_numbers_and_resumes_bit_for_bit() {
+fn a_run_with_obstacle_gates_proximity_and_line_points_learns_from_74_numbers_and_resumes_bit_for_bit() {
     let dir = tempfile::tempdir().unwrap();
     let (a, b) = straight_and_resumed(tiny_obstacle_config, dir.path());
     assert!(weights(&b) == weights(&a), "the next iteration's weights equal an uninterrupted run's");
     let arch = a.learner().weights().architecture;
-    assert_eq!((arch.observation_dim, arch.obstacle_gates, arch.proximity_gates), (68, 2, 1));
-    assert_eq!(a.learner().weights().normalizer.dim(), 68);
-    // Its policy flies with the observation it learned (68 numbers, not the SPEC's 40).
+    assert_eq!((arch.observation_dim, arch.obstacle_gates, arch.proximity_gates, arch.line_points), (74, 2, 1, 2));
+    assert_eq!(a.learner().weights().normalizer.dim(), 74);
+    // Its policy flies with the observation it learned (74 numbers, not the SPEC's 40).
     let policy = std::sync::Arc::new(policy::Policy::from_blob(&a.learner().weights()).unwrap());
-    assert_eq!(policy.observation_layout().dim(), 68);
+    assert_eq!(policy.observation_layout().dim(), 74);
     // A proximity range that is no distance is refused, naming the field.
     let bad = TrainConfig { env: sim::EnvConfig { proximity_range: -1.0, ..tiny_obstacle_config().env }, ..tiny_obstacle_config() };
     let err = Trainer::start(bad, &dir.path().join("bad")).err().expect("refused").to_string();
     assert!(err.contains("env.proximity_range"), "{err}");
+    let bad = TrainConfig { env: sim::EnvConfig { line_spacing: f64::NAN, ..tiny_obstacle_config().env }, ..tiny_obstacle_config() };
+    let err = Trainer::start(bad, &dir.path().join("bad-line")).err().expect("refused").to_string();
+    assert!(err.contains("env.line_spacing"), "{err}");
     let track = std::sync::Arc::new(racetracks::library_track("Figure8").unwrap().unwrap());
     let config = sim::eval::EvalConfig { runs: 2, steps: 50, ..sim::eval::EvalConfig::default() };
     let report = sim::eval::evaluate("policy", &[track], &|| Box::new(policy::PolicyController::new(policy.clone())), &config);
@@ -194,15 +199,15 @@ fn a_run_with_obstacle_gates_and_proximity_learns_from_68_numbers_and_resumes_bi
 }
 
 #[test]
-fn a_privileged_critic_reads_68_numbers_its_actor_40_and_the_run_resumes_bit_for_bit() {
+fn a_privileged_critic_reads_74_numbers_its_actor_40_and_the_run_resumes_bit_for_bit() {
     let dir = tempfile::tempdir().unwrap();
     let (a, b) = straight_and_resumed(|| TrainConfig { privileged_critic: true, ..tiny_obstacle_config() }, dir.path());
     assert!(weights(&b) == weights(&a), "the next iteration's weights equal an uninterrupted run's");
     let blob = a.learner().weights();
     let critic_first = 2 * (blob.architecture.hidden.len() + 1);
-    assert_eq!((blob.params[0].shape[0], blob.params[critic_first].shape[0]), (40, 68));
+    assert_eq!((blob.params[0].shape[0], blob.params[critic_first].shape[0]), (40, 74));
     let policy = policy::Policy::from_blob(&blob).unwrap();
-    assert_eq!(policy.observation_layout().dim(), 68);
+    assert_eq!(policy.observation_layout().dim(), 74);
 }
 
 #[test]

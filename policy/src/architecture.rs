@@ -53,6 +53,13 @@ pub struct Architecture {
     /// Range (m) of those readings.
     #[serde(default = "default_proximity_range")]
     pub proximity_range: f64,
+    /// Racing-line points the observation ends with; blobs written before this field existed
+    /// have none (and blobs without any are written without the field).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub line_points: usize,
+    /// Arc length (m) between those points (left out of blobs when it is the default).
+    #[serde(default = "default_line_spacing", skip_serializing_if = "is_default_line_spacing")]
+    pub line_spacing: f64,
     /// Kind of agent; blobs written before this field existed were state-based.
     #[serde(default)]
     pub agent: Agent,
@@ -62,6 +69,21 @@ pub struct Architecture {
     /// without one are written without the field, readable by those versions).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub privileged_critic: bool,
+}
+
+/// Serde's default for [`Architecture::line_spacing`].
+fn default_line_spacing() -> f64 {
+    sim::DEFAULT_LINE_SPACING
+}
+
+/// Whether a spacing is the default one.
+fn is_default_line_spacing(spacing: &f64) -> bool {
+    *spacing == sim::DEFAULT_LINE_SPACING
+}
+
+/// Whether a count is zero (fields that older blob readers do not know are left out then).
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 /// Serde's default for [`Architecture::proximity_range`].
@@ -82,6 +104,8 @@ impl Architecture {
             obstacle_order: sim::ObstacleOrder::Nearest,
             proximity_gates: 0,
             proximity_range: sim::DEFAULT_PROXIMITY_RANGE,
+            line_points: 0,
+            line_spacing: sim::DEFAULT_LINE_SPACING,
             agent: Agent::State,
             privileged_critic: false,
         }
@@ -101,6 +125,8 @@ impl Architecture {
             obstacle_order: self.obstacle_order,
             proximity_gates: self.proximity_gates,
             proximity_range: self.proximity_range,
+            line_points: self.line_points,
+            line_spacing: self.line_spacing,
         }
     }
 
@@ -112,6 +138,8 @@ impl Architecture {
         self.obstacle_order = layout.obstacle_order;
         self.proximity_gates = layout.proximity_gates;
         self.proximity_range = layout.proximity_range;
+        self.line_points = layout.line_points;
+        self.line_spacing = layout.line_spacing;
         self.observation_dim = layout.dim();
     }
 

@@ -298,10 +298,11 @@ fn check_observation_lengths(architecture: &Architecture, normalizer: &ObsNormal
     let layout = architecture.observation_layout();
     if architecture.observation_dim != layout.dim() {
         return Err(BlobError::Malformed(format!(
-            "observation_dim {} but {} obstacle gates and {} proximity readings make {} numbers",
+            "observation_dim {} but {} obstacle gates, {} proximity readings and {} racing-line points make {} numbers",
             architecture.observation_dim,
             layout.obstacle_gates,
             layout.proximity_gates,
+            layout.line_points,
             layout.dim()
         )));
     }
@@ -381,8 +382,8 @@ mod tests {
         assert!(e.contains("[8,8]") && e.contains("[512,512]"), "{e}");
     }
 
-    /// A policy with obstacle gates and proximity readings round-trips with its wider
-    /// observation, their order and range; a blob whose observation length disagrees with its
+    /// A policy with obstacle gates, proximity readings and racing-line points round-trips
+    /// with its wider observation, their order, range and spacing; a blob whose observation length disagrees with its
     /// layout is refused, naming both.
     #[test]
     fn the_observation_layout_travels_with_the_blob_and_must_match_its_length() {
@@ -392,11 +393,13 @@ mod tests {
             obstacle_order: sim::ObstacleOrder::Track,
             proximity_gates: 1,
             proximity_range: 3.0,
-            observation_dim: 68,
+            line_points: 2,
+            line_spacing: 1.5,
+            observation_dim: 74,
             ..Architecture::paper()
         };
         let model = ActorCritic::new(&arch, -0.5, 1, &Device::flex());
-        let b = WeightsBlob::from_model(3, &arch, &ObsNormalizer::new(68), &model);
+        let b = WeightsBlob::from_model(3, &arch, &ObsNormalizer::new(74), &model);
         let back = WeightsBlob::from_bytes(&b.to_bytes()).unwrap();
         assert_eq!(
             back.architecture.observation_layout(),
@@ -405,14 +408,16 @@ mod tests {
                 obstacle_gates: 2,
                 obstacle_order: sim::ObstacleOrder::Track,
                 proximity_gates: 1,
-                proximity_range: 3.0
+                proximity_range: 3.0,
+                line_points: 2,
+                line_spacing: 1.5
             }
         );
-        assert_eq!(back.params[0].values.len(), 68 * 8);
+        assert_eq!(back.params[0].values.len(), 74 * 8);
         let wrong = Architecture { obstacle_gates: 1, ..arch.clone() };
-        let e = WeightsBlob::from_bytes(&WeightsBlob::from_model(3, &wrong, &ObsNormalizer::new(68), &model).to_bytes()).unwrap_err();
+        let e = WeightsBlob::from_bytes(&WeightsBlob::from_model(3, &wrong, &ObsNormalizer::new(74), &model).to_bytes()).unwrap_err();
         assert!(
-            matches!(&e, BlobError::Malformed(m) if m.contains("observation_dim 68") && m.contains("1 obstacle gates and 1 proximity readings make 56")),
+            matches!(&e, BlobError::Malformed(m) if m.contains("observation_dim 74") && m.contains("1 obstacle gates, 1 proximity readings and 2 racing-line points make 62")),
             "{e}"
         );
     }

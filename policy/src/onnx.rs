@@ -249,12 +249,16 @@ pub fn actor_model(blob: &WeightsBlob) -> Result<Vec<u8>, BlobError> {
         0 => String::new(),
         k => format!(", then {k} proximity readings [w*u, w] of the nearest gate frames (w = 1 - d / {} m)", arch.proximity_range),
     };
+    let line = match read(arch.line_points) {
+        0 => String::new(),
+        k => format!(", then {k} points of the reference pilot's racing line every {} m of arc from its nearest point", arch.line_spacing),
+    };
     Ok(ModelProto {
         ir_version: IR_VERSION,
         producer_name: "dronerace".into(),
         producer_version: env!("CARGO_PKG_VERSION").into(),
         doc_string: format!(
-            "dronerace policy v{}: raw {}-number state observation in the {frame} frame{obstacles}{proximity} -> mean action in [-1, 1]",
+            "dronerace policy v{}: raw {}-number state observation in the {frame} frame{obstacles}{proximity}{line} -> mean action in [-1, 1]",
             blob.version, inputs
         ),
         graph: Some(graph),

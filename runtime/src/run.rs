@@ -213,6 +213,10 @@ impl TrainConfig {
         if self.env.proximity_gates > 0 && !(range.is_finite() && range > 0.0) {
             return Err(TrainError::Config(format!("env.proximity_range: {range} m must be a positive distance")));
         }
+        let spacing = self.env.line_spacing;
+        if self.env.line_points > 0 && !(spacing.is_finite() && spacing >= 0.0) {
+            return Err(TrainError::Config(format!("env.line_spacing: {spacing} m must be a distance ≥ 0")));
+        }
         profile.architecture.set_observation_layout(self.env.observation_layout());
         profile.architecture.agent = self.agent;
         if self.privileged_critic {
@@ -221,7 +225,7 @@ impl TrainConfig {
             }
             if profile.architecture.observation_dim <= sim::STATE_OBS_DIM {
                 return Err(TrainError::Config(
-                    "privileged_critic: the observation has nothing beyond SPEC §5's 40 numbers to keep from the actor; set env.obstacle_gates or env.proximity_gates".into(),
+                    "privileged_critic: the observation has nothing beyond SPEC §5's 40 numbers to keep from the actor; set env.obstacle_gates, env.proximity_gates or env.line_points".into(),
                 ));
             }
             profile.architecture.privileged_critic = true;

@@ -17,10 +17,11 @@ pub mod vec_env;
 
 pub use nalgebra;
 pub use observation::{
-    DEFAULT_PROXIMITY_RANGE, OBSTACLE_GATE_DIM, ObservationFrame, ObservationLayout, ObstacleOrder, PROXIMITY_DIM, STATE_OBS_DIM,
+    DEFAULT_LINE_SPACING, DEFAULT_PROXIMITY_RANGE, LINE_POINT_DIM, OBSTACLE_GATE_DIM, ObservationFrame, ObservationLayout, ObstacleOrder,
+    PROXIMITY_DIM, STATE_OBS_DIM,
 };
 pub use params::{GRAVITY, QuadrotorParams, RaceParams};
-pub use pilot::{Controller, PilotMemory, PilotParams, ReferencePilot};
+pub use pilot::{Controller, PilotMemory, PilotParams, RacingLine, ReferencePilot};
 pub use race::{ControllerModel, CrashCause, EnvConfig, EpisodeStats, RaceEnv, StartGate, StepOutcome};
 pub use randomization::RandomizationParams;
 pub use reward::{ProgressDistance, RewardParams, RewardTerms};

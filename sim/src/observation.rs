@@ -1,6 +1,6 @@
 //! The 40-dimensional state observation (SPEC §5, §12.9), in a choice of reference frames,
-//! optionally followed by the corners of other gates of the track or by proximity readings of
-//! their frames.
+//! optionally followed by the corners of other gates of the track, by proximity readings of
+//! their frames, or by points of the reference pilot's racing line ahead.
 //!
 //! Observations are written raw (un-normalised) into caller-owned f32 rows; normalisation
 //! belongs to the policy, which owns the running statistics.
@@ -8,6 +8,7 @@
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use serde::{Deserialize, Serialize};
 
+use crate::pilot::RacingLine;
 use crate::quadrotor::BodyState;
 use crate::track::Track;
 
@@ -24,6 +25,13 @@ pub const PROXIMITY_DIM: usize = 4;
 /// Default proximity range (m): at the ~8–10 m/s of a generalist's laps, about half a second
 /// of warning, in which the drone can move sideways by more than a gate's width.
 pub const DEFAULT_PROXIMITY_RANGE: f64 = 4.0;
+
+/// Numbers each racing-line point adds: its position relative to the drone.
+pub const LINE_POINT_DIM: usize = 3;
+
+/// Default arc length between the racing-line points (m): four points reach 7.5 m ahead, about
+/// 0.6 s at a generalist's racing speed and most of a leg of a generated track.
+pub const DEFAULT_LINE_SPACING: f64 = 2.5;
 
 /// The frame in which the observation's vectors (attitude columns, v, δp1, δp2) are written.
 ///
@@ -96,6 +104,11 @@ pub enum ObstacleOrder {
 /// Proximity readings are the compact alternative: 4 numbers per gate, all zero unless a frame
 /// is within `proximity_range`, so they stay silent on the stretches where SPEC §5's 40 numbers
 /// are all the policy needs, and what they say when they speak is "a frame, this close, that way".
+///
+/// Racing-line points come last: the reference pilot's line (which keeps clear of every frame,
+/// [`RacingLine`]) from the point nearest the drone on the leg into the target gate, then every
+/// `line_spacing` metres of arc ahead. They show the policy a way round the gates it cannot
+/// see, in numbers whose meaning does not depend on the track's layout. Beyond the thesis.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ObservationLayout {
     /// Frame of the vectors.
@@ -109,6 +122,10 @@ pub struct ObservationLayout {
     pub proximity_gates: usize,
     /// Distance (m) at which a proximity reading starts to rise from zero.
     pub proximity_range: f64,
+    /// How many racing-line points follow, the first the nearest on the line.
+    pub line_points: usize,
+    /// Arc length between them (m).
+    pub line_spacing: f64,
 }
 
 impl Default for ObservationLayout {
@@ -120,6 +137,8 @@ impl Default for ObservationLayout {
             obstacle_order: ObstacleOrder::Nearest,
             proximity_gates: 0,
             proximity_range: DEFAULT_PROXIMITY_RANGE,
+            line_points: 0,
+            line_spacing: DEFAULT_LINE_SPACING,
         }
     }
 }
@@ -132,7 +151,7 @@ impl ObservationLayout {
 
     /// Length of an observation row.
     pub fn dim(self) -> usize {
-        STATE_OBS_DIM + OBSTACLE_GATE_DIM * self.obstacle_gates + PROXIMITY_DIM * self.proximity_gates
+        STATE_OBS_DIM + OBSTACLE_GATE_DIM * self.obstacle_gates + PROXIMITY_DIM * self.proximity_gates + LINE_POINT_DIM * self.line_points
     }
 }
 
@@ -156,10 +175,15 @@ fn heading_from_world(body: &BodyState) -> Matrix3<f64> {
 /// whose frames are nearest to the drone, nearest first, `[w·u, w]` with `u` the unit vector to
 /// the nearest frame point in `layout.frame` and `w = max(0, 1 − d / proximity_range)`; a
 /// reading with no gate left, or beyond the range, is all zeros.
+///
+/// Then `layout.line_points` points of `line` (required when there are any), each minus the
+/// drone position in `layout.frame`: the sample nearest to the drone on the leg into the target
+/// gate, and the points `k · line_spacing` metres of arc after it.
 pub fn write_state_observation(
     body: &BodyState,
     previous_action: &[f64; 4],
     track: &Track,
+    line: Option<&RacingLine>,
     target: usize,
     layout: ObservationLayout,
     out: &mut [f32],
@@ -191,6 +215,28 @@ pub fn write_state_observation(
     write_obstacle_corners(body, track, target, layout, to_frame, &mut out[STATE_OBS_DIM..]);
     let proximity_start = STATE_OBS_DIM + OBSTACLE_GATE_DIM * layout.obstacle_gates;
     write_proximity(body, track, target, layout, to_frame, &mut out[proximity_start..]);
+    if layout.line_points > 0 {
+        let Some(line) = line else { panic!("a layout with racing-line points needs the racing line") };
+        write_line_ahead(body, line, target, layout, to_frame, &mut out[proximity_start + PROXIMITY_DIM * layout.proximity_gates..]);
+    }
+}
+
+/// The racing-line points of [`write_state_observation`] into `out`.
+fn write_line_ahead(
+    body: &BodyState,
+    line: &RacingLine,
+    target: usize,
+    layout: ObservationLayout,
+    to_frame: Matrix3<f64>,
+    out: &mut [f32],
+) {
+    let nearest = line.nearest_on_leg(&body.position, target);
+    for (k, row) in out.chunks_exact_mut(LINE_POINT_DIM).take(layout.line_points).enumerate() {
+        let relative = to_frame * (line.ahead(nearest, k as f64 * layout.line_spacing) - body.position);
+        for (o, v) in row.iter_mut().zip(relative.iter()) {
+            *o = *v as f32;
+        }
+    }
 }
 
 /// The obstacle-gate corners of [`write_state_observation`] into `out`.
@@ -275,7 +321,7 @@ mod tests {
         body.velocity = Vector3::new(0.1, 0.2, 0.3);
         body.body_rates = Vector3::new(-1.0, -2.0, -3.0);
         let mut out = [0f32; STATE_OBS_DIM];
-        write_state_observation(&body, &[0.5, 0.6, 0.7, 0.8], &track, 1, ObservationLayout::spec(ObservationFrame::World), &mut out);
+        write_state_observation(&body, &[0.5, 0.6, 0.7, 0.8], &track, None, 1, ObservationLayout::spec(ObservationFrame::World), &mut out);
         // Yaw 90°: body x points to world +y, body y to world -x.
         let expect_prefix = [0.0, 1.0, 0.0, -1.0, 0.0, 0.0, 0.1, 0.2, 0.3, -1.0, -2.0, -3.0, 0.5, 0.6, 0.7, 0.8];
         for (i, e) in expect_prefix.iter().enumerate() {
@@ -314,7 +360,7 @@ mod tests {
                 body_rates: Vector3::new(0.1, 0.2, 0.3),
             };
             let mut out = [0f32; STATE_OBS_DIM];
-            write_state_observation(&body, &[0.1, 0.2, 0.3, 0.4], &track, 0, ObservationLayout::spec(frame), &mut out);
+            write_state_observation(&body, &[0.1, 0.2, 0.3, 0.4], &track, None, 0, ObservationLayout::spec(frame), &mut out);
             out
         };
         for frame in [ObservationFrame::Heading, ObservationFrame::Body] {
@@ -334,7 +380,7 @@ mod tests {
         // Facing +y (yaw 90°), 5 m before gate 0: its centre is 5 m along body x.
         let body = BodyState::at_rest(Vector3::new(0.0, 0.0, 2.0), std::f64::consts::FRAC_PI_2);
         let mut out = [0f32; STATE_OBS_DIM];
-        write_state_observation(&body, &[0.0; 4], &track, 0, ObservationLayout::spec(ObservationFrame::Body), &mut out);
+        write_state_observation(&body, &[0.0; 4], &track, None, 0, ObservationLayout::spec(ObservationFrame::Body), &mut out);
         let centre: Vec<f32> = (0..3).map(|k| (0..4).map(|c| out[16 + 3 * c + k]).sum::<f32>() / 4.0).collect();
         assert!((centre[0] - 5.0).abs() < 1e-5 && centre[1].abs() < 1e-5 && centre[2].abs() < 1e-5, "{centre:?}");
         // Level and heading-aligned: attitude columns are the identity's.
@@ -358,19 +404,19 @@ mod tests {
         assert_eq!(layout.dim(), 64);
         let mut out = vec![0f32; layout.dim()];
         // Target 0, next 1: the others are gate 3 (3.6 m away) then gate 2 (12.7 m).
-        write_state_observation(&body, &[0.0; 4], &track, 0, layout, &mut out);
+        write_state_observation(&body, &[0.0; 4], &track, None, 0, layout, &mut out);
         let expected = |g: usize| corners_from(&gates[g], &body);
         assert_eq!((slot(&out, 0), slot(&out, 1)), (expected(3), expected(2)));
         // The SPEC's 40 numbers do not change with the obstacle slots.
         let mut spec = [0f32; STATE_OBS_DIM];
-        write_state_observation(&body, &[0.0; 4], &track, 0, ObservationLayout::spec(ObservationFrame::World), &mut spec);
+        write_state_observation(&body, &[0.0; 4], &track, None, 0, ObservationLayout::spec(ObservationFrame::World), &mut spec);
         assert_eq!(&out[..STATE_OBS_DIM], &spec[..]);
         // Target 2, next 3: the others are gate 0 (1.4 m) then gate 1 (9.1 m).
-        write_state_observation(&body, &[0.0; 4], &track, 2, layout, &mut out);
+        write_state_observation(&body, &[0.0; 4], &track, None, 2, layout, &mut out);
         assert_eq!((slot(&out, 0), slot(&out, 1)), (expected(0), expected(1)));
         // A two-gate track has no other gate: both slots show the gate after the target.
         let two = Track::new("two", gates[..2].to_vec(), None, Arena::default()).unwrap();
-        write_state_observation(&body, &[0.0; 4], &two, 0, layout, &mut out);
+        write_state_observation(&body, &[0.0; 4], &two, None, 0, layout, &mut out);
         assert_eq!((slot(&out, 0), slot(&out, 1)), (expected(1), expected(1)));
     }
 
@@ -392,14 +438,14 @@ mod tests {
         for position in [Vector3::new(-9.0, 0.0, 2.0), Vector3::new(6.0, 1.0, 2.0)] {
             let body = BodyState::at_rest(position, 0.0);
             // Target 4, next 5: then 0, 1, 2, 3 — gate 3 is the one just passed.
-            write_state_observation(&body, &[0.0; 4], &track, 4, layout, &mut out);
+            write_state_observation(&body, &[0.0; 4], &track, None, 4, layout, &mut out);
             let slots: Vec<Vec<f32>> = (0..4).map(|s| slot(&out, s)).collect();
             assert_eq!(slots, (0..4).map(|g| corners_from(&gates[g], &body)).collect::<Vec<_>>(), "drone at {position:?}");
         }
         // A three-gate track wraps: target 0, next 1, then 2, 0, 1, 2.
         let three = Track::new("three", gates[..3].to_vec(), None, Arena::default()).unwrap();
         let body = BodyState::at_rest(Vector3::new(-3.0, 0.0, 2.0), 0.0);
-        write_state_observation(&body, &[0.0; 4], &three, 0, layout, &mut out);
+        write_state_observation(&body, &[0.0; 4], &three, None, 0, layout, &mut out);
         let slots: Vec<Vec<f32>> = (0..4).map(|s| slot(&out, s)).collect();
         assert_eq!(slots, [2, 0, 1, 2].map(|g| corners_from(&gates[g], &body)));
     }
@@ -423,24 +469,56 @@ mod tests {
         let reading = |out: &[f32], s: usize| out[STATE_OBS_DIM + PROXIMITY_DIM * s..][..PROXIMITY_DIM].to_vec();
         let close = |a: Vec<f32>, b: [f64; 4]| a.iter().zip(b).all(|(x, y)| (f64::from(*x) - y).abs() < 1e-6);
         // Target 0 (2.99 m away) is not read; gate 2 is, gate 1 (6.2 m) is beyond the range.
-        write_state_observation(&body, &[0.0; 4], &track, 0, layout, &mut out);
+        write_state_observation(&body, &[0.0; 4], &track, None, 0, layout, &mut out);
         let w = 1.0 - 0.5 / 4.0;
         assert!(close(reading(&out, 0), [w, 0.0, 0.0, w]), "{:?}", reading(&out, 0));
         assert!(close(reading(&out, 1), [0.0; 4]), "{:?}", reading(&out, 1));
         // Target 2: now gate 0's frame (nearest point (0.05, 1, 2)) is the nearest other one.
-        write_state_observation(&body, &[0.0; 4], &track, 2, layout, &mut out);
+        write_state_observation(&body, &[0.0; 4], &track, None, 2, layout, &mut out);
         let d = 2.95f64.hypot(0.5);
         let w = 1.0 - d / 4.0;
         // World (−2.95, −0.5, 0) / d; the heading frame maps world (x, y) to (y, −x).
         assert!(close(reading(&out, 0), [w * -0.5 / d, w * 2.95 / d, 0.0, w]), "{:?}", reading(&out, 0));
         // A longer range reaches gate 1 too, second: 1.45 m along its normal, 6 m beside it.
         let far = ObservationLayout { proximity_range: 10.0, ..layout };
-        write_state_observation(&body, &[0.0; 4], &track, 0, far, &mut out);
+        write_state_observation(&body, &[0.0; 4], &track, None, 0, far, &mut out);
         assert!((f64::from(reading(&out, 0)[3]) - 0.95).abs() < 1e-6);
         assert!((f64::from(reading(&out, 1)[3]) - (1.0 - 1.45f64.hypot(6.0) / 10.0)).abs() < 1e-6);
         // The SPEC's 40 numbers do not change with the readings.
         let mut spec = [0f32; STATE_OBS_DIM];
-        write_state_observation(&body, &[0.0; 4], &track, 0, ObservationLayout::spec(ObservationFrame::Heading), &mut spec);
+        write_state_observation(&body, &[0.0; 4], &track, None, 0, ObservationLayout::spec(ObservationFrame::Heading), &mut spec);
+        assert_eq!(&out[..STATE_OBS_DIM], &spec[..]);
+    }
+
+    #[test]
+    fn line_points_follow_the_racing_line_from_its_nearest_point_on_the_target_leg() {
+        let gates = (0..4)
+            .map(|k| {
+                let a = std::f64::consts::FRAC_PI_2 * f64::from(k);
+                Gate::new(Vector3::new(6.0 * a.cos(), 6.0 * a.sin(), 2.0), a + std::f64::consts::FRAC_PI_2)
+            })
+            .collect();
+        let track = Track::new("square", gates, None, Arena::default()).unwrap();
+        let line = RacingLine::new(&track);
+        let layout = ObservationLayout { frame: ObservationFrame::Heading, line_points: 3, line_spacing: 2.0, ..Default::default() };
+        assert_eq!(layout.dim(), STATE_OBS_DIM + 9);
+        // A drone just off the line on the leg into gate 2, facing +x (heading frame = world).
+        let k = line.points().len() / 4 + 60;
+        let body = BodyState::at_rest(line.points()[k].position + Vector3::new(0.0, 0.0, 0.3), 0.0);
+        let mut out = vec![f32::NAN; layout.dim()];
+        write_state_observation(&body, &[0.0; 4], &track, Some(&line), 2, layout, &mut out);
+        for j in 0..3 {
+            let expected = line.ahead(k, 2.0 * j as f64) - body.position;
+            for c in 0..3 {
+                let got = f64::from(out[STATE_OBS_DIM + 3 * j + c]);
+                assert!((got - expected[c]).abs() < 1e-5, "point {j}, axis {c}: {got} against {}", expected[c]);
+            }
+        }
+        // The first point is the nearest on the line: straight below the drone.
+        assert!((f64::from(out[STATE_OBS_DIM + 2]) + 0.3).abs() < 1e-5);
+        // SPEC's 40 numbers do not change with the points.
+        let mut spec = [0f32; STATE_OBS_DIM];
+        write_state_observation(&body, &[0.0; 4], &track, None, 2, ObservationLayout::spec(ObservationFrame::Heading), &mut spec);
         assert_eq!(&out[..STATE_OBS_DIM], &spec[..]);
     }
 

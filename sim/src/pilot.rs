@@ -318,20 +318,71 @@ pub struct LinePoint {
     pub target: usize,
 }
 
-/// The default-tuned reference pilot's closed racing line through `track`'s gates, sample by
-/// sample (each segment from gate i to gate i + 1 has the same number of samples).
-pub fn racing_line_points(track: &Track) -> Vec<LinePoint> {
-    let path = PilotPath::through_gates(track, &PilotParams::default());
-    path.points
-        .iter()
-        .enumerate()
-        .map(|(k, q)| LinePoint {
-            position: q.position,
-            direction: q.tangent,
-            speed: q.speed,
-            target: track.next_index(k / SAMPLES_PER_SEGMENT),
-        })
-        .collect()
+/// The default-tuned reference pilot's closed racing line through a track's gates, sample by
+/// sample (each leg from gate i to gate i + 1 has the same number of samples), with its arc
+/// length: where flying starts are drawn ([`crate::StartGate::Flying`]) and what the line
+/// observation reads ([`crate::ObservationLayout::line_points`]).
+#[derive(Clone, Debug)]
+pub struct RacingLine {
+    points: Vec<LinePoint>,
+    /// Arc length from sample 0 to each sample (m).
+    arc: Vec<f64>,
+    /// Length of the closed loop (m).
+    length: f64,
+}
+
+impl RacingLine {
+    /// The line the default-tuned pilot would fly round `track`.
+    pub fn new(track: &Track) -> Self {
+        let path = PilotPath::through_gates(track, &PilotParams::default());
+        let points: Vec<LinePoint> = path
+            .points
+            .iter()
+            .enumerate()
+            .map(|(k, q)| LinePoint {
+                position: q.position,
+                direction: q.tangent,
+                speed: q.speed,
+                target: track.next_index(k / SAMPLES_PER_SEGMENT),
+            })
+            .collect();
+        let mut arc = Vec::with_capacity(points.len());
+        let mut length = 0.0;
+        for (k, q) in points.iter().enumerate() {
+            arc.push(length);
+            length += (points[(k + 1) % points.len()].position - q.position).norm();
+        }
+        Self { points, arc, length }
+    }
+
+    /// Its samples in racing order, starting at gate 0.
+    pub fn points(&self) -> &[LinePoint] {
+        &self.points
+    }
+
+    /// Index of the sample nearest to `p` on the leg that leads into gate `target`.
+    ///
+    /// Searching one leg only keeps the answer on the part of the line the drone is racing,
+    /// where the line crosses itself or passes close to an earlier leg.
+    pub fn nearest_on_leg(&self, p: &Vector3<f64>, target: usize) -> usize {
+        let legs = self.points.len() / SAMPLES_PER_SEGMENT;
+        let first = (target + legs - 1) % legs * SAMPLES_PER_SEGMENT;
+        (first..first + SAMPLES_PER_SEGMENT)
+            .map(|k| ((self.points[k].position - p).norm_squared(), k))
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map_or(first, |(_, k)| k)
+    }
+
+    /// The point `distance` metres of arc after sample `from`, round the closed loop
+    /// (interpolated between samples).
+    pub fn ahead(&self, from: usize, distance: f64) -> Vector3<f64> {
+        let s = (self.arc[from] + distance).rem_euclid(self.length);
+        let k = self.arc.partition_point(|&a| a <= s).saturating_sub(1);
+        let next = (k + 1) % self.points.len();
+        let span = if next == 0 { self.length - self.arc[k] } else { self.arc[next] - self.arc[k] };
+        let t = if span > 0.0 { (s - self.arc[k]) / span } else { 0.0 };
+        self.points[k].position.lerp(&self.points[next].position, t)
+    }
 }
 
 /// The direction a drone faces at the start of `track`.
@@ -477,6 +528,33 @@ mod tests {
                 env.step(&a);
                 twin.step(&b);
             }
+        }
+    }
+
+    #[test]
+    fn the_racing_line_is_searched_on_the_target_leg_and_walked_by_arc_length() {
+        let track = oval();
+        let line = RacingLine::new(&track);
+        let legs = track.gates.len();
+        assert_eq!(line.points().len(), legs * SAMPLES_PER_SEGMENT);
+        for target in 0..legs {
+            // A point on the leg into `target` is found there, and nowhere else.
+            let k = (target + legs - 1) % legs * SAMPLES_PER_SEGMENT + SAMPLES_PER_SEGMENT / 3;
+            let p = line.points()[k].position + Vector3::new(0.0, 0.0, 0.2);
+            assert_eq!(line.nearest_on_leg(&p, target), k);
+            assert_eq!(line.points()[k].target, target);
+            // Searching another leg answers on that leg.
+            let other = track.next_index(target);
+            assert_eq!(line.points()[line.nearest_on_leg(&p, other)].target, other);
+        }
+        // Walking ahead: zero metres is the sample itself, a whole loop comes back to it, and a
+        // short step lands at that distance (chord ≈ arc on a smooth line).
+        for k in [0, 57, line.points().len() - 1] {
+            let q = line.points()[k].position;
+            assert!((line.ahead(k, 0.0) - q).norm() < 1e-9);
+            assert!((line.ahead(k, line.length) - q).norm() < 1e-6);
+            let step = (line.ahead(k, 0.5) - q).norm();
+            assert!((step - 0.5).abs() < 0.01, "0.5 m of arc from sample {k} is {step} m away");
         }
     }
 

@@ -3,16 +3,18 @@
 //! `RaceEnv::step` reads in stage order: action → command → substeps (controller → motors →
 //! forces → RK4 → crash check) → gate pass and laps → reward → episode bookkeeping.
 
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::observation::{DEFAULT_PROXIMITY_RANGE, ObservationFrame, ObservationLayout, ObstacleOrder, write_state_observation};
+use crate::observation::{
+    DEFAULT_LINE_SPACING, DEFAULT_PROXIMITY_RANGE, ObservationFrame, ObservationLayout, ObstacleOrder, write_state_observation,
+};
 use crate::params::{QuadrotorParams, RaceParams};
-use crate::pilot::{LinePoint, racing_line_points};
+use crate::pilot::RacingLine;
 use crate::quadrotor::{BodyState, Command, Quadrotor};
 use crate::randomization::RandomizationParams;
 use crate::reward::{ActionFilter, ProgressDistance, RewardParams, RewardTerms, StepFacts};
@@ -83,6 +85,11 @@ pub struct EnvConfig {
     pub proximity_gates: usize,
     /// Distance (m) within which a gate frame registers in a proximity reading. Default 4.
     pub proximity_range: f64,
+    /// How many points of the reference pilot's racing line, ahead of the drone, the
+    /// observation ends with ([`ObservationLayout`]). Default 0 (SPEC §5).
+    pub line_points: usize,
+    /// Arc length (m) between those points. Default 2.5.
+    pub line_spacing: f64,
     /// Which gate episodes start behind. Default first (SPEC §7).
     pub start_gate: StartGate,
     /// Per-episode randomisation around the nominal vehicle and start pose.
@@ -103,6 +110,8 @@ impl Default for EnvConfig {
             obstacle_order: ObstacleOrder::Nearest,
             proximity_gates: 0,
             proximity_range: DEFAULT_PROXIMITY_RANGE,
+            line_points: 0,
+            line_spacing: DEFAULT_LINE_SPACING,
             start_gate: StartGate::First,
             randomization: RandomizationParams::default(),
             race: RaceParams::default(),
@@ -121,6 +130,8 @@ impl EnvConfig {
             obstacle_order: self.obstacle_order,
             proximity_gates: self.proximity_gates,
             proximity_range: self.proximity_range,
+            line_points: self.line_points,
+            line_spacing: self.line_spacing,
         }
     }
 
@@ -220,9 +231,10 @@ pub struct RaceEnv {
     filter: ActionFilter,
     last_gate0_pass: Option<f64>,
     stats: EpisodeStats,
-    /// The racing line flying starts are drawn from; derived from the track on first use.
+    /// The pilot's racing line (flying starts, line observation); derived from the track on
+    /// first use.
     #[serde(skip)]
-    racing_line: Option<Arc<[LinePoint]>>,
+    racing_line: OnceLock<Arc<RacingLine>>,
 }
 
 impl RaceEnv {
@@ -245,7 +257,7 @@ impl RaceEnv {
             filter: ActionFilter::default(),
             last_gate0_pass: None,
             stats: EpisodeStats::default(),
-            racing_line: None,
+            racing_line: OnceLock::new(),
         };
         env.reset();
         env
@@ -299,14 +311,18 @@ impl RaceEnv {
                 if self.rng.random_bool(STANDING_START_SHARE) {
                     return (self.track.start, 0, None);
                 }
-                let track = &self.track;
-                let line = self.racing_line.get_or_insert_with(|| racing_line_points(track).into()).clone();
-                let point = line[self.rng.random_range(0..line.len())];
+                let line = self.racing_line();
+                let point = line.points()[self.rng.random_range(0..line.points().len())];
                 let speed = point.speed * self.rng.random_range(0.5..=1.5);
                 let pose = Pose { position: point.position, yaw: point.direction.y.atan2(point.direction.x) };
                 (pose, point.target, Some(point.direction * speed))
             }
         }
+    }
+
+    /// The track's racing line, derived on first use.
+    fn racing_line(&self) -> Arc<RacingLine> {
+        self.racing_line.get_or_init(|| Arc::new(RacingLine::new(&self.track))).clone()
     }
 
     /// True when a drone at `position` is inside the arena and keeps the flying-start
@@ -319,7 +335,7 @@ impl RaceEnv {
     /// Replaces the track and starts a new episode on it (task switching).
     pub fn set_track(&mut self, track: Arc<Track>) {
         self.track = track;
-        self.racing_line = None;
+        self.racing_line = OnceLock::new();
         self.reset();
     }
 
@@ -437,7 +453,8 @@ impl RaceEnv {
 
     /// Writes the state observation in `layout` (a policy evaluates in the layout it learned).
     pub fn observe_in(&self, layout: ObservationLayout, out: &mut [f32]) {
-        write_state_observation(&self.quad.body, &self.previous_action, &self.track, self.target, layout, out);
+        let line = (layout.line_points > 0).then(|| self.racing_line());
+        write_state_observation(&self.quad.body, &self.previous_action, &self.track, line.as_deref(), self.target, layout, out);
     }
 
     /// Renders the camera image of the current state (SPEC §5) into `out` (84×84 bytes).
@@ -555,7 +572,8 @@ mod tests {
     fn flying_starts_lie_on_the_racing_line_moving_along_it_and_half_start_from_rest() {
         let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
         env.config.start_gate = StartGate::Flying;
-        let line = racing_line_points(&env.track);
+        let line = RacingLine::new(&env.track);
+        let line = line.points();
         let (mut standing, mut targets) = (0, [0; 3]);
         for _ in 0..400 {
             env.reset();
