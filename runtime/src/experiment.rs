@@ -102,8 +102,8 @@ pub enum ExperimentError {
     Run {
         /// The run directory.
         run: String,
-        /// What failed.
-        source: TrainError,
+        /// What failed (boxed: a training error is large, and this one is rare).
+        source: Box<TrainError>,
     },
     /// Reading or writing a result file.
     #[error("{0}")]
@@ -256,10 +256,10 @@ pub fn run_experiment(
                 // The previous stage is done (stages run in order): start from where it ended.
                 let previous = Experiment::run_dir(out, &experiment.variants[stage - 1].name, seed);
                 let checkpoints = CheckpointDir::new(previous.join("checkpoints"), config.keep_checkpoints)
-                    .map_err(|e| ExperimentError::Run { run: previous.display().to_string(), source: e.into() })?;
+                    .map_err(|e| ExperimentError::Run { run: previous.display().to_string(), source: Box::new(e.into()) })?;
                 config.init_from = checkpoints.latest();
             }
-            let failed = |source: TrainError| ExperimentError::Run { run: dir.display().to_string(), source };
+            let failed = |source: TrainError| ExperimentError::Run { run: dir.display().to_string(), source: Box::new(source) };
             let has_checkpoint =
                 CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints).map_err(|e| failed(e.into()))?.latest().is_some();
             let mut trainer = if has_checkpoint {
