@@ -347,10 +347,15 @@ impl RaceEnv {
     /// [`RaceEnv::step`] with a double-precision action, for exact replays.
     pub fn step_f64(&mut self, action: &[f64; 4]) -> StepOutcome {
         let action = action.map(|a| a.clamp(-1.0, 1.0));
-        let gate = self.track.gates[self.target];
+        let (target, gate) = (self.target, self.track.gates[self.target]);
         let start = self.quad.body.position;
         let measure = self.config.reward.progress_distance;
-        let distance_before = measure.to_gate(&gate, &start);
+        let line = (measure == ProgressDistance::Line).then(|| self.racing_line());
+        let distance = |p: &Vector3<f64>| match &line {
+            Some(line) => line.remaining_on_leg(p, target),
+            None => measure.to_gate(&gate, p),
+        };
+        let distance_before = distance(&start);
 
         let command = Command::from_action(&action, &self.config.quadrotor);
         let crash = self.integrate(&command);
@@ -370,7 +375,7 @@ impl RaceEnv {
         let reward = self.config.reward.terms(&StepFacts {
             distance_before,
             // A pass leaves by the gate's front: its last step is measured to the centre.
-            distance_after: if passed.is_some() { (end - gate.position).norm() } else { measure.to_gate(&gate, &end) },
+            distance_after: if passed.is_some() { (end - gate.position).norm() } else { distance(&end) },
             step_seconds: self.config.race.dt,
             pass_error: passed.map(|c| c.error),
             crashed: crash.is_some(),
