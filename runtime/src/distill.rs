@@ -334,7 +334,7 @@ impl Distiller {
         if architecture.observation_dim != STATE_OBS_DIM {
             // The data set stores SPEC §5's 40 numbers per state (the student's critic input).
             bail!(
-                "teacher {}: observes {} numbers (obstacle gates or proximity readings); distillation takes SPEC §5's {STATE_OBS_DIM}-number observation",
+                "teacher {}: observes {} numbers (obstacle gates, proximity readings or racing-line points); distillation takes SPEC §5's {STATE_OBS_DIM}-number observation",
                 config.teacher.display(),
                 architecture.observation_dim
             );
