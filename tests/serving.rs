@@ -83,6 +83,7 @@ fn a_served_policy_acts_as_evaluation_does_and_refuses_bad_requests() {
     rt.block_on(async {
         let info = client.describe(with_token(DescribeRequest {})).await.unwrap().into_inner();
         assert_eq!((info.observation_dim, info.action_dim, info.observation_frame.as_str(), info.policy_version), (40, 4, "heading", 7));
+        assert_eq!(info.observation_layout, "raw 40-number state observation in the heading frame");
         // Unary: every action equals the evaluation controller's on the same state.
         for (o, e) in observations.iter().zip(&expected) {
             let action = client.act(with_token(ActRequest { observation: o.clone() })).await.unwrap().into_inner().action;

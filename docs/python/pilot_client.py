@@ -50,7 +50,7 @@ def main():
         metadata.append(("authorization", "Bearer " + Path(a.token_file).read_text().strip()))
     pilot = pb_grpc.PilotStub(grpc.insecure_channel(a.addr))
     info = pilot.Describe(pb.DescribeRequest(), metadata=metadata)
-    print(f"policy v{info.policy_version}: {info.observation_dim} observations ({info.observation_frame} frame) "
+    print(f"policy v{info.policy_version}: {info.observation_layout or str(info.observation_dim) + ' observations'} "
           f"-> {info.action_dim} actions", file=sys.stderr)
     if a.bench:
         return bench(pilot, pb, metadata, info.observation_dim, a.bench)

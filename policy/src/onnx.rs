@@ -232,35 +232,11 @@ pub fn actor_model(blob: &WeightsBlob) -> Result<Vec<u8>, BlobError> {
         input: vec![batch_of("observation", inputs)],
         output: vec![batch_of("action", arch.action_dim)],
     };
-    let frame = arch.observation_frame.name();
-    // What the model's input holds after SPEC §5's 40: nothing under a privileged critic.
-    let read = |k: usize| if arch.privileged_critic { 0 } else { k };
-    let obstacles = match read(arch.obstacle_gates) {
-        0 => String::new(),
-        k => {
-            let which = match arch.obstacle_order {
-                sim::ObstacleOrder::Nearest => "nearest other gates",
-                sim::ObstacleOrder::Track => "gates after the next (racing order)",
-            };
-            format!(" with the corners of the {k} {which} after SPEC §5's 40")
-        }
-    };
-    let proximity = match read(arch.proximity_gates) {
-        0 => String::new(),
-        k => format!(", then {k} proximity readings [w*u, w] of the nearest gate frames (w = 1 - d / {} m)", arch.proximity_range),
-    };
-    let line = match read(arch.line_points) {
-        0 => String::new(),
-        k => format!(", then {k} points of the reference pilot's racing line every {} m of arc from its nearest point", arch.line_spacing),
-    };
     Ok(ModelProto {
         ir_version: IR_VERSION,
         producer_name: "dronerace".into(),
         producer_version: env!("CARGO_PKG_VERSION").into(),
-        doc_string: format!(
-            "dronerace policy v{}: raw {}-number state observation in the {frame} frame{obstacles}{proximity}{line} -> mean action in [-1, 1]",
-            blob.version, inputs
-        ),
+        doc_string: format!("dronerace policy v{}: {} -> mean action in [-1, 1]", blob.version, arch.describe_observation(true)),
         graph: Some(graph),
         opset_import: vec![OperatorSetIdProto { domain: String::new(), version: OPSET }],
     }
