@@ -29,8 +29,8 @@ pub const DEFAULT_PROXIMITY_RANGE: f64 = 4.0;
 /// Numbers each racing-line point adds: its position relative to the drone.
 pub const LINE_POINT_DIM: usize = 3;
 
-/// Default arc length between the racing-line points (m): four points reach 7.5 m ahead, about
-/// 0.6 s at a generalist's racing speed and most of a leg of a generated track.
+/// Default arc length between the racing-line points (m): four points reach 7.5 m along the
+/// line from the drone's nearest point on it.
 pub const DEFAULT_LINE_SPACING: f64 = 2.5;
 
 /// The frame in which the observation's vectors (attitude columns, v, δp1, δp2) are written.
