@@ -149,36 +149,10 @@ impl Architecture {
         if self.privileged_critic { self.observation_dim.min(sim::STATE_OBS_DIM) } else { self.observation_dim }
     }
 
-    /// What an observation row holds, in words, for a flight stack that must write it: the
-    /// actor's input (`actor_only`, the exported model's doc string) or the whole row (the
-    /// served policy's description; a privileged critic's extras included).
-    pub fn describe_observation(&self, actor_only: bool) -> String {
-        let frame = self.observation_frame.name();
-        // What the actor reads after SPEC §5's 40: nothing under a privileged critic.
-        let read = |k: usize| if actor_only && self.privileged_critic { 0 } else { k };
-        let obstacles = match read(self.obstacle_gates) {
-            0 => String::new(),
-            k => {
-                let which = match self.obstacle_order {
-                    sim::ObstacleOrder::Nearest => "nearest other gates",
-                    sim::ObstacleOrder::Track => "gates after the next (racing order)",
-                };
-                format!(" with the corners of the {k} {which} after SPEC §5's 40")
-            }
-        };
-        let proximity = match read(self.proximity_gates) {
-            0 => String::new(),
-            k => format!(", then {k} proximity readings [w*u, w] of the nearest gate frames (w = 1 - d / {} m)", self.proximity_range),
-        };
-        let line = match read(self.line_points) {
-            0 => String::new(),
-            k => format!(
-                ", then {k} points of the reference pilot's racing line every {} m of arc from its nearest point",
-                self.line_spacing
-            ),
-        };
-        let numbers = if actor_only { self.actor_input_dim() } else { self.observation_dim };
-        format!("raw {numbers}-number state observation in the {frame} frame{obstacles}{proximity}{line}")
+    /// What the actor's input holds: the whole observation, or SPEC §5's 40 numbers in the same
+    /// frame under a privileged critic.
+    pub fn actor_observation_layout(&self) -> sim::ObservationLayout {
+        if self.privileged_critic { sim::ObservationLayout::spec(self.observation_frame) } else { self.observation_layout() }
     }
 
     /// Layer widths of an MLP of this architecture's hidden layers: `inputs`, hidden…, `outputs`.
@@ -206,14 +180,15 @@ mod tests {
     #[test]
     fn the_observation_is_described_as_the_actor_and_the_whole_row_hold_it() {
         let mut arch = Architecture { observation_frame: sim::ObservationFrame::Heading, ..Architecture::cpu() };
-        assert_eq!(arch.describe_observation(true), "raw 40-number state observation in the heading frame");
+        assert_eq!(arch.actor_observation_layout().describe(), "raw 40-number state observation in the heading frame");
         arch.set_observation_layout(sim::ObservationLayout { line_points: 4, ..arch.observation_layout() });
         let line = ", then 4 points of the reference pilot's racing line every 2.5 m of arc from its nearest point";
-        assert_eq!(arch.describe_observation(true), format!("raw 52-number state observation in the heading frame{line}"));
+        assert_eq!(arch.actor_observation_layout().describe(), format!("raw 52-number state observation in the heading frame{line}"));
         // Under a privileged critic the actor reads SPEC's 40; a served row still holds all 52.
         arch.privileged_critic = true;
-        assert_eq!(arch.describe_observation(true), "raw 40-number state observation in the heading frame");
-        assert_eq!(arch.describe_observation(false), format!("raw 52-number state observation in the heading frame{line}"));
+        assert_eq!(arch.actor_observation_layout().describe(), "raw 40-number state observation in the heading frame");
+        assert_eq!(arch.actor_observation_layout().dim(), arch.actor_input_dim());
+        assert_eq!(arch.observation_layout().describe(), format!("raw 52-number state observation in the heading frame{line}"));
     }
 
     #[test]

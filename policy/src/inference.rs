@@ -49,8 +49,6 @@ pub struct Policy {
     log_std: Vec<f32>,
     version: u64,
     layout: sim::ObservationLayout,
-    /// The observation row in words ([`crate::architecture::Architecture::describe_observation`]).
-    description: String,
     device: Device,
 }
 
@@ -61,8 +59,7 @@ impl Policy {
         let model = blob.model(&device)?.valid();
         let log_std = blob.params.last().map(|p| p.values.clone()).unwrap_or_default();
         let layout = blob.architecture.observation_layout();
-        let description = blob.architecture.describe_observation(false);
-        Ok(Self { model, normalizer: blob.normalizer.clone(), log_std, version: blob.version, layout, description, device })
+        Ok(Self { model, normalizer: blob.normalizer.clone(), log_std, version: blob.version, layout, device })
     }
 
     /// Policy version this was built from.
@@ -78,11 +75,6 @@ impl Policy {
     /// Length of a raw observation.
     pub fn observation_dim(&self) -> usize {
         self.normalizer.dim()
-    }
-
-    /// What a raw observation holds, in words (frame, SPEC §5's numbers, any extras).
-    pub fn describe_observation(&self) -> &str {
-        &self.description
     }
 
     /// Action dimension.

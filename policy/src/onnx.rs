@@ -236,7 +236,7 @@ pub fn actor_model(blob: &WeightsBlob) -> Result<Vec<u8>, BlobError> {
         ir_version: IR_VERSION,
         producer_name: "dronerace".into(),
         producer_version: env!("CARGO_PKG_VERSION").into(),
-        doc_string: format!("dronerace policy v{}: {} -> mean action in [-1, 1]", blob.version, arch.describe_observation(true)),
+        doc_string: format!("dronerace policy v{}: {} -> mean action in [-1, 1]", blob.version, arch.actor_observation_layout().describe()),
         graph: Some(graph),
         opset_import: vec![OperatorSetIdProto { domain: String::new(), version: OPSET }],
     }

@@ -92,7 +92,7 @@ impl Pilot for PilotService {
             action_dim: self.policy.action_dim() as u32,
             observation_frame: self.policy.observation_layout().frame.name().into(),
             policy_version: self.policy.version(),
-            observation_layout: self.policy.describe_observation().into(),
+            observation_layout: self.policy.observation_layout().describe(),
         }))
     }
 

@@ -153,6 +153,33 @@ impl ObservationLayout {
     pub fn dim(self) -> usize {
         STATE_OBS_DIM + OBSTACLE_GATE_DIM * self.obstacle_gates + PROXIMITY_DIM * self.proximity_gates + LINE_POINT_DIM * self.line_points
     }
+
+    /// What a row holds, in words, for a flight stack that must write it (an exported model's
+    /// doc string, a served policy's description).
+    pub fn describe(self) -> String {
+        let obstacles = match self.obstacle_gates {
+            0 => String::new(),
+            k => {
+                let which = match self.obstacle_order {
+                    ObstacleOrder::Nearest => "nearest other gates",
+                    ObstacleOrder::Track => "gates after the next (racing order)",
+                };
+                format!(" with the corners of the {k} {which} after SPEC §5's 40")
+            }
+        };
+        let proximity = match self.proximity_gates {
+            0 => String::new(),
+            k => format!(", then {k} proximity readings [w*u, w] of the nearest gate frames (w = 1 - d / {} m)", self.proximity_range),
+        };
+        let line = match self.line_points {
+            0 => String::new(),
+            k => format!(
+                ", then {k} points of the reference pilot's racing line every {} m of arc from its nearest point",
+                self.line_spacing
+            ),
+        };
+        format!("raw {}-number state observation in the {} frame{obstacles}{proximity}{line}", self.dim(), self.frame.name())
+    }
 }
 
 /// `R_z(-ψ)`: world vectors into the yaw-aligned frame of the drone's heading ψ.
