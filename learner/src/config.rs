@@ -45,6 +45,16 @@ pub struct PpoConfig {
     /// critic, whose first advantages would otherwise be noise that unlearns the imitation
     /// (a run's `[warm_start]` sets it). Default 0.
     pub critic_warmup_iterations: u64,
+    /// Weight of the mirror-symmetry term ([`crate::ppo::MirrorTerm`]): the KL divergence between
+    /// the policy's actions on mirrored observations and its mirrored actions.
+    /// Beyond the thesis; 0 (off) by default, and left out of files when it is.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub mirror_coef: f64,
+}
+
+/// True for 0, the mirror term's "off".
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 impl Default for PpoConfig {
@@ -66,6 +76,7 @@ impl Default for PpoConfig {
             adam_epsilon: 1e-5,
             initial_log_std: -0.5,
             critic_warmup_iterations: 0,
+            mirror_coef: 0.0,
         }
     }
 }

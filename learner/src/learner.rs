@@ -10,7 +10,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::config::Profile;
-use crate::ppo::{GaeInput, ImitationSet, ImitationTerm, TrainingBatch, UpdateStats, UpdateStep, gae, update};
+use crate::ppo::{GaeInput, ImitationSet, ImitationTerm, MirrorTerm, TrainingBatch, UpdateStats, UpdateStep, gae, update};
 
 /// A batch of chunks the learner refuses.
 #[derive(Debug, thiserror::Error)]
@@ -201,6 +201,11 @@ impl Learner {
         let progress = (c.env_steps + transitions as u64) as f64 / c.total_env_steps.max(1) as f64;
         let learning_rate = ppo.learning_rate(progress);
         let (optimizer, device) = (&mut self.optimizer, &self.device);
+        // Built from this version's statistics, the ones the batch was normalised with.
+        let mirror = match c.profile.architecture.observation_layout().mirror() {
+            Some(m) if ppo.mirror_coef > 0.0 => Some(MirrorTerm::new(&m, &c.normalizer, ppo.mirror_coef, &self.device)),
+            _ => None,
+        };
         let step = UpdateStep {
             learning_rate,
             train_policy: c.version >= ppo.critic_warmup_iterations,
@@ -210,6 +215,7 @@ impl Learner {
                 normalizer: &c.normalizer,
                 weight: weight * (1.0 - progress.clamp(0.0, 1.0)),
             }),
+            mirror: mirror.as_ref(),
         };
         let (model, stats) = match self.model.take().expect("the model is present between calls") {
             Network::State(m) => {

@@ -90,10 +90,13 @@ metrics_row! {
     eval_no_lap => "eval/no_lap",
     /// Wall seconds of the evaluation.
     eval_seconds => "eval/seconds",
+    /// Divergence of the mirror-symmetry term, averaged (last, so that a run resumed by this
+    /// version keeps its earlier columns where they were).
+    mirror_loss => "losses/mirror",
 }
 
 /// Number of metric columns.
-const COLUMNS: usize = 29;
+const COLUMNS: usize = 30;
 
 /// Columns of `validation.csv`: one row per validation track per evaluation.
 pub const VALIDATION_COLUMNS: &str = "iteration,env_steps,track,success,s_pw,mean_lap,crash_gate,crash_other,no_lap";

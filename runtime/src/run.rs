@@ -230,6 +230,17 @@ impl TrainConfig {
             }
             profile.architecture.privileged_critic = true;
         }
+        let mirror = profile.ppo.mirror_coef;
+        if mirror != 0.0 {
+            if !(mirror.is_finite() && mirror > 0.0) {
+                return Err(TrainError::Config(format!("ppo.mirror_coef: {mirror} must be a weight ≥ 0")));
+            }
+            if self.agent != Agent::State || self.env.observation_layout().mirror().is_none() {
+                return Err(TrainError::Config(
+                    "ppo.mirror_coef: the mirror term needs the state-based agent and an observation frame with a mirror (world or heading, not body)".into(),
+                ));
+            }
+        }
         if profile.envs == 0 || profile.ppo.n_steps == 0 || profile.ppo.batch_size == 0 || profile.ppo.n_epochs == 0 {
             return Err(TrainError::Config("envs, ppo.n_steps, ppo.batch_size and ppo.n_epochs must be ≥ 1".into()));
         }
@@ -515,6 +526,7 @@ impl Run {
             eval_crash_gate: eval_value(&|r| r.outcomes.fraction(r.outcomes.gate_total())),
             eval_no_lap: eval_value(&|r| r.outcomes.fraction(r.outcomes.no_lap)),
             eval_seconds: validation.map_or(f64::NAN, |v| v.seconds),
+            mirror_loss: s.mirror_loss,
         };
         self.metrics
             .write(self.progress.iteration, summary.report.env_steps, self.progress.wall_seconds, &row)
@@ -577,5 +589,15 @@ mod tests {
         let text = "privileged_critic = true\n[env]\nobstacle_gates = 2\nobstacle_order = \"track\"\n";
         let arch = TrainConfig::from_toml(text).unwrap().resolved_profile().unwrap().architecture;
         assert_eq!((arch.observation_dim, arch.actor_input_dim(), arch.privileged_critic), (64, 40, true));
+    }
+
+    #[test]
+    fn the_mirror_term_needs_a_frame_with_a_mirror_and_a_state_based_agent() {
+        let resolved = |text: &str| TrainConfig::from_toml(text).unwrap().resolved_profile();
+        let refused = |text: &str| resolved(text).unwrap_err().to_string();
+        assert!(refused("[env]\nobservation_frame = \"body\"\n[ppo]\nmirror_coef = 1.0\n").contains("not body"));
+        assert!(refused("agent = \"vision\"\n[ppo]\nmirror_coef = 1.0\n").contains("state-based agent"));
+        assert!(refused("[ppo]\nmirror_coef = -1.0\n").contains("ppo.mirror_coef: -1"));
+        assert_eq!(resolved("[env]\nobservation_frame = \"heading\"\n[ppo]\nmirror_coef = 0.5\n").unwrap().ppo.mirror_coef, 0.5);
     }
 }

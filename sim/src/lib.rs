@@ -3,6 +3,7 @@
 
 pub mod camera;
 pub mod eval;
+pub mod mirror;
 pub mod observation;
 pub mod params;
 pub mod pilot;
@@ -15,6 +16,7 @@ pub mod seed;
 pub mod track;
 pub mod vec_env;
 
+pub use mirror::{ACTION_MIRROR_SIGNS, ObservationMirror};
 pub use nalgebra;
 pub use observation::{
     DEFAULT_LINE_SPACING, DEFAULT_PROXIMITY_RANGE, LINE_POINT_DIM, OBSTACLE_GATE_DIM, ObservationFrame, ObservationLayout, ObstacleOrder,

@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use super::imitation::ImitationTerm;
 use super::loss::{clipped_surrogate, log_prob, normalize_advantages, value_loss};
+use super::mirror::MirrorTerm;
 use crate::config::PpoConfig;
 
 /// The samples of one rollout, flattened (`n` rows).
@@ -70,6 +71,9 @@ pub struct UpdateStats {
     /// Squared error of the imitation term before its weight, averaged (`losses/imitation`;
     /// NaN without the term).
     pub imitation_loss: f64,
+    /// The mirror term's divergence before its weight, averaged (`losses/mirror`; NaN without
+    /// the term).
+    pub mirror_loss: f64,
     /// Gradient steps taken.
     pub gradient_steps: usize,
 }
@@ -263,10 +267,12 @@ pub struct UpdateStep<'a> {
     /// The imitation term added to every minibatch's loss (with a minibatch of labelled states
     /// of the same size), when the policy trains.
     pub imitation: Option<ImitationTerm<'a>>,
+    /// The mirror-symmetry term added to every minibatch's loss, when the policy trains.
+    pub mirror: Option<&'a MirrorTerm>,
 }
 
 /// One PPO update of `model` on `batch`: `n_epochs` × shuffled minibatches of
-/// [`minibatch_loss`] (plus the imitation term) → backward → gradient-norm clipping → Adam
+/// [`minibatch_loss`] (plus the imitation and mirror terms) → backward → gradient-norm clipping → Adam
 /// step, as `step` says. Returns the updated model and its statistics.
 pub fn update<N: PpoNetwork>(
     mut model: N,
@@ -278,14 +284,26 @@ pub fn update<N: PpoNetwork>(
     device: &Device,
 ) -> (N, UpdateStats) {
     let mut stats = UpdateStats::default();
-    let mut imitation_sum = 0.0;
+    let (mut imitation_sum, mut mirror_sum) = (0.0, 0.0);
     let mut indices: Vec<usize> = (0..batch.len()).collect();
     let ids = model.param_ids();
     let (groups, critic) = clip_groups(ids.len(), model.critic_param_count(), config);
     for _ in 0..config.n_epochs {
         indices.shuffle(rng);
         for rows in indices.chunks(config.batch_size.min(batch.len())) {
-            let (mut loss, parts) = minibatch_loss(&model, batch.minibatch(rows, device), config);
+            let minibatch = batch.minibatch(rows, device);
+            let (means, values) = model.outputs(&minibatch);
+            // The mirror term reads the same observations, so it is taken before the PPO loss consumes them.
+            let mirrored = step
+                .mirror
+                .filter(|_| step.train_policy)
+                .and_then(|term| model.state_action_means(term.mirrored(minibatch.observations())).map(|m| (term, m)));
+            let (mut loss, parts) = ppo_loss(means.clone(), values, model.log_std(), minibatch, config);
+            if let Some((term, mirrored_means)) = mirrored {
+                let divergence = term.divergence(means, mirrored_means, model.log_std());
+                mirror_sum += f64::from(scalar(divergence.clone()));
+                loss = loss + divergence.mul_scalar(term.weight);
+            }
             if let Some(term) = step.imitation.filter(|_| step.train_policy) {
                 let (states, labels) = term.set.minibatch(rows.len(), term.normalizer, rng, device);
                 if let Some(means) = model.state_action_means(states) {
@@ -306,6 +324,10 @@ pub fn update<N: PpoNetwork>(
     stats.average();
     stats.imitation_loss = match step.imitation.filter(|_| step.train_policy) {
         Some(_) => imitation_sum / stats.gradient_steps.max(1) as f64,
+        None => f64::NAN,
+    };
+    stats.mirror_loss = match step.mirror.filter(|_| step.train_policy) {
+        Some(_) => mirror_sum / stats.gradient_steps.max(1) as f64,
         None => f64::NAN,
     };
     stats.explained_variance = explained_variance(&batch.old_values, &batch.returns);
@@ -484,7 +506,7 @@ mod tests {
             let before = error(&model);
             let mut optimizer = burn::optim::AdamConfig::new().init();
             let term = ImitationTerm { set: &set, normalizer: &normalizer, weight: 1.0 };
-            let step = UpdateStep { learning_rate: 1e-2, train_policy, imitation: imitation.then_some(term) };
+            let step = UpdateStep { learning_rate: 1e-2, train_policy, imitation: imitation.then_some(term), mirror: None };
             let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(0);
             let (model, stats) = update(model, &mut optimizer, &batch, &config, &step, &mut rng, &device);
             (before, error(&model), stats.imitation_loss)
@@ -496,6 +518,48 @@ mod tests {
         assert!((after - before).abs() < 1e-3 * before && loss.is_nan(), "without the term nothing pulls: {before} → {after}");
         let (before, after, loss) = run(true, false);
         assert!(after == before && loss.is_nan(), "the critic's warm-up leaves the policy alone: {before} → {after}");
+    }
+
+    /// With zero advantages only the mirror term moves the actor, and it makes the policy's
+    /// actions on mirrored states the mirrors of its actions (its divergence falls).
+    #[test]
+    fn the_mirror_term_makes_the_policy_commute_with_the_reflection() {
+        let device = Device::flex().autodiff();
+        let layout = sim::ObservationLayout::spec(sim::ObservationFrame::Heading);
+        let arch = policy::Architecture { hidden: vec![16], ..policy::Architecture::paper() };
+        let n = 64;
+        let states: Vec<f32> = (0..n * 40).map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0).collect();
+        let batch = TrainingBatch {
+            observations: states.clone(),
+            actions: vec![0.0; n * 4],
+            old_log_probs: vec![0.0; n],
+            advantages: vec![0.0; n],
+            returns: vec![0.0; n],
+            old_values: vec![0.0; n],
+            images: Vec::new(),
+        };
+        let term = MirrorTerm::new(&layout.mirror().unwrap(), &policy::ObsNormalizer::new(40), 1.0, &device);
+        let config = PpoConfig { batch_size: 32, n_epochs: 20, ..PpoConfig::default() };
+        let divergence = |model: &ActorCritic| {
+            let observations = Tensor::<2>::from_data(TensorData::new(states.clone(), [n, 40]), &device);
+            let means = model.action_means(observations.clone());
+            f64::from(scalar(term.divergence(means, model.action_means(term.mirrored(observations)), model.log_std.val())))
+        };
+        let run = |mirror: bool| {
+            let model = ActorCritic::new(&arch, -0.5, 1, &device);
+            let before = divergence(&model);
+            let mut optimizer = burn::optim::AdamConfig::new().init();
+            let step = UpdateStep { learning_rate: 1e-2, train_policy: true, imitation: None, mirror: mirror.then_some(&term) };
+            let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(0);
+            let (model, stats) = update(model, &mut optimizer, &batch, &config, &step, &mut rng, &device);
+            (before, divergence(&model), stats.mirror_loss)
+        };
+        let (before, after, logged) = run(true);
+        assert!(before > 1e-4, "a random network is not symmetric: {before}");
+        assert!(after < 0.3 * before, "made symmetric: {before} → {after}");
+        assert!(logged.is_finite() && logged > after, "the logged divergence averages along the way: {logged} > {after}");
+        let (before, after, logged) = run(false);
+        assert!((after - before).abs() < 1e-3 * before && logged.is_nan(), "without the term nothing moves: {before} → {after}");
     }
 
     #[test]
