@@ -21,7 +21,8 @@ pub struct PpoConfig {
     pub clip_range: f64,
     /// Value-loss coefficient. 0.5.
     pub vf_coef: f64,
-    /// Entropy coefficient. 0.
+    /// Entropy coefficient: the loss subtracts this times the policy's entropy, which keeps the
+    /// exploration noise from narrowing. 0.
     pub ent_coef: f64,
     /// Gradient-norm limit. 0.5.
     pub max_grad_norm: f64,

@@ -17,6 +17,12 @@ pub fn clipped_surrogate(ratio: Tensor<1>, advantages: Tensor<1>, clip_range: f6
     unclipped.min_pair(clipped).mean().neg()
 }
 
+/// Entropy of the policy's Gaussian, `Σ_i (ln σ_i + ½ ln 2πe)`: the same for every state, since
+/// the standard deviation is state-independent.
+pub fn gaussian_entropy(log_std: Tensor<1>) -> Tensor<1> {
+    log_std.add_scalar(HALF_LN_2PI + 0.5).sum()
+}
+
 /// Mean squared error between predicted values and returns (no value clipping).
 pub fn value_loss(values: Tensor<1>, returns: Tensor<1>) -> Tensor<1> {
     (returns - values).powf_scalar(2.0).mean()
@@ -60,6 +66,13 @@ mod tests {
         let expected = -(2.4 + -0.8 + 0.9 + -3.3) / 4.0;
         let got = scalar(clipped_surrogate(t1(&ratio), t1(&adv), 0.2));
         assert!((got - expected).abs() < 1e-6, "{got} vs {expected}");
+    }
+
+    #[test]
+    fn the_entropy_is_that_of_a_diagonal_gaussian() {
+        // σ = 1 and σ = e^-1: ½ ln 2πe each, minus 1 for the narrower.
+        let expected = (2.0 * std::f64::consts::PI * std::f64::consts::E).ln() - 1.0;
+        assert!((f64::from(scalar(gaussian_entropy(t1(&[0.0, -1.0])))) - expected).abs() < 1e-6);
     }
 
     #[test]

@@ -12,7 +12,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::imitation::ImitationTerm;
-use super::loss::{clipped_surrogate, log_prob, normalize_advantages, value_loss};
+use super::loss::{clipped_surrogate, gaussian_entropy, log_prob, normalize_advantages, value_loss};
 use super::mirror::MirrorTerm;
 use crate::config::PpoConfig;
 
@@ -199,10 +199,10 @@ pub struct LossParts {
     pub log_ratio: Tensor<1>,
 }
 
-/// PPO's loss on one minibatch — clipped surrogate + vf_coef × value loss, what is
-/// differentiated — and its parts (CleanRL's `ppo_continuous_action.py`, without the entropy
-/// term: a state-independent Gaussian's entropy does not depend on the data, and SPEC's
-/// ent_coef is 0).
+/// PPO's loss on one minibatch — clipped surrogate + vf_coef × value loss − ent_coef ×
+/// entropy, what is differentiated — and its parts (CleanRL's `ppo_continuous_action.py`). The
+/// entropy of a state-independent Gaussian depends on the log std alone, so the term only
+/// pushes the exploration noise up; with SPEC's ent_coef = 0 it is left out of the graph.
 pub fn minibatch_loss<N: PpoNetwork>(model: &N, m: Minibatch, config: &PpoConfig) -> (Tensor<1>, LossParts) {
     let (mean, values) = model.outputs(&m);
     ppo_loss(mean, values, model.log_std(), m, config)
@@ -211,12 +211,16 @@ pub fn minibatch_loss<N: PpoNetwork>(model: &N, m: Minibatch, config: &PpoConfig
 /// [`minibatch_loss`] from a network's outputs on the minibatch — action means, values and the
 /// log std — whichever network produced them (the vision agent's reads images as well).
 pub fn ppo_loss(mean: Tensor<2>, values: Tensor<1>, log_std: Tensor<1>, m: Minibatch, config: &PpoConfig) -> (Tensor<1>, LossParts) {
+    let log_std_for_entropy = log_std.clone();
     let new_log_probs = log_prob(m.actions, mean, log_std);
     let log_ratio = new_log_probs - m.old_log_probs;
     let ratio = log_ratio.clone().exp();
     let policy_loss = clipped_surrogate(ratio.clone(), m.advantages, config.clip_range);
     let value_loss = value_loss(values, m.returns);
-    let loss = policy_loss.clone() + value_loss.clone().mul_scalar(config.vf_coef);
+    let mut loss = policy_loss.clone() + value_loss.clone().mul_scalar(config.vf_coef);
+    if config.ent_coef != 0.0 {
+        loss = loss - gaussian_entropy(log_std_for_entropy).mul_scalar(config.ent_coef);
+    }
     (loss, LossParts { policy_loss, value_loss, ratio, log_ratio })
 }
 
@@ -560,6 +564,34 @@ mod tests {
         assert!(logged.is_finite() && logged > after, "the logged divergence averages along the way: {logged} > {after}");
         let (before, after, logged) = run(false);
         assert!((after - before).abs() < 1e-3 * before && logged.is_nan(), "without the term nothing moves: {before} → {after}");
+    }
+
+    /// With zero advantages, an entropy coefficient widens the policy's noise; without one the
+    /// log std stays where it was.
+    #[test]
+    fn the_entropy_term_raises_the_log_std() {
+        let device = Device::flex().autodiff();
+        let arch = policy::Architecture { hidden: vec![8], ..policy::Architecture::paper() };
+        let n = 32;
+        let batch = TrainingBatch {
+            observations: (0..n * 40).map(|i| (i % 7) as f32 * 0.1).collect(),
+            actions: vec![0.0; n * 4],
+            old_log_probs: vec![0.0; n],
+            advantages: vec![0.0; n],
+            returns: vec![0.0; n],
+            old_values: vec![0.0; n],
+            images: Vec::new(),
+        };
+        let log_std_after = |ent_coef: f64| {
+            let model = ActorCritic::new(&arch, -1.0, 1, &device);
+            let mut optimizer = burn::optim::AdamConfig::new().init();
+            let config = PpoConfig { batch_size: n, n_epochs: 5, ent_coef, ..PpoConfig::default() };
+            let step = UpdateStep { learning_rate: 1e-2, train_policy: true, imitation: None, mirror: None };
+            let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(0);
+            update(model, &mut optimizer, &batch, &config, &step, &mut rng, &device).1.log_std
+        };
+        assert!((log_std_after(0.0) + 1.0).abs() < 1e-6, "no entropy term: {}", log_std_after(0.0));
+        assert!(log_std_after(0.01) > -1.0 + 0.04, "widened: {}", log_std_after(0.01));
     }
 
     #[test]
