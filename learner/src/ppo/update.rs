@@ -482,22 +482,28 @@ mod tests {
         assert!((value_grad[0] - 0.01).abs() < 1e-7, "the small group is untouched: {value_grad:?}");
     }
 
-    #[test]
-    fn the_imitation_term_pulls_the_policy_to_its_labels_and_only_while_the_policy_trains() {
-        let device = Device::flex().autodiff();
-        let arch = policy::Architecture { hidden: vec![16], ..policy::Architecture::paper() };
-        let n = 64;
-        let states: Vec<f32> = (0..n * 40).map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0).collect();
-        // Zero advantages: the surrogate has no gradient, only the imitation term moves the actor.
-        let batch = TrainingBatch {
-            observations: states.clone(),
+    /// A batch of 40-number `states` whose advantages are all zero: the surrogate has no
+    /// gradient there, so only the extra terms of the loss move the actor.
+    fn zero_advantage_batch(states: &[f32]) -> TrainingBatch {
+        let n = states.len() / 40;
+        TrainingBatch {
+            observations: states.to_vec(),
             actions: vec![0.0; n * 4],
             old_log_probs: vec![0.0; n],
             advantages: vec![0.0; n],
             returns: vec![0.0; n],
             old_values: vec![0.0; n],
             images: Vec::new(),
-        };
+        }
+    }
+
+    #[test]
+    fn the_imitation_term_pulls_the_policy_to_its_labels_and_only_while_the_policy_trains() {
+        let device = Device::flex().autodiff();
+        let arch = policy::Architecture { hidden: vec![16], ..policy::Architecture::paper() };
+        let n = 64;
+        let states: Vec<f32> = (0..n * 40).map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0).collect();
+        let batch = zero_advantage_batch(&states);
         let set = crate::ppo::ImitationSet::new(states.clone(), vec![0.5; n * 4], 40, 4).unwrap();
         let normalizer = policy::ObsNormalizer::new(40);
         let config = PpoConfig { batch_size: 32, n_epochs: 4, ..PpoConfig::default() };
@@ -533,15 +539,7 @@ mod tests {
         let arch = policy::Architecture { hidden: vec![16], ..policy::Architecture::paper() };
         let n = 64;
         let states: Vec<f32> = (0..n * 40).map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0).collect();
-        let batch = TrainingBatch {
-            observations: states.clone(),
-            actions: vec![0.0; n * 4],
-            old_log_probs: vec![0.0; n],
-            advantages: vec![0.0; n],
-            returns: vec![0.0; n],
-            old_values: vec![0.0; n],
-            images: Vec::new(),
-        };
+        let batch = zero_advantage_batch(&states);
         let term = MirrorTerm::new(&layout.mirror().unwrap(), &policy::ObsNormalizer::new(40), 1.0, &device);
         let config = PpoConfig { batch_size: 32, n_epochs: 20, ..PpoConfig::default() };
         let divergence = |model: &ActorCritic| {
@@ -573,15 +571,7 @@ mod tests {
         let device = Device::flex().autodiff();
         let arch = policy::Architecture { hidden: vec![8], ..policy::Architecture::paper() };
         let n = 32;
-        let batch = TrainingBatch {
-            observations: (0..n * 40).map(|i| (i % 7) as f32 * 0.1).collect(),
-            actions: vec![0.0; n * 4],
-            old_log_probs: vec![0.0; n],
-            advantages: vec![0.0; n],
-            returns: vec![0.0; n],
-            old_values: vec![0.0; n],
-            images: Vec::new(),
-        };
+        let batch = zero_advantage_batch(&(0..n * 40).map(|i| (i % 7) as f32 * 0.1).collect::<Vec<_>>());
         let log_std_after = |ent_coef: f64| {
             let model = ActorCritic::new(&arch, -1.0, 1, &device);
             let mut optimizer = burn::optim::AdamConfig::new().init();
