@@ -12,7 +12,7 @@
 //! 2 ↔ 3). In the body frame the x–z plane tilts with the drone and is no symmetry of gravity,
 //! so that frame has no mirror.
 
-use crate::observation::{LINE_POINT_DIM, OBSTACLE_GATE_DIM, ObservationFrame, ObservationLayout, PROXIMITY_DIM, STATE_OBS_DIM};
+use crate::observation::{ObservationFrame, ObservationLayout, STATE_OBS_DIM};
 
 /// Signs that mirror a normalised action `[collective thrust, roll, pitch, yaw rate]`: roll and
 /// yaw rates change sign, thrust and pitch rate do not.
@@ -90,8 +90,6 @@ impl ObservationLayout {
         }
         m.push_in_place(&VECTOR, self.line_points);
         debug_assert_eq!(m.source.len(), self.dim());
-        debug_assert_eq!(PROXIMITY_DIM, 4);
-        debug_assert_eq!((OBSTACLE_GATE_DIM, LINE_POINT_DIM), (12, 3));
         Some(m)
     }
 }

@@ -211,15 +211,14 @@ pub fn minibatch_loss<N: PpoNetwork>(model: &N, m: Minibatch, config: &PpoConfig
 /// [`minibatch_loss`] from a network's outputs on the minibatch — action means, values and the
 /// log std — whichever network produced them (the vision agent's reads images as well).
 pub fn ppo_loss(mean: Tensor<2>, values: Tensor<1>, log_std: Tensor<1>, m: Minibatch, config: &PpoConfig) -> (Tensor<1>, LossParts) {
-    let log_std_for_entropy = log_std.clone();
-    let new_log_probs = log_prob(m.actions, mean, log_std);
+    let new_log_probs = log_prob(m.actions, mean, log_std.clone());
     let log_ratio = new_log_probs - m.old_log_probs;
     let ratio = log_ratio.clone().exp();
     let policy_loss = clipped_surrogate(ratio.clone(), m.advantages, config.clip_range);
     let value_loss = value_loss(values, m.returns);
     let mut loss = policy_loss.clone() + value_loss.clone().mul_scalar(config.vf_coef);
     if config.ent_coef != 0.0 {
-        loss = loss - gaussian_entropy(log_std_for_entropy).mul_scalar(config.ent_coef);
+        loss = loss - gaussian_entropy(log_std).mul_scalar(config.ent_coef);
     }
     (loss, LossParts { policy_loss, value_loss, ratio, log_ratio })
 }
@@ -292,23 +291,23 @@ pub fn update<N: PpoNetwork>(
     let mut indices: Vec<usize> = (0..batch.len()).collect();
     let ids = model.param_ids();
     let (groups, critic) = clip_groups(ids.len(), model.critic_param_count(), config);
+    // The extra terms move the policy, so they are left out while only the critic trains.
+    let imitation = step.imitation.filter(|_| step.train_policy);
+    let mirror = step.mirror.filter(|_| step.train_policy);
     for _ in 0..config.n_epochs {
         indices.shuffle(rng);
         for rows in indices.chunks(config.batch_size.min(batch.len())) {
             let minibatch = batch.minibatch(rows, device);
             let (means, values) = model.outputs(&minibatch);
             // The mirror term reads the same observations, so it is taken before the PPO loss consumes them.
-            let mirrored = step
-                .mirror
-                .filter(|_| step.train_policy)
-                .and_then(|term| model.state_action_means(term.mirrored(minibatch.observations())).map(|m| (term, m)));
+            let mirrored = mirror.and_then(|term| model.state_action_means(term.mirrored(minibatch.observations())).map(|m| (term, m)));
             let (mut loss, parts) = ppo_loss(means.clone(), values, model.log_std(), minibatch, config);
             if let Some((term, mirrored_means)) = mirrored {
                 let divergence = term.divergence(means, mirrored_means, model.log_std());
                 mirror_sum += f64::from(scalar(divergence.clone()));
                 loss = loss + divergence.mul_scalar(term.weight);
             }
-            if let Some(term) = step.imitation.filter(|_| step.train_policy) {
+            if let Some(term) = imitation {
                 let (states, labels) = term.set.minibatch(rows.len(), term.normalizer, rng, device);
                 if let Some(means) = model.state_action_means(states) {
                     let squared_error = (means - labels).powf_scalar(2.0).mean();
@@ -326,11 +325,11 @@ pub fn update<N: PpoNetwork>(
         }
     }
     stats.average();
-    stats.imitation_loss = match step.imitation.filter(|_| step.train_policy) {
+    stats.imitation_loss = match imitation {
         Some(_) => imitation_sum / stats.gradient_steps.max(1) as f64,
         None => f64::NAN,
     };
-    stats.mirror_loss = match step.mirror.filter(|_| step.train_policy) {
+    stats.mirror_loss = match mirror {
         Some(_) => mirror_sum / stats.gradient_steps.max(1) as f64,
         None => f64::NAN,
     };
