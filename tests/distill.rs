@@ -1,5 +1,6 @@
 //! Distillation end to end: an interrupted DAgger run resumes bit for bit, the teacher's share
-//! of the flying follows β = decay^round, and the command refuses a teacher that cannot teach.
+//! of the flying follows β = decay^round, teachers with longer observations teach in their own
+//! layout, and the command refuses a teacher that cannot teach.
 
 // Test code: a panic is how a failure is reported.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::print_stdout, clippy::print_stderr)]
@@ -119,6 +120,45 @@ fn a_state_student_of_the_pilot_resumes_bit_for_bit_with_its_pilots_mid_flight()
     assert_eq!((blob.architecture.agent, blob.architecture.hidden.clone()), (policy::Agent::State, vec![16, 16]));
     // Its normaliser learnt from the 3 × 4 × 16 states flown (no teacher to take one from).
     assert_eq!(blob.normalizer.count, (3 * 4 * 16) as f64 + policy::ObsNormalizer::new(40).count);
+}
+
+#[test]
+fn teachers_that_observe_racing_line_points_teach_in_their_own_layout() {
+    // The pilot teaches a state student that sees 4 line points (40 + 4 × 3 numbers)…
+    let mut config = DistillConfig {
+        teacher: runtime::distill::PILOT_TEACHER.into(),
+        student: policy::Agent::State,
+        hidden: Some(vec![16, 16]),
+        rounds: 2,
+        ..tiny_config()
+    };
+    config.env.line_points = 4;
+    let dir = tempfile::tempdir().unwrap();
+    let mut d = Distiller::start(config, &dir.path().join("state")).unwrap();
+    d.round_step().unwrap();
+    d.round_step().unwrap();
+    let teacher = d.student();
+    assert_eq!((teacher.architecture.line_points, teacher.architecture.observation_dim), (4, 52));
+    let teacher_file = dir.path().join("line-teacher.bin");
+    std::fs::write(&teacher_file, teacher.to_bytes()).unwrap();
+    // …which teaches a vision student: its environments and data set take the teacher's layout
+    // (not the distillation config's default), its critic reads all 52 numbers, and it resumes.
+    let config = DistillConfig { teacher: teacher_file, ..tiny_config() };
+    assert_eq!(config.env.line_points, 0);
+    let vision_dir = dir.path().join("vision");
+    let mut v = Distiller::start(config, &vision_dir).unwrap();
+    v.round_step().unwrap();
+    v.round_step().unwrap();
+    let blob = v.student();
+    assert_eq!((blob.architecture.agent, blob.architecture.observation_dim), (policy::Agent::Vision, 52));
+    assert_eq!(blob.architecture.observation_layout(), teacher.architecture.observation_layout());
+    let before = student(&v);
+    drop(v);
+    let mut v = Distiller::resume(&vision_dir).unwrap();
+    assert!(student(&v) == before);
+    v.round_step().unwrap();
+    let written = DistillConfig::read(&vision_dir.join("config.toml")).unwrap();
+    assert_eq!(written.env.line_points, 4, "the run's config records the layout it flew");
 }
 
 fn dronerace(args: &[&str]) -> std::process::Output {

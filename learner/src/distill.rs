@@ -25,10 +25,14 @@ use sim::{ACTION_DIM, RaceEnv, STATE_OBS_DIM, Track};
 use crate::learner::{LearnerError, Network};
 use crate::ppo::update::scalar;
 
-/// The frame of a serialised data set.
-const DATASET_FRAME: frames::FrameKind = frames::FrameKind { magic: b"DRDAGGER", format: 1, name: "distillation data set" };
+/// The frame of a serialised data set (format 2: the state length is recorded).
+const DATASET_FRAME: frames::FrameKind = frames::FrameKind { magic: b"DRDAGGER", format: 2, name: "distillation data set" };
 
-/// One visited state: where the camera was, the raw state observation and the teacher's label.
+/// Format 1, still read: every state SPEC §5's 40 numbers.
+const DATASET_FRAME_V1: frames::FrameKind = frames::FrameKind { format: 1, ..DATASET_FRAME };
+
+/// One visited state: where the camera was and the teacher's label (its raw state observation
+/// is the data set's row of the same index).
 #[derive(Clone, Debug, PartialEq)]
 struct Sample {
     /// Index into the data set's track table.
@@ -38,8 +42,6 @@ struct Sample {
     position: [f64; 3],
     /// Attitude quaternion (w, x, y, z).
     attitude: [f64; 4],
-    /// Raw state observation (SPEC §5 order, in the teacher's frame).
-    state: [f32; STATE_OBS_DIM],
     /// Teacher's deterministic action.
     label: [f32; ACTION_DIM],
 }
@@ -63,14 +65,22 @@ pub struct DistillDataset {
     /// every `Arc` alive, so an address is never reused for another track).
     track_index: HashMap<usize, u32>,
     samples: Vec<Sample>,
+    /// Raw state observations (the teacher's layout), `state_dim` per sample, in sample order.
+    states: Vec<f32>,
+    state_dim: usize,
     capacity: usize,
     seen: u64,
 }
 
 impl DistillDataset {
-    /// An empty data set holding at most `capacity` samples.
-    pub fn new(capacity: usize) -> Self {
-        Self { capacity: capacity.max(1), ..Self::default() }
+    /// An empty data set holding at most `capacity` samples of `state_dim`-number states.
+    pub fn new(capacity: usize, state_dim: usize) -> Self {
+        Self { capacity: capacity.max(1), state_dim, ..Self::default() }
+    }
+
+    /// Length of a sample's raw state observation.
+    pub fn state_dim(&self) -> usize {
+        self.state_dim
     }
 
     /// Samples held.
@@ -88,7 +98,8 @@ impl DistillDataset {
         self.seen
     }
 
-    /// Offers the state `env` is in, its raw observation `state` and the teacher's `label`.
+    /// Offers the state `env` is in, its raw observation `state` (`state_dim` numbers) and the
+    /// teacher's `label`.
     pub fn offer(&mut self, env: &RaceEnv, state: &[f32], label: &[f32], rng: &mut impl Rng) {
         self.seen += 1;
         let slot = if self.samples.len() < self.capacity {
@@ -106,12 +117,18 @@ impl DistillDataset {
             target: env.target_gate() as u32,
             position: body.position.into(),
             attitude: [a.w, a.i, a.j, a.k],
-            state: std::array::from_fn(|i| state[i]),
             label: std::array::from_fn(|i| label[i]),
         };
+        assert_eq!(state.len(), self.state_dim, "a state of the data set's length");
         match slot {
-            Some(j) => self.samples[j] = sample,
-            None => self.samples.push(sample),
+            Some(j) => {
+                self.samples[j] = sample;
+                self.states[j * self.state_dim..(j + 1) * self.state_dim].copy_from_slice(state);
+            }
+            None => {
+                self.samples.push(sample);
+                self.states.extend_from_slice(state);
+            }
         }
     }
 
@@ -135,7 +152,7 @@ impl DistillDataset {
 
     /// Raw state observations of samples `rows`, row after row.
     pub fn states(&self, rows: &[usize]) -> Vec<f32> {
-        rows.iter().flat_map(|&r| self.samples[r].state).collect()
+        rows.iter().flat_map(|&r| &self.states[r * self.state_dim..(r + 1) * self.state_dim]).copied().collect()
     }
 
     /// Teacher labels of samples `rows`, row after row.
@@ -143,8 +160,8 @@ impl DistillDataset {
         rows.iter().flat_map(|&r| self.samples[r].label).collect()
     }
 
-    /// The data set as bytes (a `frames` frame): capacity, count seen, the tracks (JSON), the
-    /// samples.
+    /// The data set as bytes (a `frames` frame): capacity, count seen, state length, the tracks
+    /// (JSON), the samples.
     #[allow(clippy::expect_used, reason = "tracks serialise")]
     pub fn to_bytes(&self) -> Vec<u8> {
         let tracks: Vec<&Track> = self.tracks.iter().map(Arc::as_ref).collect();
@@ -152,34 +169,44 @@ impl DistillDataset {
         let mut body = Vec::with_capacity(32 + tracks.len() + self.samples.len() * 256);
         body.extend_from_slice(&(self.capacity as u64).to_le_bytes());
         body.extend_from_slice(&self.seen.to_le_bytes());
+        body.extend_from_slice(&(self.state_dim as u64).to_le_bytes());
         body.extend_from_slice(&(tracks.len() as u64).to_le_bytes());
         body.extend_from_slice(&tracks);
         body.extend_from_slice(&(self.samples.len() as u64).to_le_bytes());
-        for s in &self.samples {
+        for (i, s) in self.samples.iter().enumerate() {
             body.extend_from_slice(&s.track.to_le_bytes());
             body.extend_from_slice(&s.target.to_le_bytes());
             for v in s.position.iter().chain(&s.attitude) {
                 body.extend_from_slice(&v.to_le_bytes());
             }
-            frames::put_f32s(&mut body, &s.state);
+            frames::put_f32s(&mut body, &self.states[i * self.state_dim..(i + 1) * self.state_dim]);
             frames::put_f32s(&mut body, &s.label);
         }
         DATASET_FRAME.encode(&body)
     }
 
-    /// Reads [`DistillDataset::to_bytes`]' output; errors say what is wrong.
+    /// Reads [`DistillDataset::to_bytes`]' output, or a format-1 data set (written before the
+    /// state length was recorded: SPEC §5's 40 numbers); errors say what is wrong.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, LearnerError> {
-        let body = DATASET_FRAME.decode(bytes).map_err(|e| LearnerError::State(e.to_string()))?;
+        let (body, recorded_dim) = match DATASET_FRAME.decode(bytes) {
+            Ok(body) => (body, true),
+            Err(frames::FrameError::UnsupportedFormat { found: 1, .. }) => {
+                (DATASET_FRAME_V1.decode(bytes).map_err(|e| LearnerError::State(e.to_string()))?, false)
+            }
+            Err(e) => return Err(LearnerError::State(e.to_string())),
+        };
         let bad = |what: String| LearnerError::State(format!("distillation data set: {what}"));
         let short = |t: frames::Truncated| bad(format!("ends {} bytes short at byte {}", t.needed, t.at));
         let mut r = frames::Reader::new(body, 0);
         let capacity = r.u64().map_err(short)? as usize;
         let seen = r.u64().map_err(short)?;
+        let state_dim = if recorded_dim { r.u64().map_err(short)? as usize } else { STATE_OBS_DIM };
         let json_len = r.u64().map_err(short)? as usize;
         let tracks: Vec<Track> = serde_json::from_slice(r.take(json_len).map_err(short)?).map_err(|e| bad(format!("track table: {e}")))?;
         let tracks: Vec<Arc<Track>> = tracks.into_iter().map(Arc::new).collect();
         let count = r.u64().map_err(short)? as usize;
-        let mut samples = Vec::with_capacity(r.capacity_for(count, 8 + 7 * 8 + (STATE_OBS_DIM + ACTION_DIM) * 4));
+        let mut samples = Vec::with_capacity(r.capacity_for(count, 8 + 7 * 8 + (state_dim + ACTION_DIM) * 4));
+        let mut states = Vec::with_capacity(samples.capacity() * state_dim);
         for i in 0..count {
             let track = r.u32().map_err(short)?;
             let target = r.u32().map_err(short)?;
@@ -187,7 +214,7 @@ impl DistillDataset {
             for v in &mut pose {
                 *v = r.f64().map_err(short)?;
             }
-            let state = r.f32s(STATE_OBS_DIM).map_err(short)?;
+            states.extend(r.f32s(state_dim).map_err(short)?);
             let label = r.f32s(ACTION_DIM).map_err(short)?;
             let gates = tracks.get(track as usize).map(|t| t.gates.len()).ok_or_else(|| bad(format!("sample {i}: no track {track}")))?;
             if target as usize >= gates {
@@ -198,7 +225,6 @@ impl DistillDataset {
                 target,
                 position: [pose[0], pose[1], pose[2]],
                 attitude: [pose[3], pose[4], pose[5], pose[6]],
-                state: std::array::from_fn(|k| state[k]),
                 label: std::array::from_fn(|k| label[k]),
             });
         }
@@ -206,7 +232,7 @@ impl DistillDataset {
             return Err(bad(format!("{} bytes after {count} samples, capacity {capacity}", r.remaining())));
         }
         let track_index = tracks.iter().enumerate().map(|(i, t)| (Arc::as_ptr(t) as usize, i as u32)).collect();
-        Ok(Self { tracks, track_index, samples, capacity: capacity.max(1), seen })
+        Ok(Self { tracks, track_index, samples, states, state_dim, capacity: capacity.max(1), seen })
     }
 }
 
@@ -334,9 +360,10 @@ impl Student {
     #[allow(clippy::expect_used, reason = "the model is present between calls; float outputs")]
     pub fn train_step(&mut self, data: &DistillDataset, rows: &[usize], learning_rate: f64) -> f64 {
         let n = rows.len();
-        let mut states = vec![0.0; n * STATE_OBS_DIM];
+        let dim = data.state_dim();
+        let mut states = vec![0.0; n * dim];
         self.normalizer.normalize(&data.states(rows), &mut states);
-        let states = Tensor::<2>::from_data(TensorData::new(states, [n, STATE_OBS_DIM]), &self.device);
+        let states = Tensor::<2>::from_data(TensorData::new(states, [n, dim]), &self.device);
         let labels = Tensor::<2>::from_data(TensorData::new(data.labels(rows), [n, ACTION_DIM]), &self.device);
         let squared_error = |means: Tensor<2>| (means - labels).powi_scalar(2).mean();
         let (loss, model) = match self.model.take().expect("the model is present between calls") {
@@ -377,17 +404,17 @@ mod tests {
 
     #[test]
     fn the_reservoir_keeps_its_cap_and_a_uniform_sample_and_the_bytes_round_trip() {
-        let mut data = DistillDataset::new(100);
+        // Line points make the state longer than SPEC §5's; the data set keeps whatever it is given.
+        let layout = sim::ObservationLayout { line_points: 3, ..sim::ObservationLayout::spec(sim::ObservationFrame::Heading) };
+        let mut data = DistillDataset::new(100, layout.dim());
         let mut rng = ChaCha8Rng::seed_from_u64(0);
         let mut env = RaceEnv::new(track(), EnvConfig::default(), 0, 0);
+        let mut offered = Vec::new();
         for i in 0..1000 {
             // The label numbers the sample, so the survivors tell which were kept.
-            data.offer(
-                &env,
-                &env.observation_in(sim::ObservationLayout::spec(sim::ObservationFrame::Heading)),
-                &[i as f32, 0.0, 0.0, 0.0],
-                &mut rng,
-            );
+            let state = env.observation_in(layout);
+            data.offer(&env, &state, &[i as f32, 0.0, 0.0, 0.0], &mut rng);
+            offered.push(state);
             env.step(&[0.1, 0.0, 0.0, 0.0]);
             if env.stats().crash.is_some() || env.stats().length >= 200 {
                 env.reset();
@@ -399,8 +426,14 @@ mod tests {
         let late = kept.iter().filter(|&&i| i >= 500.0).count();
         // Uniform over 1000 offers: ~50 of the 100 from the second half (binomial sd 5).
         assert!((30..=70).contains(&late), "{late} of 100 from the second half");
+        // Each kept state is the one offered with its label.
+        let all: Vec<usize> = (0..100).collect();
+        for (state, label) in data.states(&all).chunks(layout.dim()).zip(&kept) {
+            assert_eq!(state, offered[*label as usize].as_slice());
+        }
         let back = DistillDataset::from_bytes(&data.to_bytes()).unwrap();
         assert_eq!((back.samples.clone(), back.seen, back.capacity), (data.samples.clone(), 1000, 100));
+        assert_eq!((back.state_dim(), back.states(&all)), (layout.dim(), data.states(&all)));
         assert_eq!(back.images(&[0, 57, 99]), data.images(&[0, 57, 99]), "the same images are rendered again");
         let mut bytes = data.to_bytes();
         bytes.truncate(bytes.len() - 9);
@@ -409,7 +442,7 @@ mod tests {
 
     #[test]
     fn a_sample_renders_the_image_its_environment_showed() {
-        let mut data = DistillDataset::new(10);
+        let mut data = DistillDataset::new(10, STATE_OBS_DIM);
         let mut env = RaceEnv::new(track(), EnvConfig::default(), 3, 1);
         for _ in 0..20 {
             env.step(&[0.2, 0.1, 0.0, 0.3]);
@@ -422,13 +455,26 @@ mod tests {
     }
 
     #[test]
+    fn a_format_1_data_set_still_reads_as_40_number_states() {
+        let mut data = DistillDataset::new(10, STATE_OBS_DIM);
+        let env = RaceEnv::new(track(), EnvConfig::default(), 3, 1);
+        let state: Vec<f32> = (0..STATE_OBS_DIM).map(|i| i as f32).collect();
+        data.offer(&env, &state, &[0.5; 4], &mut ChaCha8Rng::seed_from_u64(0));
+        // Format 1 is format 2 without the state length (the third u64 of the body).
+        let body = DATASET_FRAME.decode(&data.to_bytes()).unwrap().to_vec();
+        let v1 = DATASET_FRAME_V1.encode(&[&body[..16], &body[24..]].concat());
+        let back = DistillDataset::from_bytes(&v1).unwrap();
+        assert_eq!((back.state_dim(), back.states(&[0]), back.labels(&[0])), (STATE_OBS_DIM, state, vec![0.5; 4]));
+    }
+
+    #[test]
     fn regression_brings_the_students_actions_to_the_teachers() {
         // A tiny problem: 32 states on a two-gate track, labels from a fixed teacher.
         let arch = Architecture { hidden: vec![32, 32], ..Architecture::paper() };
         let teacher_net = policy::ActorCritic::new(&arch, -0.5, 7, &Device::flex());
         let teacher = WeightsBlob::from_model(1, &arch, &ObsNormalizer::new(arch.observation_dim), &teacher_net);
         let teacher_policy = policy::Policy::from_blob(&teacher).unwrap();
-        let mut data = DistillDataset::new(64);
+        let mut data = DistillDataset::new(64, arch.observation_dim);
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let mut env = RaceEnv::new(track(), EnvConfig::default(), 1, 0);
         for _ in 0..32 {
@@ -478,7 +524,7 @@ mod tests {
         let mut pilot = sim::ReferencePilot::default();
         pilot.reset(&env);
         let mut student = Student::new(&arch, None, None, -0.5, 3).unwrap();
-        let mut data = DistillDataset::new(256);
+        let mut data = DistillDataset::new(256, arch.observation_dim);
         let mut rng = ChaCha8Rng::seed_from_u64(4);
         let mut shown = Vec::new();
         for _ in 0..128 {

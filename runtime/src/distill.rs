@@ -26,8 +26,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sim::{
-    ACTION_DIM, Controller, EnvConfig, PilotMemory, PilotParams, RaceEnv, RandomizationParams, ReferencePilot, RewardParams, STATE_OBS_DIM,
-    VecEnv,
+    ACTION_DIM, Controller, EnvConfig, PilotMemory, PilotParams, RaceEnv, RandomizationParams, ReferencePilot, RewardParams, VecEnv,
 };
 use taskctl::{LocalTasks, SwitchParams, TaskController, TaskService};
 
@@ -93,7 +92,7 @@ pub struct DistillConfig {
     /// distillation has only tens of them.
     pub switching: SwitchParams,
     /// Environments: the VB column of SPEC §3's randomisation and the VB reward (rewards only
-    /// steer switching here). The observation frame is always the teacher's.
+    /// steer switching here). The observation layout is always the teacher's.
     pub env: EnvConfig,
     /// Rounds between checkpoints. Default 5.
     pub checkpoint_every: u64,
@@ -300,7 +299,7 @@ const COLUMNS: [&str; 9] = [
 
 impl Distiller {
     /// Starts a new distillation in `dir` (which must not hold checkpoints already); the
-    /// config, with the teacher's observation frame filled in, is written to `dir/config.toml`.
+    /// config, with the teacher's observation layout filled in, is written to `dir/config.toml`.
     pub fn start(mut config: DistillConfig, dir: &Path) -> anyhow::Result<Self> {
         config.check()?;
         let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
@@ -318,8 +317,8 @@ impl Distiller {
                 if blob.architecture.agent != Agent::State {
                     bail!("teacher {}: a {} policy; the teacher must be state-based", config.teacher.display(), blob.architecture.agent);
                 }
-                // The teacher's frame is the student's.
-                config.env.observation_frame = blob.architecture.observation_frame;
+                // The teacher's observation is the student's state input and its critic's.
+                config.env.set_observation_layout(blob.architecture.observation_layout());
                 Architecture { agent: config.student, ..blob.architecture.clone() }
             }
             None => {
@@ -331,14 +330,6 @@ impl Distiller {
                 Architecture { agent: config.student, ..architecture }
             }
         };
-        if architecture.observation_dim != STATE_OBS_DIM {
-            // The data set stores SPEC §5's 40 numbers per state (the student's critic input).
-            bail!(
-                "teacher {}: observes {} numbers (obstacle gates, proximity readings or racing-line points); distillation takes SPEC §5's {STATE_OBS_DIM}-number observation",
-                config.teacher.display(),
-                architecture.observation_dim
-            );
-        }
         config.write(&dir.join("config.toml"))?;
         let tasks = LocalTasks::new(config.tracks.task_controller(config.envs, config.generator, config.switching, config.seed)?, None);
         let registration = tasks.register(ACTOR, config.envs)?;
@@ -358,7 +349,7 @@ impl Distiller {
             envs: Vec::new(),
             pilots: Vec::new(),
         };
-        let data = DistillDataset::new(config.capacity);
+        let data = DistillDataset::new(config.capacity, architecture.observation_dim);
         let mut teacher = match teacher_blob {
             Some(blob) => Teacher::Policy(Box::new(Policy::from_blob(&blob)?), blob.to_bytes()),
             None => Teacher::Pilot(vec![ReferencePilot::new(PilotParams::default()); env.len()]),
@@ -510,6 +501,7 @@ impl Distiller {
         // Round 0 is the teacher's alone: the student's actions would not be used.
         let student = if beta < 1.0 { Some(ActingPolicy::from_blob(&self.student.weights())?) } else { None };
         let n = self.env.len();
+        let dim = self.env.observation_dim();
         let mut rewards = vec![0.0f64; n];
         let mut flight = Flight::default();
         for _ in 0..self.config.steps_per_round {
@@ -518,7 +510,7 @@ impl Distiller {
             self.student.observe(&self.env.observations);
             let mut actions = labels.clone();
             for i in 0..n {
-                let state = &self.env.observations[i * STATE_OBS_DIM..(i + 1) * STATE_OBS_DIM];
+                let state = &self.env.observations[i * dim..(i + 1) * dim];
                 let rows = i * ACTION_DIM..(i + 1) * ACTION_DIM;
                 self.data.offer(&self.env.envs()[i], state, &labels[rows.clone()], &mut self.progress.rng);
                 let student_flies = student_actions.as_ref().is_some_and(|s| {

@@ -81,7 +81,8 @@ pub struct TrainConfig {
     /// Show the observation's numbers beyond SPEC §5's 40 (`env.obstacle_gates`,
     /// `env.proximity_gates`) to the critic only: the actor flies on SPEC's observation.
     pub privileged_critic: bool,
-    /// PPO settings replacing the profile's (missing fields take SPEC §10's values).
+    /// PPO settings over the profile's: a config file's `[ppo]` table sets the fields it
+    /// names, the rest keep the profile's values.
     pub ppo: Option<PpoConfig>,
     /// Training tracks.
     pub tracks: TrackSource,
@@ -159,13 +160,16 @@ impl TrainConfig {
         }
     }
 
-    /// Parses a run config: the text's values over the defaults of the agent it names.
+    /// Parses a run config: the text's values over the defaults of the agent it names. A
+    /// `[ppo]` table overrides the named profile's PPO settings field by field, so `gamma =
+    /// 0.998` alone keeps the cpu profile's minibatches.
     pub fn from_toml(text: &str) -> Result<Self, String> {
         let config: Self = toml::from_str(text).map_err(|e| e.to_string())?;
-        match config.agent {
-            Agent::State => Ok(config),
-            agent => crate::overrides::parse_over(&Self::defaults_for(agent), text),
+        let mut defaults = Self::defaults_for(config.agent);
+        if config.ppo.is_some() && defaults.ppo.is_none() {
+            defaults.ppo = Profile::named(&config.profile).map(|profile| profile.ppo);
         }
+        crate::overrides::parse_over(&defaults, text)
     }
 
     /// Reads a config file; errors name the file and the field.
@@ -599,5 +603,20 @@ mod tests {
         assert!(refused("agent = \"vision\"\n[ppo]\nmirror_coef = 1.0\n").contains("state-based agent"));
         assert!(refused("[ppo]\nmirror_coef = -1.0\n").contains("ppo.mirror_coef: -1"));
         assert_eq!(resolved("[env]\nobservation_frame = \"heading\"\n[ppo]\nmirror_coef = 0.5\n").unwrap().ppo.mirror_coef, 0.5);
+    }
+
+    #[test]
+    fn a_ppo_table_overrides_the_profiles_settings_field_by_field() {
+        let ppo = |text: &str| TrainConfig::from_toml(text).unwrap().resolved_profile().unwrap().ppo;
+        let cpu = ppo("[ppo]\ngamma = 0.998\n");
+        assert_eq!((cpu.gamma, cpu.batch_size, cpu.n_epochs), (0.998, 4000, 5), "the cpu profile's minibatches stay");
+        assert_eq!(PpoConfig { gamma: 0.995, ..cpu }, Profile::cpu().ppo);
+        let paper = ppo("profile = \"paper\"\n[ppo]\ngamma = 0.998\n");
+        assert_eq!(PpoConfig { gamma: 0.995, ..paper }, Profile::paper().ppo);
+        // The vision agent's column stays under a partial table too.
+        let vision = ppo("agent = \"vision\"\n[ppo]\ngamma = 0.998\n");
+        assert_eq!(PpoConfig { gamma: 0.995, ..vision }, PpoConfig::vision_based());
+        let err = TrainConfig::from_toml("[ppo]\ngama = 0.998\n").unwrap_err();
+        assert!(err.contains("gama"), "{err}");
     }
 }

@@ -160,7 +160,7 @@ pub fn imitation_set(config: &TrainConfig, run_dir: &Path) -> anyhow::Result<Opt
     let checkpoint = Checkpoint::read(&path)?;
     let data = DistillDataset::from_bytes(checkpoint.get("dataset")?).with_context(|| format!("{}", path.display()))?;
     let rows: Vec<usize> = (0..data.len()).collect();
-    let set = ImitationSet::new(data.states(&rows), data.labels(&rows), sim::STATE_OBS_DIM, sim::ACTION_DIM)
+    let set = ImitationSet::new(data.states(&rows), data.labels(&rows), data.state_dim(), sim::ACTION_DIM)
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     Ok(Some((set, warm_start.imitation_weight)))
 }

@@ -135,6 +135,17 @@ impl EnvConfig {
         }
     }
 
+    /// Makes the observations of `layout`: the inverse of `observation_layout`.
+    pub fn set_observation_layout(&mut self, layout: ObservationLayout) {
+        self.observation_frame = layout.frame;
+        self.obstacle_gates = layout.obstacle_gates;
+        self.obstacle_order = layout.obstacle_order;
+        self.proximity_gates = layout.proximity_gates;
+        self.proximity_range = layout.proximity_range;
+        self.line_points = layout.line_points;
+        self.line_spacing = layout.line_spacing;
+    }
+
     /// The evaluation setting of SPEC §9: nominal dynamics, 1000-step episodes.
     pub fn evaluation() -> Self {
         Self {
