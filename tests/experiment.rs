@@ -153,6 +153,24 @@ fn every_shipped_experiment_file_resolves_for_every_variant() {
     assert!(count >= 6, "found {count} experiment files");
 }
 
+/// The single-run configs of `docs/experiments/*/` (the full-scale runs BENCHMARKS.md cites).
+#[test]
+fn every_documented_run_config_resolves() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/experiments");
+    let mut count = 0;
+    for study in std::fs::read_dir(&root).unwrap() {
+        for entry in std::fs::read_dir(study.unwrap().path()).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "toml") {
+                let config = runtime::TrainConfig::read(&path).unwrap_or_else(|e| panic!("{e}"));
+                config.resolved_profile().unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                count += 1;
+            }
+        }
+    }
+    assert!(count >= 10, "found {count} run configs");
+}
+
 const SEQUENTIAL: &str = r#"
 description = "tiny sequential curriculum"
 seeds = [0]

@@ -60,6 +60,10 @@ pub struct Architecture {
     /// Arc length (m) between those points (left out of blobs when it is the default).
     #[serde(default = "default_line_spacing", skip_serializing_if = "is_default_line_spacing")]
     pub line_spacing: f64,
+    /// Which of the target and next gates the observation shows (left out of blobs, and all
+    /// for blobs written before this field existed, when it is SPEC's `all`).
+    #[serde(default, skip_serializing_if = "is_all_gates")]
+    pub gate_sight: sim::GateSight,
     /// Kind of agent; blobs written before this field existed were state-based.
     #[serde(default)]
     pub agent: Agent,
@@ -69,6 +73,11 @@ pub struct Architecture {
     /// without one are written without the field, readable by those versions).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub privileged_critic: bool,
+}
+
+/// True for SPEC's gate sight, which blobs leave out.
+fn is_all_gates(sight: &sim::GateSight) -> bool {
+    *sight == sim::GateSight::All
 }
 
 /// Serde's default for [`Architecture::line_spacing`].
@@ -106,6 +115,7 @@ impl Architecture {
             proximity_range: sim::DEFAULT_PROXIMITY_RANGE,
             line_points: 0,
             line_spacing: sim::DEFAULT_LINE_SPACING,
+            gate_sight: sim::GateSight::All,
             agent: Agent::State,
             privileged_critic: false,
         }
@@ -127,6 +137,7 @@ impl Architecture {
             proximity_range: self.proximity_range,
             line_points: self.line_points,
             line_spacing: self.line_spacing,
+            gate_sight: self.gate_sight,
         }
     }
 
@@ -140,6 +151,7 @@ impl Architecture {
         self.proximity_range = layout.proximity_range;
         self.line_points = layout.line_points;
         self.line_spacing = layout.line_spacing;
+        self.gate_sight = layout.gate_sight;
         self.observation_dim = layout.dim();
     }
 

@@ -410,7 +410,8 @@ mod tests {
                 proximity_gates: 1,
                 proximity_range: 3.0,
                 line_points: 2,
-                line_spacing: 1.5
+                line_spacing: 1.5,
+                gate_sight: sim::GateSight::All,
             }
         );
         assert_eq!(back.params[0].values.len(), 74 * 8);

@@ -111,8 +111,16 @@ impl GateView {
     }
 }
 
-/// Draws one gate's frame wherever it is nearer than what is drawn already.
-fn draw_gate(gate: &Gate, colour: u8, position: &Vector3<f64>, axes: &Matrix3<f64>, scratch: &mut Scratch) {
+/// True when gate `gate`'s outer box projects into the image of a drone at `position` with
+/// attitude `body_rotation`: the gate may be in view (the box's pixel rectangle, not its bars,
+/// and nearer gates are not taken to hide it). What a camera-limited observation shows.
+pub fn gate_in_view(gate: &Gate, position: &Vector3<f64>, body_rotation: &Matrix3<f64>) -> bool {
+    gate_on_image(gate, position, &camera_axes(body_rotation)).is_some()
+}
+
+/// The pixel rectangle gate `gate`'s outer box covers seen from `position` along camera
+/// `axes`, and the camera in the gate's frame; `None` when the box is off the image.
+fn gate_on_image(gate: &Gate, position: &Vector3<f64>, axes: &Matrix3<f64>) -> Option<(PixelBox, GateView)> {
     // Everything in the gate's frame: the ray origin, and the camera axes as directions.
     let origin = gate.to_local(position);
     let local_dir = |w: Vector3<f64>| gate.to_local(&(gate.position + w));
@@ -122,9 +130,14 @@ fn draw_gate(gate: &Gate, colour: u8, position: &Vector3<f64>, axes: &Matrix3<f6
         let d = q - origin;
         Vector3::new(d.dot(&ax), d.dot(&ay), d.dot(&az))
     };
-    let Some(pixels) = pixel_box(&OUTER_BOX.0, &OUTER_BOX.1, &to_camera) else { return };
+    let pixels = pixel_box(&OUTER_BOX.0, &OUTER_BOX.1, &to_camera)?;
     let f = |v: Vector3<f64>| [v.x as f32, v.y as f32, v.z as f32];
-    let view = GateView { origin: f(origin), x_c: f(ax), y_c: f(ay), z_c: f(az) };
+    Some((pixels, GateView { origin: f(origin), x_c: f(ax), y_c: f(ay), z_c: f(az) }))
+}
+
+/// Draws one gate's frame wherever it is nearer than what is drawn already.
+fn draw_gate(gate: &Gate, colour: u8, position: &Vector3<f64>, axes: &Matrix3<f64>, scratch: &mut Scratch) {
+    let Some((pixels, view)) = gate_on_image(gate, position, axes) else { return };
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2, checked just above.

@@ -91,6 +91,25 @@ pub enum ObstacleOrder {
     Track,
 }
 
+/// Which of the target and next gates the observation's δp1 and δp2 show.
+///
+/// SPEC §5 shows both wherever they are. A vision policy sees a gate only while it is in the
+/// camera's view, so a state-based teacher that knows more acts on what its student cannot
+/// see, and the student can only average those actions (BENCHMARKS.md, "Distillation").
+/// `Camera` writes a gate's 12 numbers only while the camera could see it
+/// ([`crate::camera::gate_in_view`]) and zeros otherwise: δp1 when the target is in view, δp2
+/// (the next gate's corners from the target's) when both are. A teacher trained so knows what
+/// its vision student can learn to know, and must learn to look for a gate it cannot see.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GateSight {
+    /// Both gates always (SPEC §5).
+    #[default]
+    All,
+    /// A gate only while it is in the camera's view.
+    Camera,
+}
+
 /// What a state observation holds: SPEC §5's 40 numbers in `frame`, then the corners of
 /// `obstacle_gates` gates other than the target and the one after it, chosen by `obstacle_order`,
 /// then `proximity_gates` proximity readings of the nearest gate frames other than the target's.
@@ -126,6 +145,8 @@ pub struct ObservationLayout {
     pub line_points: usize,
     /// Arc length between them (m).
     pub line_spacing: f64,
+    /// Which of the target and next gates δp1 and δp2 show.
+    pub gate_sight: GateSight,
 }
 
 impl Default for ObservationLayout {
@@ -139,6 +160,7 @@ impl Default for ObservationLayout {
             proximity_range: DEFAULT_PROXIMITY_RANGE,
             line_points: 0,
             line_spacing: DEFAULT_LINE_SPACING,
+            gate_sight: GateSight::All,
         }
     }
 }
@@ -178,7 +200,11 @@ impl ObservationLayout {
                 self.line_spacing
             ),
         };
-        format!("raw {}-number state observation in the {} frame{obstacles}{proximity}{line}", self.dim(), self.frame.name())
+        let sight = match self.gate_sight {
+            GateSight::All => "",
+            GateSight::Camera => ", the two gates' corners zero while the camera cannot see them",
+        };
+        format!("raw {}-number state observation in the {} frame{sight}{obstacles}{proximity}{line}", self.dim(), self.frame.name())
     }
 }
 
@@ -230,11 +256,24 @@ pub fn write_state_observation(
     values[6..9].copy_from_slice((to_frame * body.velocity).as_slice());
     values[9..12].copy_from_slice(body.body_rates.as_slice());
     values[12..16].copy_from_slice(previous_action);
+    let (show_target, show_next) = match layout.gate_sight {
+        GateSight::All => (true, true),
+        GateSight::Camera => {
+            let rotation = body.rotation();
+            let seen = |g: usize| crate::camera::gate_in_view(&track.gates[g], &body.position, &rotation);
+            let target_seen = seen(target);
+            (target_seen, target_seen && seen(track.next_index(target)))
+        }
+    };
     for c in 0..4 {
         let to_target = to_frame * (target_corners[c] - body.position);
         let between = to_frame * (next_corners[c] - target_corners[c]);
-        values[16 + 3 * c..19 + 3 * c].copy_from_slice(to_target.as_slice());
-        values[28 + 3 * c..31 + 3 * c].copy_from_slice(between.as_slice());
+        if show_target {
+            values[16 + 3 * c..19 + 3 * c].copy_from_slice(to_target.as_slice());
+        }
+        if show_next {
+            values[28 + 3 * c..31 + 3 * c].copy_from_slice(between.as_slice());
+        }
     }
     for (o, v) in out.iter_mut().zip(values) {
         *o = v as f32;
@@ -365,6 +404,57 @@ mod tests {
         for k in 0..3 {
             assert!((f64::from(out[28 + k]) - d[k]).abs() < 1e-6);
         }
+    }
+
+    #[test]
+    fn camera_sight_shows_a_gate_only_while_the_camera_could_see_it() {
+        // Gate 0 straight ahead along +x; gate 1 behind the start, to the drone's back.
+        let gates = vec![Gate::new(Vector3::new(6.0, 0.0, 2.0), 0.0), Gate::new(Vector3::new(-6.0, 0.0, 2.0), std::f64::consts::PI)];
+        let track = Track::new("t", gates, None, Arena::default()).unwrap();
+        let observe = |yaw: f64, target: usize, sight: GateSight| {
+            let body = BodyState::at_rest(Vector3::new(0.0, 0.0, 2.0), yaw);
+            let layout = ObservationLayout { gate_sight: sight, ..ObservationLayout::spec(ObservationFrame::Heading) };
+            let mut out = [0f32; STATE_OBS_DIM];
+            write_state_observation(&body, &[0.1; 4], &track, None, target, layout, &mut out);
+            out
+        };
+        let (all, camera) = (observe(0.0, 0, GateSight::All), observe(0.0, 0, GateSight::Camera));
+        // Facing gate 0: its corners are shown; gate 1 is behind the camera, so δp2 is zeros.
+        assert_eq!(camera[..28], all[..28]);
+        assert!(all[28..].iter().any(|&v| v != 0.0) && camera[28..].iter().all(|&v| v == 0.0));
+        // Turned round to face gate 1 while gate 0 is the target: the target is out of view,
+        // so neither block shows (δp2 needs both gates); everything else is as SPEC's.
+        let (all, camera) = (observe(std::f64::consts::PI, 0, GateSight::All), observe(std::f64::consts::PI, 0, GateSight::Camera));
+        assert_eq!(camera[..16], all[..16]);
+        assert!(camera[16..].iter().all(|&v| v == 0.0));
+        // Facing gate 1 as the target, with gate 0 (the next) behind: δp1 only.
+        let (all, camera) = (observe(std::f64::consts::PI, 1, GateSight::All), observe(std::f64::consts::PI, 1, GateSight::Camera));
+        assert_eq!(camera[..28], all[..28]);
+        assert!(camera[28..].iter().all(|&v| v == 0.0));
+    }
+
+    /// Wherever the rendered image shows any of a gate, `gate_in_view` says it may be seen.
+    #[test]
+    fn a_gate_the_camera_renders_is_always_in_view() {
+        use rand::{Rng, SeedableRng};
+        let gates = vec![Gate::new(Vector3::new(3.0, 1.0, 2.0), 0.4), Gate::new(Vector3::new(-2.0, 4.0, 3.0), 2.0)];
+        let track = Track::new("t", gates, None, Arena::default()).unwrap();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut image = vec![0u8; crate::camera::IMAGE_PIXELS];
+        let (mut painted, mut out_of_view) = (0, 0);
+        for _ in 0..2000 {
+            let position = Vector3::new(rng.random_range(-8.0..8.0), rng.random_range(-8.0..8.0), rng.random_range(0.5..5.0));
+            let axis = nalgebra::Unit::new_normalize(Vector3::new(rng.random_range(-0.3..0.3), rng.random_range(-0.3..0.3), 1.0));
+            let rotation = Rotation3::from_axis_angle(&axis, rng.random_range(-3.2..3.2)).into_inner();
+            crate::camera::render(&track, 0, &position, &rotation, &mut image);
+            let shows_target = image.contains(&crate::camera::TARGET_COLOUR);
+            let in_view = crate::camera::gate_in_view(&track.gates[0], &position, &rotation);
+            assert!(!shows_target || in_view, "gate 0 drawn but not in view from {position:?}");
+            painted += usize::from(shows_target);
+            out_of_view += usize::from(!in_view);
+        }
+        // Both cases occur, so the implication above was put to the test.
+        assert!(painted > 100 && out_of_view > 100, "{painted} painted, {out_of_view} out of view");
     }
 
     /// The same scene rotated about world z by any angle gives the same heading- and

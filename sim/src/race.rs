@@ -11,7 +11,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::observation::{
-    DEFAULT_LINE_SPACING, DEFAULT_PROXIMITY_RANGE, ObservationFrame, ObservationLayout, ObstacleOrder, write_state_observation,
+    DEFAULT_LINE_SPACING, DEFAULT_PROXIMITY_RANGE, GateSight, ObservationFrame, ObservationLayout, ObstacleOrder, write_state_observation,
 };
 use crate::params::{QuadrotorParams, RaceParams};
 use crate::pilot::RacingLine;
@@ -90,6 +90,9 @@ pub struct EnvConfig {
     pub line_points: usize,
     /// Arc length (m) between those points. Default 2.5.
     pub line_spacing: f64,
+    /// Which of the target and next gates the observation shows: `all` (SPEC §5, default) or
+    /// `camera` (only while the camera could see them: a teacher for a vision student).
+    pub gate_sight: GateSight,
     /// Which gate episodes start behind. Default first (SPEC §7).
     pub start_gate: StartGate,
     /// Per-episode randomisation around the nominal vehicle and start pose.
@@ -112,6 +115,7 @@ impl Default for EnvConfig {
             proximity_range: DEFAULT_PROXIMITY_RANGE,
             line_points: 0,
             line_spacing: DEFAULT_LINE_SPACING,
+            gate_sight: GateSight::All,
             start_gate: StartGate::First,
             randomization: RandomizationParams::default(),
             race: RaceParams::default(),
@@ -132,6 +136,7 @@ impl EnvConfig {
             proximity_range: self.proximity_range,
             line_points: self.line_points,
             line_spacing: self.line_spacing,
+            gate_sight: self.gate_sight,
         }
     }
 
@@ -144,6 +149,7 @@ impl EnvConfig {
         self.proximity_range = layout.proximity_range;
         self.line_points = layout.line_points;
         self.line_spacing = layout.line_spacing;
+        self.gate_sight = layout.gate_sight;
     }
 
     /// The evaluation setting of SPEC §9: nominal dynamics, 1000-step episodes.
