@@ -275,7 +275,14 @@ impl Student {
         let architecture = architecture.clone();
         let start_error = |e: policy::BlobError| LearnerError::State(format!("starting student: {e}"));
         if let Some(blob) = start {
-            blob.check_architecture(&architecture).map_err(start_error)?;
+            // A vision student's CNN and actor read the image and the proprioception alone, and
+            // its critic becomes the teacher's: a start taught in another layout fits.
+            let mut expected = architecture.clone();
+            if teacher.is_some() && architecture.agent == Agent::Vision {
+                expected.set_observation_layout(blob.architecture.observation_layout());
+                expected.privileged_critic = blob.architecture.privileged_critic;
+            }
+            blob.check_architecture(&expected).map_err(start_error)?;
         }
         let mut model = match start {
             None => Network::new(&architecture, initial_log_std, seed, &device),
@@ -514,6 +521,36 @@ mod tests {
         let mut restored = Student::restore(&blob.to_bytes(), &student.optimizer_state(), false).unwrap();
         assert_eq!(restored.train_step(&data, &rows, 1e-3), student.train_step(&data, &rows, 1e-3));
         assert_eq!(restored.weights(), student.weights());
+    }
+
+    #[test]
+    fn a_vision_student_starts_from_one_taught_in_another_layout_and_takes_the_new_teachers_critic() {
+        let arch = Architecture { hidden: vec![16, 16], ..Architecture::paper() };
+        let mut line_arch = arch.clone();
+        line_arch.set_observation_layout(sim::ObservationLayout { line_points: 4, ..arch.observation_layout() });
+        let teacher_of = |a: &Architecture, seed| {
+            let net = policy::ActorCritic::new(a, -0.5, seed, &Device::flex());
+            WeightsBlob::from_model(1, a, &ObsNormalizer::new(a.observation_dim), &net)
+        };
+        let (old_teacher, new_teacher) = (teacher_of(&arch, 1), teacher_of(&line_arch, 2));
+        let vision = |a: &Architecture| Architecture { agent: Agent::Vision, ..a.clone() };
+        let first = Student::new(&vision(&arch), Some(&old_teacher), None, 0.0, 3).unwrap().weights();
+        let second = Student::new(&vision(&line_arch), Some(&new_teacher), Some(&first), 0.0, 4).unwrap().weights();
+        assert_eq!(second.architecture, vision(&line_arch));
+        // Same CNN and actor: the same actions on the same image and proprioception.
+        let env = RaceEnv::new(track(), EnvConfig::default(), 1, 0);
+        let mut image = vec![0u8; IMAGE_PIXELS];
+        env.render_camera(&mut image);
+        let act =
+            |blob: &WeightsBlob, layout| policy::VisionPolicy::from_blob(blob).unwrap().mean_actions(&image, &env.observation_in(layout));
+        assert_eq!(act(&first, arch.observation_layout()), act(&second, line_arch.observation_layout()));
+        // The critic is the new teacher's.
+        let states = Tensor::<2>::from_data(TensorData::new(env.observation_in(line_arch.observation_layout()), [1, 52]), &Device::flex());
+        let teacher_value = new_teacher.model(&Device::flex()).unwrap().forward(states.clone()).1.into_data();
+        let student_value = second.vision_model(&Device::flex()).unwrap().critic.forward(states).squeeze_dim::<1>(1).into_data();
+        assert_eq!(teacher_value, student_value);
+        // A state student still needs its start's exact shape.
+        assert!(Student::new(&line_arch, None, Some(&old_teacher), -0.5, 5).is_err());
     }
 
     #[test]
