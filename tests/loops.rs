@@ -71,7 +71,8 @@ fn an_actor_that_misses_an_iteration_is_dropped_and_rejoins_with_its_next_rollou
     assert_eq!(a0.pass(&mut link0, &tasks, &stop).unwrap(), Pass::Sent);
     learner.iteration_step(&stop, Some(&tasks), &learner_only).unwrap().unwrap();
     assert_eq!(members(), ["a0"]);
-    let stale = policy::RolloutChunk::zeroed(3, 2, 2, 16, sim::STATE_OBS_DIM, sim::ACTION_DIM);
+    let observation_dim = config.resolved_profile().unwrap().architecture.observation_dim;
+    let stale = policy::RolloutChunk::zeroed(3, 2, 2, 16, observation_dim, sim::ACTION_DIM);
     link1.send_rollout("a1", status.status().learner_epoch, &stale).unwrap();
     assert_eq!(a0.pass(&mut link0, &tasks, &stop).unwrap(), Pass::Sent);
     let waited = Instant::now();

@@ -597,10 +597,10 @@ mod tests {
     #[test]
     fn a_privileged_critic_needs_extra_inputs_and_a_state_based_agent() {
         let refused = |text: &str| TrainConfig::from_toml(text).unwrap().resolved_profile().unwrap_err().to_string();
-        assert!(refused("privileged_critic = true").contains("nothing beyond SPEC §5's 40"));
+        assert!(refused("privileged_critic = true\n[env]\nline_points = 0\n").contains("nothing beyond SPEC §5's 40"));
         let vision = "agent = \"vision\"\nprivileged_critic = true\n[env]\nobstacle_gates = 1\n";
         assert!(refused(vision).contains("only the state-based"), "{}", refused(vision));
-        let text = "privileged_critic = true\n[env]\nobstacle_gates = 2\nobstacle_order = \"track\"\n";
+        let text = "privileged_critic = true\n[env]\nline_points = 0\nobstacle_gates = 2\nobstacle_order = \"track\"\n";
         let arch = TrainConfig::from_toml(text).unwrap().resolved_profile().unwrap().architecture;
         assert_eq!((arch.observation_dim, arch.actor_input_dim(), arch.privileged_critic), (64, 40, true));
     }
@@ -618,14 +618,14 @@ mod tests {
     #[test]
     fn a_ppo_table_overrides_the_profiles_settings_field_by_field() {
         let ppo = |text: &str| TrainConfig::from_toml(text).unwrap().resolved_profile().unwrap().ppo;
-        let cpu = ppo("[ppo]\ngamma = 0.998\n");
-        assert_eq!((cpu.gamma, cpu.batch_size, cpu.n_epochs), (0.998, 4000, 5), "the cpu profile's minibatches stay");
-        assert_eq!(PpoConfig { gamma: 0.995, ..cpu }, Profile::cpu().ppo);
-        let paper = ppo("profile = \"paper\"\n[ppo]\ngamma = 0.998\n");
-        assert_eq!(PpoConfig { gamma: 0.995, ..paper }, Profile::paper().ppo);
+        let cpu = ppo("[ppo]\ngae_lambda = 0.9\n");
+        assert_eq!((cpu.gae_lambda, cpu.batch_size, cpu.n_epochs), (0.9, 4000, 5), "the cpu profile's minibatches stay");
+        assert_eq!(PpoConfig { gae_lambda: 0.95, ..cpu }, Profile::cpu().ppo);
+        let paper = ppo("profile = \"paper\"\n[ppo]\ngae_lambda = 0.9\n");
+        assert_eq!(PpoConfig { gae_lambda: 0.95, ..paper }, Profile::paper().ppo);
         // The vision agent's column stays under a partial table too.
-        let vision = ppo("agent = \"vision\"\n[ppo]\ngamma = 0.998\n");
-        assert_eq!(PpoConfig { gamma: 0.995, ..vision }, PpoConfig::vision_based());
+        let vision = ppo("agent = \"vision\"\n[ppo]\ngae_lambda = 0.9\n");
+        assert_eq!(PpoConfig { gae_lambda: 0.95, ..vision }, PpoConfig::vision_based());
         let err = TrainConfig::from_toml("[ppo]\ngama = 0.998\n").unwrap_err();
         assert!(err.contains("gama"), "{err}");
     }
