@@ -79,7 +79,8 @@ pub struct TrainConfig {
     /// Hidden layer widths of actor and critic (default: the profile's, e.g. `[256, 256]`).
     pub hidden: Option<Vec<usize>>,
     /// Show the observation's numbers beyond SPEC §5's 40 (`env.obstacle_gates`,
-    /// `env.proximity_gates`) to the critic only: the actor flies on SPEC's observation.
+    /// `env.proximity_gates`, `env.line_points`) to the critic only: the actor flies on SPEC's
+    /// observation.
     pub privileged_critic: bool,
     /// PPO settings over the profile's: a config file's `[ppo]` table sets the fields it
     /// names, the rest keep the profile's values.
