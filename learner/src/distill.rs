@@ -123,13 +123,19 @@ impl DistillDataset {
         match slot {
             Some(j) => {
                 self.samples[j] = sample;
-                self.states[j * self.state_dim..(j + 1) * self.state_dim].copy_from_slice(state);
+                let range = self.state_range(j);
+                self.states[range].copy_from_slice(state);
             }
             None => {
                 self.samples.push(sample);
                 self.states.extend_from_slice(state);
             }
         }
+    }
+
+    /// Where sample `row`'s state sits in `states`.
+    fn state_range(&self, row: usize) -> std::ops::Range<usize> {
+        row * self.state_dim..(row + 1) * self.state_dim
     }
 
     fn track_id(&mut self, track: &Arc<Track>) -> u32 {
@@ -152,7 +158,7 @@ impl DistillDataset {
 
     /// Raw state observations of samples `rows`, row after row.
     pub fn states(&self, rows: &[usize]) -> Vec<f32> {
-        rows.iter().flat_map(|&r| &self.states[r * self.state_dim..(r + 1) * self.state_dim]).copied().collect()
+        rows.iter().flat_map(|&r| &self.states[self.state_range(r)]).copied().collect()
     }
 
     /// Teacher labels of samples `rows`, row after row.
@@ -179,7 +185,7 @@ impl DistillDataset {
             for v in s.position.iter().chain(&s.attitude) {
                 body.extend_from_slice(&v.to_le_bytes());
             }
-            frames::put_f32s(&mut body, &self.states[i * self.state_dim..(i + 1) * self.state_dim]);
+            frames::put_f32s(&mut body, &self.states[self.state_range(i)]);
             frames::put_f32s(&mut body, &s.label);
         }
         DATASET_FRAME.encode(&body)
