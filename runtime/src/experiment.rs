@@ -137,6 +137,30 @@ impl Experiment {
         Ok(())
     }
 
+    /// Narrows the experiment to the named variants and seeds (empty: all of them), so one
+    /// sitting can run part of a grid; the rest stays in the file for a later run. Names and
+    /// seeds the file does not have are refused, as is a variant subset of a sequential
+    /// experiment (its stages start from one another).
+    pub fn select(&mut self, variants: &[String], seeds: &[u64]) -> Result<(), ExperimentError> {
+        if let Some(name) = variants.iter().find(|n| !self.variants.iter().any(|v| &v.name == *n)) {
+            let known: Vec<&str> = self.variants.iter().map(|v| v.name.as_str()).collect();
+            return Err(ExperimentError::Invalid(format!("no variant {name:?} (the file has {})", known.join(", "))));
+        }
+        if let Some(seed) = seeds.iter().find(|s| !self.seeds.contains(s)) {
+            return Err(ExperimentError::Invalid(format!("no seed {seed} (the file has {:?})", self.seeds)));
+        }
+        if self.sequential && !variants.is_empty() {
+            return Err(ExperimentError::Invalid("a sequential experiment runs its stages in order: select seeds only".into()));
+        }
+        if !variants.is_empty() {
+            self.variants.retain(|v| variants.contains(&v.name));
+        }
+        if !seeds.is_empty() {
+            self.seeds.retain(|s| seeds.contains(s));
+        }
+        Ok(())
+    }
+
     /// The run config of `variant` with `seed`: the defaults, then `base`, then the variant's
     /// overrides. Unknown keys are refused, named with the variant.
     pub fn config(&self, variant: &Variant, seed: u64) -> Result<TrainConfig, String> {
@@ -569,6 +593,23 @@ mod tests {
         assert_eq!(spread(vec![0.586], true), "59 %");
         assert_eq!(spread(vec![0.0933], false), "0.0933");
         assert_eq!(spread(vec![], true), "–");
+    }
+
+    #[test]
+    fn a_selection_keeps_the_named_variants_and_seeds_and_refuses_unknown_ones() {
+        let mut e: Experiment = toml::from_str(FILE).unwrap();
+        e.select(&["body".into()], &[1]).unwrap();
+        assert_eq!(e.variants.iter().map(|v| v.name.as_str()).collect::<Vec<_>>(), ["body"]);
+        assert_eq!(e.seeds, [1]);
+        let mut e: Experiment = toml::from_str(FILE).unwrap();
+        let err = e.select(&["heading".into()], &[]).unwrap_err().to_string();
+        assert!(err.contains("\"heading\"") && err.contains("world, body"), "{err}");
+        let err = e.select(&[], &[7]).unwrap_err().to_string();
+        assert!(err.contains("no seed 7"), "{err}");
+        e.sequential = true;
+        assert!(e.select(&["world".into()], &[]).is_err());
+        e.select(&[], &[0]).unwrap();
+        assert_eq!((e.variants.len(), e.seeds.as_slice()), (2, [0].as_slice()));
     }
 
     #[test]

@@ -22,6 +22,13 @@ pub enum ExperimentCommand {
         /// Directory of the experiment's runs.
         #[arg(long)]
         out: PathBuf,
+        /// Run only this variant (repeat for several; default all). The report still covers
+        /// every run under --out.
+        #[arg(long = "variant")]
+        variants: Vec<String>,
+        /// Run only this seed of the file's (repeat for several; default all).
+        #[arg(long = "seed")]
+        seeds: Vec<u64>,
     },
     /// Write report.md and curves.png for the runs of FILE under DIR.
     Report {
@@ -35,13 +42,15 @@ pub enum ExperimentCommand {
 /// Runs an experiment subcommand.
 pub fn run(command: ExperimentCommand) -> anyhow::Result<()> {
     match command {
-        ExperimentCommand::Run { file, out } => {
+        ExperimentCommand::Run { file, out, variants, seeds } => {
             let experiment = Experiment::read(&file)?;
+            let mut selection = experiment.clone();
+            selection.select(&variants, &seeds)?;
             std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
             // The file travels with its results, so a report can be remade from the directory.
             write_atomic(&out.join("experiment.toml"), std::fs::read(&file)?.as_slice())?;
             let stop = stop_flag()?;
-            let log = run_experiment(&experiment, &out, &stop, &mut |dir, summary| {
+            let log = run_experiment(&selection, &out, &stop, &mut |dir, summary| {
                 let run = dir.strip_prefix(&out).unwrap_or(dir).display().to_string();
                 eprintln!("{run}: {}", runtime::progress::progress_line(summary, f64::NAN));
             })?;
