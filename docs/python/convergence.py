@@ -66,6 +66,8 @@ def main():
     level = args.share * plateau
     scratch_at = converged_at(scratch, level, args.window)
     print(f"scratch plateau (mean return, last {len(tail)} iterations) {plateau:.1f}; level {level:.1f}")
+    if first_full_success(args.scratch) is None:
+        print("note: scratch never flew its track in every validation deployment, so its plateau is not a converged run's")
     print("| run | iterations to the level | share of scratch's | mean return, last 100 | first 100 % validation | last validation lap (s) |")
     print("|---|---:|---:|---:|---:|---:|")
     for name, run in (("scratch", args.scratch), ("fine-tuned", args.finetune)):
