@@ -35,21 +35,15 @@ def converged_at(series, level, window):
     return None
 
 
-def first_full_success(run):
+def validations(run):
+    """The rows of a run's validation.csv, oldest first (none without the file)."""
     path = os.path.join(run, "validation.csv")
-    if not os.path.exists(path):
-        return None
-    for r in read_rows(path):
-        if float(r["success"]) >= 1.0:
-            return int(r["iteration"])
-    return None
+    return read_rows(path) if os.path.exists(path) else []
 
 
-def final_lap(run):
-    """Mean lap of the last validation (s), NaN without one."""
-    path = os.path.join(run, "validation.csv")
-    rows = read_rows(path) if os.path.exists(path) else []
-    return float(rows[-1]["mean_lap"]) if rows else math.nan
+def first_full_success(rows):
+    """Iteration of the first validation with every deployment successful, or None."""
+    return next((int(r["iteration"]) for r in rows if float(r["success"]) >= 1.0), None)
 
 
 def main():
@@ -60,27 +54,27 @@ def main():
     parser.add_argument("--share", type=float, default=0.9)
     args = parser.parse_args()
 
-    scratch = returns(args.scratch)
+    runs = [(name, returns(run), validations(run)) for name, run in (("scratch", args.scratch), ("fine-tuned", args.finetune))]
+    scratch, scratch_validations = runs[0][1], runs[0][2]
     tail = scratch[-100:]
     plateau = sum(v for _, v in tail) / len(tail)
     level = args.share * plateau
     scratch_at = converged_at(scratch, level, args.window)
     print(f"scratch plateau (mean return, last {len(tail)} iterations) {plateau:.1f}; level {level:.1f}")
-    if first_full_success(args.scratch) is None:
+    if first_full_success(scratch_validations) is None:
         print("note: scratch never flew its track in every validation deployment, so its plateau is not a converged run's")
     print("| run | iterations to the level | share of scratch's | mean return, last 100 | first 100 % validation | last validation lap (s) |")
     print("|---|---:|---:|---:|---:|---:|")
-    for name, run in (("scratch", args.scratch), ("fine-tuned", args.finetune)):
-        series = returns(run)
+    for name, series, rows in runs:
         at = converged_at(series, level, args.window)
         share = f"{100 * at / scratch_at:.0f} %" if at is not None and scratch_at else "–"
         last = series[-100:]
-        full = first_full_success(run)
+        full = first_full_success(rows)
+        lap = float(rows[-1]["mean_lap"]) if rows else math.nan
         print(
             f"| {name} | {at if at is not None else 'never'} | {share} | {sum(v for _, v in last) / len(last):.1f} "
-            f"| {full if full is not None else 'never'} | {final_lap(run):.2f} |"
+            f"| {full if full is not None else 'never'} | {lap:.2f} |"
         )
-
 
 if __name__ == "__main__":
     main()
