@@ -161,6 +161,41 @@ fn teachers_that_observe_racing_line_points_teach_in_their_own_layout() {
     assert_eq!(written.env.line_points, 4, "the run's config records the layout it flew");
 }
 
+#[test]
+fn a_student_that_reads_its_previous_action_continues_an_earlier_runs_data_set() {
+    let dir = tempfile::tempdir().unwrap();
+    let earlier = dir.path().join("earlier");
+    let mut a = Distiller::start(DistillConfig { rounds: 2, ..tiny_config() }, &earlier).unwrap();
+    a.round_step().unwrap();
+    let held = a.round_step().unwrap();
+    a.checkpoint().unwrap(); // what `dataset_from` reads: the run's newest checkpoint
+    let start = dir.path().join("earlier-student.bin");
+    std::fs::write(&start, a.student().to_bytes()).unwrap();
+
+    let config =
+        || DistillConfig { init_from: Some(start.clone()), dataset_from: Some(earlier.clone()), previous_action: true, ..tiny_config() };
+    let later = dir.path().join("later");
+    let mut b = Distiller::start(config(), &later).unwrap();
+    assert!(b.student().architecture.vision_previous_action, "the start is widened to read the previous action");
+    let first = b.round_step().unwrap();
+    assert_eq!(first.samples_seen, held.samples_seen + 4 * 16, "the earlier run's samples, then this round's");
+    assert_eq!(first.dataset, held.dataset + 4 * 16);
+    b.round_step().unwrap();
+    drop(b);
+    let b = Distiller::resume(&later).unwrap();
+    assert!(b.student().architecture.vision_previous_action, "and resumes as it was");
+
+    // Labels of another teacher are refused, naming the run; so is a state student reading more.
+    let other_teacher = Path::new(env!("CARGO_MANIFEST_DIR")).join("policies/camera-teacher.bin");
+    let err = Distiller::start(DistillConfig { teacher: other_teacher, ..config() }, &dir.path().join("other")).err().unwrap();
+    let err = format!("{err:#}");
+    assert!(err.contains("dataset_from") && err.contains("earlier") && err.contains("another teacher"), "{err}");
+    let err = Distiller::start(DistillConfig { student: policy::Agent::State, init_from: None, ..config() }, &dir.path().join("state"))
+        .err()
+        .unwrap();
+    assert!(format!("{err:#}").contains("previous_action"), "{err:#}");
+}
+
 fn dronerace(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_dronerace")).args(args).output().expect("run dronerace")
 }

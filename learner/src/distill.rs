@@ -280,6 +280,15 @@ impl Student {
         let device = Device::flex().autodiff();
         let architecture = architecture.clone();
         let start_error = |e: policy::BlobError| LearnerError::State(format!("starting student: {e}"));
+        // A vision start whose actor does not read the previous action learns to: it is widened
+        // with zero weights, so the student starts out acting exactly as the start did.
+        let widened = match start {
+            Some(blob) if architecture.vision_previous_action && !blob.architecture.vision_previous_action => {
+                Some(blob.with_vision_previous_action().map_err(start_error)?)
+            }
+            _ => None,
+        };
+        let start = widened.as_ref().or(start);
         if let Some(blob) = start {
             // A vision student's CNN and actor read the image and the proprioception alone, and
             // its critic becomes the teacher's: a start taught in another layout fits.
@@ -299,7 +308,9 @@ impl Student {
             Some(teacher) => {
                 let teacher_error = |e: policy::BlobError| LearnerError::State(format!("teacher: {e}"));
                 teacher.check_agent(Agent::State).map_err(teacher_error)?;
-                teacher.check_architecture(&Architecture { agent: Agent::State, ..architecture.clone() }).map_err(teacher_error)?;
+                teacher
+                    .check_architecture(&Architecture { agent: Agent::State, vision_previous_action: false, ..architecture.clone() })
+                    .map_err(teacher_error)?;
                 let critic = teacher.model(&device).map_err(teacher_error)?.critic;
                 match &mut model {
                     Network::State(m) => m.critic = critic,

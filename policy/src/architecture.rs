@@ -73,6 +73,11 @@ pub struct Architecture {
     /// without one are written without the field, readable by those versions).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub privileged_critic: bool,
+    /// A vision actor reads its previous action after the proprioception (beyond SPEC §5): a
+    /// student distilled from a state-based teacher needs it, because the teacher's labels
+    /// depend on the previous action its observation holds. Left out of blobs when false.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub vision_previous_action: bool,
 }
 
 /// True for SPEC's gate sight, which blobs leave out.
@@ -118,6 +123,7 @@ impl Architecture {
             gate_sight: sim::GateSight::All,
             agent: Agent::State,
             privileged_critic: false,
+            vision_previous_action: false,
         }
     }
 

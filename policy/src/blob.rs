@@ -114,6 +114,32 @@ impl WeightsBlob {
         VisionActorCritic::import(&self.architecture, &self.params, device).map_err(BlobError::Malformed)
     }
 
+    /// This vision policy with an actor that also reads its previous action
+    /// ([`Architecture::vision_previous_action`]): the actor's first layer gains zero weights
+    /// for the new inputs, so it acts exactly as before until it is trained further.
+    pub fn with_vision_previous_action(&self) -> Result<Self, BlobError> {
+        self.check_agent(Agent::Vision)?;
+        let mut widened = self.clone();
+        if widened.architecture.vision_previous_action {
+            return Ok(widened);
+        }
+        widened.architecture.vision_previous_action = true;
+        // Convolutions and the embedding (weight and bias each), then the actor's first weight,
+        // `[inputs, outputs]` row-major: the new inputs are rows appended at the end.
+        let first_actor_weight = 2 * VisionActorCritic::CONVOLUTION_COUNT + 2;
+        let weight = widened
+            .params
+            .get_mut(first_actor_weight)
+            .ok_or_else(|| BlobError::Malformed(format!("{} parameters; the actor's first weight is missing", self.params.len())))?;
+        let &[inputs, outputs] = weight.shape.as_slice() else {
+            return Err(BlobError::Malformed(format!("actor's first weight has shape {:?}", weight.shape)));
+        };
+        weight.values.resize((inputs + sim::ACTION_DIM) * outputs, 0.0);
+        weight.shape = vec![inputs + sim::ACTION_DIM, outputs];
+        crate::network::check_shapes(&Self::shapes(&widened.architecture), &widened.params).map_err(BlobError::Malformed)?;
+        Ok(widened)
+    }
+
     /// Parameter shapes of `architecture`, in export order.
     fn shapes(architecture: &Architecture) -> Vec<Vec<usize>> {
         match architecture.agent {

@@ -22,6 +22,14 @@ pub const EMBEDDING: usize = 128;
 /// Length of the actor's state part: R_WB columns 0–1 (6), v (3), ω (3) — the first 12
 /// numbers of the state observation (SPEC §5 order), normalised as the critic's are.
 pub const PROPRIOCEPTION: usize = 12;
+/// Length of the previous action, which follows the proprioception in the state observation.
+const PREVIOUS_ACTION: usize = sim::ACTION_DIM;
+
+/// How many of the state observation's first numbers a vision actor of `arch` reads: the
+/// proprioception, and the previous action after it when `arch.vision_previous_action`.
+pub fn actor_state_len(arch: &Architecture) -> usize {
+    PROPRIOCEPTION + if arch.vision_previous_action { PREVIOUS_ACTION } else { 0 }
+}
 /// The three convolutions: (output channels, kernel, stride).
 const CONVOLUTIONS: [(usize, usize, usize); 3] = [(32, 8, 4), (64, 4, 2), (64, 3, 1)];
 /// Flattened length after the convolutions: 64 channels × 7 × 7 for an 84×84 image.
@@ -41,6 +49,8 @@ pub struct VisionActorCritic {
     /// Log standard deviation per action dimension (state-independent).
     pub log_std: Param<Tensor<1>>,
     negative_slope: f64,
+    /// How many of the state observation's first numbers the actor reads ([`actor_state_len`]).
+    actor_state_len: usize,
 }
 
 impl VisionActorCritic {
@@ -76,10 +86,11 @@ impl VisionActorCritic {
         Self {
             convolutions,
             embedding,
-            actor: Mlp::new(&arch.layer_dims(EMBEDDING + PROPRIOCEPTION, arch.action_dim), 0.01, slope, &mut rng, device),
+            actor: Mlp::new(&arch.layer_dims(EMBEDDING + actor_state_len(arch), arch.action_dim), 0.01, slope, &mut rng, device),
             critic: Mlp::new(&arch.layer_dims(arch.observation_dim, 1), 1.0, slope, &mut rng, device),
             log_std: parameter(vec![initial_log_std as f32; arch.action_dim], [arch.action_dim], device),
             negative_slope: slope,
+            actor_state_len: actor_state_len(arch),
         }
     }
 
@@ -98,7 +109,8 @@ impl VisionActorCritic {
 
     /// Action means `[batch, action_dim]` and values `[batch]` from images `[batch, 1, 84, 84]`
     /// in [0, 1] and normalised state observations `[batch, 40]`: the actor reads the image and
-    /// the state's first 12 numbers (its proprioception), the critic the whole state.
+    /// the state's first 12 numbers (its proprioception; 16 with the previous action), the
+    /// critic the whole state.
     pub fn forward(&self, images: Tensor<4>, states: Tensor<2>) -> (Tensor<2>, Tensor<1>) {
         (self.actor_mean(images, states.clone()), self.critic.forward(states).squeeze_dim(1))
     }
@@ -106,7 +118,7 @@ impl VisionActorCritic {
     /// The actor's half of [`VisionActorCritic::forward`]: action means only.
     pub fn actor_mean(&self, images: Tensor<4>, states: Tensor<2>) -> Tensor<2> {
         let batch = states.dims()[0];
-        let proprioception = states.slice([0..batch, 0..PROPRIOCEPTION]);
+        let proprioception = states.slice([0..batch, 0..self.actor_state_len]);
         self.actor.forward(Tensor::cat(vec![self.embed(images), proprioception], 1))
     }
 
@@ -154,7 +166,7 @@ impl VisionActorCritic {
             channels = out;
         }
         shapes.extend(Mlp::shapes(&[CONV_OUTPUT, EMBEDDING]));
-        shapes.extend(Mlp::shapes(&arch.layer_dims(EMBEDDING + PROPRIOCEPTION, arch.action_dim)));
+        shapes.extend(Mlp::shapes(&arch.layer_dims(EMBEDDING + actor_state_len(arch), arch.action_dim)));
         shapes.extend(Mlp::shapes(&arch.layer_dims(arch.observation_dim, 1)));
         shapes.push(vec![arch.action_dim]);
         shapes
@@ -188,6 +200,7 @@ impl VisionActorCritic {
             critic: Mlp::import(critic, arch.negative_slope, device),
             log_std: loaded(&log_std[0], device),
             negative_slope: arch.negative_slope,
+            actor_state_len: actor_state_len(arch),
         })
     }
 
@@ -205,7 +218,7 @@ impl VisionActorCritic {
             d.push(out);
             d.windows(2).map(|w| w[0] * w[1]).sum::<usize>()
         };
-        macs + CONV_OUTPUT * EMBEDDING + mlp(EMBEDDING + PROPRIOCEPTION, arch.action_dim) + mlp(arch.observation_dim, 1)
+        macs + CONV_OUTPUT * EMBEDDING + mlp(EMBEDDING + actor_state_len(arch), arch.action_dim) + mlp(arch.observation_dim, 1)
     }
 }
 
@@ -321,5 +334,54 @@ mod tests {
         let diff: f32 = (m0 - m1).abs().into_data().try_into_vec::<f32>().unwrap().iter().sum();
         assert!(diff > 0.0, "the actor sees the image");
         assert_eq!(v0.into_data(), v1.into_data(), "the critic reads the state only");
+    }
+
+    /// SPEC's actor ignores the previous action (state numbers 12–15); a widened one acts as
+    /// its source did until its new weights move, and then reads exactly those numbers.
+    #[test]
+    fn a_widened_actor_acts_as_before_and_then_reads_the_previous_action() {
+        use crate::{ObsNormalizer, VisionPolicy, WeightsBlob};
+        let arch = Architecture { hidden: vec![16, 16], ..Architecture::paper() };
+        let device = Device::flex();
+        let net = VisionActorCritic::new(&arch, -0.5, 2, &device);
+        let mut params = net.export();
+        let head = 2 * VisionActorCritic::CONVOLUTION_COUNT + 2 + 2 * arch.hidden.len();
+        params[head].values.iter_mut().for_each(|v| *v *= 100.0);
+        let spec = WeightsBlob::from_vision_model(
+            1,
+            &arch,
+            &ObsNormalizer::new(arch.observation_dim),
+            &VisionActorCritic::import(&arch, &params, &device).unwrap(),
+        );
+        let image: Vec<u8> = (0..IMAGE_SIDE * IMAGE_SIDE).map(|i| (i * 7 % 256) as u8).collect();
+        let state: Vec<f32> = (0..arch.observation_dim).map(|i| (i as f32 * 0.37).sin()).collect();
+        let mut other_previous = state.clone();
+        other_previous[12..16].copy_from_slice(&[0.9, -0.9, 0.5, -0.5]);
+        let act = |blob: &WeightsBlob, state: &[f32]| VisionPolicy::from_blob(blob).unwrap().mean_actions(&image, state);
+        assert_eq!(act(&spec, &state), act(&spec, &other_previous), "SPEC's actor does not read the previous action");
+
+        let widened = spec.with_vision_previous_action().unwrap();
+        assert!(widened.architecture.vision_previous_action);
+        let back = WeightsBlob::from_bytes(&widened.to_bytes()).unwrap();
+        assert_eq!(back, widened, "the flag and the wider layer round-trip");
+        assert_eq!(act(&back, &state), act(&spec, &state), "zero weights: the same actions");
+        assert_eq!(act(&back, &other_previous), act(&spec, &state));
+
+        let mut trained = back.clone();
+        let first = 2 * VisionActorCritic::CONVOLUTION_COUNT + 2;
+        let rows = trained.params[first].shape[0];
+        assert_eq!(rows, EMBEDDING + PROPRIOCEPTION + sim::ACTION_DIM);
+        let outputs = trained.params[first].shape[1];
+        trained.params[first].values[(rows - 1) * outputs..].iter_mut().for_each(|w| *w = 0.5);
+        assert_ne!(act(&trained, &state), act(&trained, &other_previous), "the widened actor reads the previous action");
+        let mut beyond = state.clone();
+        beyond[16..].iter_mut().for_each(|x| *x += 1.0);
+        assert_eq!(act(&trained, &state), act(&trained, &beyond), "and nothing after it");
+        assert_eq!(trained.with_vision_previous_action().unwrap(), trained, "widening twice changes nothing");
+        assert!(matches!(
+            WeightsBlob::from_model(1, &arch, &ObsNormalizer::new(40), &crate::ActorCritic::new(&arch, 0.0, 0, &device))
+                .with_vision_previous_action(),
+            Err(crate::BlobError::Agent { .. })
+        ));
     }
 }

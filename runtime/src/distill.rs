@@ -78,11 +78,22 @@ pub struct DistillConfig {
     pub minibatch: usize,
     /// Adam's learning rate, constant. Default 5e-4.
     pub learning_rate: f64,
+    /// The vision student's actor also reads its previous action (beyond SPEC §5's VB actor
+    /// input). The teacher's observation holds the previous action and its labels depend on
+    /// it as much as they depend on anything the image shows (BENCHMARKS.md, "The teacher's
+    /// previous action"), so a student without it cannot copy them. A start (`init_from`)
+    /// without it is widened with zero weights. Default false.
+    pub previous_action: bool,
     /// The student's log standard deviation, for vision PPO started from it (SPEC §10 VB: 0).
     pub initial_log_std: f64,
     /// Start the student's CNN and actor from this vision policy (checkpoint or blob of the
     /// teacher's shape; e.g. a student distilled on one track) instead of a fresh network.
     pub init_from: Option<PathBuf>,
+    /// Start with the data set of this earlier distillation (a run directory: its newest
+    /// checkpoint) instead of an empty one. Its teacher must be this run's, so every label
+    /// stays the teacher's; the samples hold whole state observations, so a student of another
+    /// shape (e.g. one that reads the previous action) learns from them too. Default none.
+    pub dataset_from: Option<PathBuf>,
     /// Tracks the student flies (default generated, as in training).
     pub tracks: TrackSource,
     /// Track generator.
@@ -118,9 +129,11 @@ impl Default for DistillConfig {
             capacity: 1_000_000,
             updates_per_round: 160,
             minibatch: 64,
+            previous_action: false,
             learning_rate: 5e-4,
             initial_log_std: 0.0,
             init_from: None,
+            dataset_from: None,
             tracks: TrackSource::Generated,
             generator: TrackGenerator::default(),
             switching: SwitchParams { window: 5, alpha: 100.0, ..SwitchParams::default() },
@@ -189,6 +202,10 @@ impl DistillConfig {
             ensure!(t >= 0.0, "takeover: {t} must be ≥ 0 (the largest allowed difference from the teacher's action)");
         }
         ensure!(self.learning_rate > 0.0, "learning_rate: {} must be positive", self.learning_rate);
+        ensure!(
+            !self.previous_action || self.student == Agent::Vision,
+            "previous_action: only a vision student's actor is limited to proprioception; a state student reads the whole observation"
+        );
         Ok(())
     }
 }
@@ -319,7 +336,7 @@ impl Distiller {
                 }
                 // The teacher's observation is the student's state input and its critic's.
                 config.env.set_observation_layout(blob.architecture.observation_layout());
-                Architecture { agent: config.student, ..blob.architecture.clone() }
+                Architecture { agent: config.student, vision_previous_action: config.previous_action, ..blob.architecture.clone() }
             }
             None => {
                 let mut architecture = learner::config::Profile::cpu().architecture;
@@ -327,7 +344,7 @@ impl Distiller {
                     architecture.hidden = hidden.clone();
                 }
                 architecture.set_observation_layout(config.env.observation_layout());
-                Architecture { agent: config.student, ..architecture }
+                Architecture { agent: config.student, vision_previous_action: config.previous_action, ..architecture }
             }
         };
         config.write(&dir.join("config.toml"))?;
@@ -349,7 +366,14 @@ impl Distiller {
             envs: Vec::new(),
             pilots: Vec::new(),
         };
-        let data = DistillDataset::new(config.capacity, architecture.observation_dim);
+        let data = match &config.dataset_from {
+            None => DistillDataset::new(config.capacity, architecture.observation_dim),
+            Some(run) => {
+                let teacher = teacher_blob.as_ref().map(WeightsBlob::to_bytes);
+                earlier_dataset(run, teacher.as_deref(), architecture.observation_dim)
+                    .with_context(|| format!("dataset_from {}", run.display()))?
+            }
+        };
         let mut teacher = match teacher_blob {
             Some(blob) => Teacher::Policy(Box::new(Policy::from_blob(&blob)?), blob.to_bytes()),
             None => Teacher::Pilot(vec![ReferencePilot::new(PilotParams::default()); env.len()]),
@@ -574,6 +598,26 @@ impl Distiller {
         self.progress.pilots.clear();
         Ok(self.checkpoints.save(&c, self.progress.round)?)
     }
+}
+
+/// The data set of the distillation run in `run` (its newest checkpoint), checked to hold the
+/// labels of `teacher` (the policy's blob; `None` for the pilot) on states of `state_dim` numbers.
+fn earlier_dataset(run: &Path, teacher: Option<&[u8]>, state_dim: usize) -> anyhow::Result<DistillDataset> {
+    let config = DistillConfig::read(&run.join("config.toml"))?;
+    let checkpoints = CheckpointDir::new(run.join("checkpoints"), config.keep_checkpoints)?;
+    let path = checkpoints.latest().with_context(|| format!("{} has no checkpoint", run.display()))?;
+    let c = Checkpoint::read(&path)?;
+    let section = |name: &str| c.get(name).with_context(|| format!("{}", path.display()));
+    let labelled_by = if config.pilot_teaches() { None } else { Some(section("teacher")?) };
+    ensure!(labelled_by == teacher, "{}: its labels are another teacher's ({})", path.display(), config.teacher.display());
+    let data = DistillDataset::from_bytes(section("dataset")?).with_context(|| format!("{}", path.display()))?;
+    ensure!(
+        data.state_dim() == state_dim,
+        "{}: states of {} numbers; this teacher's observation has {state_dim}",
+        path.display(),
+        data.state_dim()
+    );
+    Ok(data)
 }
 
 /// `env`, rendering camera images when the student sees them.

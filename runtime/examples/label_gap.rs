@@ -1,0 +1,90 @@
+//! How far a vision student is from its state-based teacher, and how much of the teacher's
+//! label rests on its previous action, which SPEC §5's vision actor does not read.
+//!
+//! `cargo run --release -p runtime --example label_gap -- TEACHER STUDENT DISTILL_CONFIG [teacher|student]`
+//!
+//! 32 environments on the first 32 validation tracks (the distillation config's environment settings
+//! with the teacher's observation layout)
+//! fly 1,500 steps, by the teacher or by the student (deterministic actions). On every step it
+//! compares the teacher's label with (a) the teacher's action when the previous-action slot of
+//! its observation is zeroed, (b) when that slot holds another environment's previous action,
+//! and (c) the student's action; mean squared error per action component, by distance from the
+//! drone to the target gate's centre. (b) is twice the label's variance over previous actions
+//! drawn from the flights, an upper bound on what a student blind to the slot cannot fit.
+
+#![allow(clippy::print_stdout, reason = "the table on stdout is what this analysis is for")]
+
+use std::path::Path;
+use std::sync::Arc;
+
+use anyhow::{Context, bail};
+use learner::checkpoint::read_policy;
+use policy::{Policy, VisionPolicy};
+use runtime::distill::DistillConfig;
+use sim::{ACTION_DIM, VecEnv};
+
+/// Distance bins (m) from the drone to the target gate's centre: below each bound.
+const BINS: [(f64, &str); 4] = [(1.0, "< 1 m"), (2.0, "1-2 m"), (4.0, "2-4 m"), (f64::INFINITY, "> 4 m")];
+/// Where the previous action sits in the state observation (SPEC §5 order).
+const PREVIOUS_ACTION: std::ops::Range<usize> = 12..16;
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let [teacher, student, config, rest @ ..] = args.as_slice() else {
+        bail!("usage: label_gap TEACHER STUDENT DISTILL_CONFIG [teacher|student]");
+    };
+    let student_flies = match rest.first().map(String::as_str) {
+        None | Some("teacher") => false,
+        Some("student") => true,
+        Some(other) => bail!("who flies: `teacher` or `student`, not {other:?}"),
+    };
+    let teacher_blob = read_policy(Path::new(teacher)).with_context(|| format!("teacher {teacher}"))?;
+    let teacher = Policy::from_blob(&teacher_blob)?;
+    let student = VisionPolicy::from_blob(&read_policy(Path::new(student)).with_context(|| format!("student {student}"))?)?;
+    let mut config = DistillConfig::read(Path::new(config))?;
+    // The teacher reads what it was trained on, as in `distill`.
+    config.env.set_observation_layout(teacher_blob.architecture.observation_layout());
+    let tracks = racetracks::validation_set(32)?.into_iter().map(Arc::new).collect();
+    let mut env = VecEnv::new(tracks, config.env, 7).with_images();
+    let (n, dim) = (env.len(), env.observation_dim());
+    // Per bin: summed squared errors of (zeroed, another's, student) and the count of states.
+    let mut sums = [[0f64; 4]; BINS.len()];
+    for _ in 0..1500 {
+        let observations = env.observations.clone();
+        let labels = teacher.deterministic_actions(&observations);
+        let (mut zeroed, mut swapped) = (observations.clone(), observations.clone());
+        for i in 0..n {
+            let other = (i + 1) % n;
+            for k in PREVIOUS_ACTION {
+                zeroed[i * dim + k] = 0.0;
+                swapped[i * dim + k] = observations[other * dim + k];
+            }
+        }
+        let compared = [
+            teacher.deterministic_actions(&zeroed),
+            teacher.deterministic_actions(&swapped),
+            student.deterministic_actions(&env.images, &observations),
+        ];
+        for (i, e) in env.envs().iter().enumerate() {
+            let distance = (e.body().position - e.track().gates[e.target_gate()].position).norm();
+            let bin = BINS.iter().position(|(bound, _)| distance < *bound).unwrap_or(BINS.len() - 1);
+            let rows = i * ACTION_DIM..(i + 1) * ACTION_DIM;
+            for (sum, actions) in sums[bin].iter_mut().zip(&compared) {
+                *sum += labels[rows.clone()].iter().zip(&actions[rows.clone()]).map(|(a, b)| f64::from(a - b).powi(2)).sum::<f64>()
+                    / ACTION_DIM as f64;
+            }
+            sums[bin][3] += 1.0;
+        }
+        let [_, _, student_actions] = compared;
+        env.step(if student_flies { &student_actions } else { &labels });
+    }
+    println!("flown by the {}; mean squared difference from the teacher's label", if student_flies { "student" } else { "teacher" });
+    println!("{:>8} {:>7} {:>14} {:>18} {:>9}", "to gate", "states", "slot zeroed", "another's slot", "student");
+    let mut total = [0f64; 4];
+    for ((_, name), s) in BINS.iter().zip(&sums) {
+        total.iter_mut().zip(s).for_each(|(t, v)| *t += v);
+        println!("{name:>8} {:>7} {:>14.4} {:>18.4} {:>9.4}", s[3], s[0] / s[3], s[1] / s[3], s[2] / s[3]);
+    }
+    println!("{:>8} {:>7} {:>14.4} {:>18.4} {:>9.4}", "all", total[3], total[0] / total[3], total[1] / total[3], total[2] / total[3]);
+    Ok(())
+}
