@@ -9,8 +9,8 @@
 //! compares the teacher's label with (a) the teacher's action when the previous-action slot of
 //! its observation is zeroed, (b) when that slot holds another environment's previous action,
 //! and (c) the student's action; mean squared error per action component, by distance from the
-//! drone to the target gate's centre. (b) is twice the label's variance over previous actions
-//! drawn from the flights, an upper bound on what a student blind to the slot cannot fit.
+//! drone to the target gate's centre. Half of (b) is the label's variance over previous actions
+//! drawn from all flights: a rough upper estimate of what a student blind to the slot cannot fit.
 
 #![allow(clippy::print_stdout, reason = "the table on stdout is what this analysis is for")]
 
