@@ -366,16 +366,14 @@ impl Distiller {
             envs: Vec::new(),
             pilots: Vec::new(),
         };
+        let teacher_bytes = teacher_blob.as_ref().map(WeightsBlob::to_bytes);
         let data = match &config.dataset_from {
             None => DistillDataset::new(config.capacity, architecture.observation_dim),
-            Some(run) => {
-                let teacher = teacher_blob.as_ref().map(WeightsBlob::to_bytes);
-                earlier_dataset(run, teacher.as_deref(), architecture.observation_dim)
-                    .with_context(|| format!("dataset_from {}", run.display()))?
-            }
+            Some(run) => earlier_dataset(run, teacher_bytes.as_deref(), architecture.observation_dim)
+                .with_context(|| format!("dataset_from {}", run.display()))?,
         };
-        let mut teacher = match teacher_blob {
-            Some(blob) => Teacher::Policy(Box::new(Policy::from_blob(&blob)?), blob.to_bytes()),
+        let mut teacher = match teacher_blob.zip(teacher_bytes) {
+            Some((blob, bytes)) => Teacher::Policy(Box::new(Policy::from_blob(&blob)?), bytes),
             None => Teacher::Pilot(vec![ReferencePilot::new(PilotParams::default()); env.len()]),
         };
         for i in 0..env.len() {
@@ -388,10 +386,7 @@ impl Distiller {
 
     /// Continues the distillation in `dir` from its newest checkpoint.
     pub fn resume(dir: &Path) -> anyhow::Result<Self> {
-        let config = DistillConfig::read(&dir.join("config.toml"))?;
-        let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
-        let path = checkpoints.latest().with_context(|| format!("{} has no checkpoint to resume from", dir.display()))?;
-        let c = Checkpoint::read(&path)?;
+        let (config, checkpoints, path, c) = newest_checkpoint(dir)?;
         let section = |name: &str| c.get(name).with_context(|| format!("{}", path.display()));
         let student = Student::restore(section("weights")?, section("optimizer")?, config.pilot_teaches())
             .with_context(|| format!("{}", path.display()))?;
@@ -600,13 +595,20 @@ impl Distiller {
     }
 }
 
+/// The config of the distillation run in `dir`, its checkpoint directory, and the path and
+/// contents of its newest checkpoint.
+fn newest_checkpoint(dir: &Path) -> anyhow::Result<(DistillConfig, CheckpointDir, PathBuf, Checkpoint)> {
+    let config = DistillConfig::read(&dir.join("config.toml"))?;
+    let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
+    let path = checkpoints.latest().with_context(|| format!("{} has no checkpoint to resume from", dir.display()))?;
+    let checkpoint = Checkpoint::read(&path)?;
+    Ok((config, checkpoints, path, checkpoint))
+}
+
 /// The data set of the distillation run in `run` (its newest checkpoint), checked to hold the
 /// labels of `teacher` (the policy's blob; `None` for the pilot) on states of `state_dim` numbers.
 fn earlier_dataset(run: &Path, teacher: Option<&[u8]>, state_dim: usize) -> anyhow::Result<DistillDataset> {
-    let config = DistillConfig::read(&run.join("config.toml"))?;
-    let checkpoints = CheckpointDir::new(run.join("checkpoints"), config.keep_checkpoints)?;
-    let path = checkpoints.latest().with_context(|| format!("{} has no checkpoint", run.display()))?;
-    let c = Checkpoint::read(&path)?;
+    let (config, _, path, c) = newest_checkpoint(run)?;
     let section = |name: &str| c.get(name).with_context(|| format!("{}", path.display()));
     let labelled_by = if config.pilot_teaches() { None } else { Some(section("teacher")?) };
     ensure!(labelled_by == teacher, "{}: its labels are another teacher's ({})", path.display(), config.teacher.display());
