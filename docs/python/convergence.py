@@ -76,5 +76,6 @@ def main():
             f"| {full if full is not None else 'never'} | {lap:.2f} |"
         )
 
+
 if __name__ == "__main__":
     main()
