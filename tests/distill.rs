@@ -94,6 +94,31 @@ fn takeover_hands_the_steps_a_student_strays_on_back_to_the_teacher() {
 }
 
 #[test]
+fn a_crash_margin_drops_the_run_up_to_each_crash_and_nothing_else() {
+    // A fresh student flies from round 1 on and crashes within seconds.
+    let config = |crash_margin| DistillConfig { teacher_decay: 0.0, steps_per_round: 100, crash_margin, ..tiny_config() };
+    let rounds = |crash_margin| {
+        let dir = tempfile::tempdir().unwrap();
+        let mut d = Distiller::start(config(crash_margin), dir.path()).unwrap();
+        (0..2).map(|_| d.round_step().unwrap()).collect::<Vec<_>>()
+    };
+    let (plain, margin) = (rounds(0), rounds(10));
+    let mut dropped = 0;
+    for (p, m) in plain.iter().zip(&margin) {
+        assert_eq!(p.dropped, 0);
+        let crashes =
+            |r: &runtime::distill::RoundSummary| if r.episodes == 0 { 0 } else { (r.crash_rate * r.episodes as f64).round() as usize };
+        assert_eq!((p.episodes, crashes(p)), (m.episodes, crashes(m)), "holding states back does not change the flights");
+        let crashes = crashes(m);
+        // Each crash drops its own step's state and at most the nine before it.
+        assert!(m.dropped >= crashes && m.dropped <= 10 * crashes, "{} dropped for {crashes} crashes", m.dropped);
+        dropped += m.dropped as u64;
+        assert_eq!(m.samples_seen + dropped, p.samples_seen, "every other state is offered");
+    }
+    assert!(dropped > 0, "the fresh student crashed: {margin:?}");
+}
+
+#[test]
 fn a_state_student_of_the_pilot_resumes_bit_for_bit_with_its_pilots_mid_flight() {
     let config = || DistillConfig {
         teacher: runtime::distill::PILOT_TEACHER.into(),

@@ -55,6 +55,13 @@ impl Sample {
     }
 }
 
+/// A visited state with its teacher's label, not yet in a data set.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LabelledState {
+    sample: Sample,
+    state: Vec<f32>,
+}
+
 /// DAgger's aggregated data set, capped by reservoir sampling: once full, the `n`-th sample
 /// seen replaces a random one with probability `capacity / n`, so the set stays a uniform
 /// sample of every state visited so far (DAgger aggregates all of them).
@@ -101,15 +108,14 @@ impl DistillDataset {
     /// Offers the state `env` is in, its raw observation `state` (`state_dim` numbers) and the
     /// teacher's `label`.
     pub fn offer(&mut self, env: &RaceEnv, state: &[f32], label: &[f32], rng: &mut impl Rng) {
-        self.seen += 1;
-        let slot = if self.samples.len() < self.capacity {
-            None
-        } else {
-            match rng.random_range(0..self.seen) {
-                j if j < self.capacity as u64 => Some(j as usize),
-                _ => return,
-            }
-        };
+        let labelled = self.label(env, state, label);
+        self.offer_labelled(labelled, rng);
+    }
+
+    /// The state `env` is in, labelled, to be offered later ([`DistillDataset::offer_labelled`])
+    /// or dropped: e.g. held back until it is known not to be the run-up to a crash.
+    pub fn label(&mut self, env: &RaceEnv, state: &[f32], label: &[f32]) -> LabelledState {
+        assert_eq!(state.len(), self.state_dim, "a state of the data set's length");
         let body = env.body();
         let a = body.attitude;
         let sample = Sample {
@@ -119,16 +125,30 @@ impl DistillDataset {
             attitude: [a.w, a.i, a.j, a.k],
             label: std::array::from_fn(|i| label[i]),
         };
-        assert_eq!(state.len(), self.state_dim, "a state of the data set's length");
+        LabelledState { sample, state: state.to_vec() }
+    }
+
+    /// Offers a state labelled by [`DistillDataset::label`].
+    pub fn offer_labelled(&mut self, labelled: LabelledState, rng: &mut impl Rng) {
+        self.seen += 1;
+        let slot = if self.samples.len() < self.capacity {
+            None
+        } else {
+            match rng.random_range(0..self.seen) {
+                j if j < self.capacity as u64 => Some(j as usize),
+                _ => return,
+            }
+        };
+        let LabelledState { sample, state } = labelled;
         match slot {
             Some(j) => {
                 self.samples[j] = sample;
                 let range = self.state_range(j);
-                self.states[range].copy_from_slice(state);
+                self.states[range].copy_from_slice(&state);
             }
             None => {
                 self.samples.push(sample);
-                self.states.extend_from_slice(state);
+                self.states.extend_from_slice(&state);
             }
         }
     }

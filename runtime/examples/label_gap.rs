@@ -9,7 +9,8 @@
 //! compares the teacher's label with (a) the teacher's action when the previous-action slot of
 //! its observation is zeroed, (b) when that slot holds another environment's previous action,
 //! and (c) the student's action; mean squared error per action component, by distance from the
-//! drone to the target gate's centre. Half of (b) is the label's variance over previous actions
+//! drone to the target gate's centre, and by whether the target gate's corners are in the
+//! teacher's observation (with `gate_sight = "camera"`, only while the camera sees it). Half of (b) is the label's variance over previous actions
 //! drawn from all flights: a rough upper estimate of what a student blind to the slot cannot fit.
 
 #![allow(clippy::print_stdout, reason = "the table on stdout is what this analysis is for")]
@@ -27,6 +28,8 @@ use sim::{ACTION_DIM, VecEnv};
 const BINS: [(f64, &str); 4] = [(1.0, "< 1 m"), (2.0, "1-2 m"), (4.0, "2-4 m"), (f64::INFINITY, "> 4 m")];
 /// Where the previous action sits in the state observation (SPEC §5 order).
 const PREVIOUS_ACTION: std::ops::Range<usize> = 12..16;
+/// Where the target gate's corners sit in the state observation (SPEC §5 order).
+const TARGET_CORNERS: std::ops::Range<usize> = 16..28;
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -49,6 +52,8 @@ fn main() -> anyhow::Result<()> {
     let (n, dim) = (env.len(), env.observation_dim());
     // Per bin: summed squared errors of (zeroed, another's, student) and the count of states.
     let mut sums = [[0f64; 4]; BINS.len()];
+    // The same, for states whose observation shows the target gate (0) or does not (1).
+    let mut by_sight = [[0f64; 4]; 2];
     for _ in 0..1500 {
         let observations = env.observations.clone();
         let labels = teacher.deterministic_actions(&observations);
@@ -69,11 +74,15 @@ fn main() -> anyhow::Result<()> {
             let distance = (e.body().position - e.track().gates[e.target_gate()].position).norm();
             let bin = BINS.iter().position(|(bound, _)| distance < *bound).unwrap_or(BINS.len() - 1);
             let rows = i * ACTION_DIM..(i + 1) * ACTION_DIM;
-            for (sum, actions) in sums[bin].iter_mut().zip(&compared) {
-                *sum += labels[rows.clone()].iter().zip(&actions[rows.clone()]).map(|(a, b)| f64::from(a - b).powi(2)).sum::<f64>()
+            let hidden = observations[i * dim..(i + 1) * dim][TARGET_CORNERS].iter().all(|v| *v == 0.0);
+            for (k, actions) in compared.iter().enumerate() {
+                let error = labels[rows.clone()].iter().zip(&actions[rows.clone()]).map(|(a, b)| f64::from(a - b).powi(2)).sum::<f64>()
                     / ACTION_DIM as f64;
+                sums[bin][k] += error;
+                by_sight[usize::from(hidden)][k] += error;
             }
             sums[bin][3] += 1.0;
+            by_sight[usize::from(hidden)][3] += 1.0;
         }
         let [_, _, student_actions] = compared;
         env.step(if student_flies { &student_actions } else { &labels });
@@ -86,5 +95,8 @@ fn main() -> anyhow::Result<()> {
         println!("{name:>8} {:>7} {:>14.4} {:>18.4} {:>9.4}", s[3], s[0] / s[3], s[1] / s[3], s[2] / s[3]);
     }
     println!("{:>8} {:>7} {:>14.4} {:>18.4} {:>9.4}", "all", total[3], total[0] / total[3], total[1] / total[3], total[2] / total[3]);
+    for (name, s) in ["in view", "unseen"].iter().zip(&by_sight) {
+        println!("{name:>8} {:>7} {:>14.4} {:>18.4} {:>9.4}", s[3], s[0] / s[3], s[1] / s[3], s[2] / s[3]);
+    }
     Ok(())
 }

@@ -12,13 +12,14 @@
 //! (`best.bin`), periodic checkpoints holding everything (teacher, student, optimiser, data set,
 //! environments, curriculum, random state), and resume that continues bit for bit.
 
+use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, bail, ensure};
 use learner::checkpoint::{Checkpoint, CheckpointDir, read_policy};
-use learner::distill::{DistillDataset, Student};
+use learner::distill::{DistillDataset, LabelledState, Student};
 use policy::{ActingPolicy, Agent, Architecture, Policy, WeightsBlob};
 use racetracks::TrackGenerator;
 use rand::{Rng, SeedableRng};
@@ -69,6 +70,11 @@ pub struct DistillConfig {
     /// set holds states it can recover from rather than the run-up to its crashes. Default
     /// none (pure DAgger).
     pub takeover: Option<f64>,
+    /// Drop the labelled states of the last `crash_margin` steps before a crash: from there
+    /// even the teacher cannot recover, and its extreme labels would fill the data set of a
+    /// student that crashes often (BENCHMARKS.md, "Own flights without their crashes"). The
+    /// states of a round's last steps are kept, since the round cannot tell yet. Default 0.
+    pub crash_margin: usize,
     /// Samples the data set keeps (reservoir sampling beyond). Default 1,000,000 (~250 MB).
     pub capacity: usize,
     /// Regression steps per round. Default 160.
@@ -126,6 +132,7 @@ impl Default for DistillConfig {
             rounds: 60,
             teacher_decay: 0.8,
             takeover: None,
+            crash_margin: 0,
             capacity: 1_000_000,
             updates_per_round: 160,
             minibatch: 64,
@@ -229,6 +236,8 @@ pub struct RoundSummary {
     pub laps_per_episode: f64,
     /// Fraction of them that crashed.
     pub crash_rate: f64,
+    /// Labelled states dropped as the run-up to a crash.
+    pub dropped: usize,
     /// Seconds flying (and rendering, labelling) and regressing.
     pub fly_seconds: f64,
     /// Seconds of the regression steps.
@@ -244,6 +253,8 @@ struct Flight {
     laps: u64,
     crashes: usize,
     teacher_steps: usize,
+    /// Labelled states dropped as the run-up to a crash (`crash_margin`).
+    dropped: usize,
 }
 
 /// Counters and random state saved in the checkpoint's `distiller` section.
@@ -486,6 +497,7 @@ impl Distiller {
             episodes: flight.episodes,
             laps_per_episode: per_episode(flight.laps as f64),
             crash_rate: per_episode(flight.crashes as f64),
+            dropped: flight.dropped,
             fly_seconds,
             fit_seconds,
             validation: validation.as_ref().map(|v| (v.report.s_pw, v.report.success_rate)),
@@ -513,7 +525,8 @@ impl Distiller {
     /// Flies every environment `steps_per_round` steps — each step by the teacher with
     /// probability β = decay^round, else by the student unless `takeover` hands it back to
     /// the teacher — offering every visited state with the
-    /// teacher's label to the data set; then reports the round's rewards to the task controller
+    /// teacher's label to the data set (held back `crash_margin` steps, and dropped if a crash
+    /// comes within them); then reports the round's rewards to the task controller
     /// and applies its switches.
     fn fly(&mut self) -> anyhow::Result<Flight> {
         let beta = self.config.teacher_decay.powi(self.progress.round.min(i32::MAX as u64) as i32);
@@ -523,6 +536,8 @@ impl Distiller {
         let dim = self.env.observation_dim();
         let mut rewards = vec![0.0f64; n];
         let mut flight = Flight::default();
+        let margin = self.config.crash_margin;
+        let mut held: Vec<VecDeque<LabelledState>> = (0..n).map(|_| VecDeque::with_capacity(margin + 1)).collect();
         for _ in 0..self.config.steps_per_round {
             let labels = self.teacher.labels(&self.env);
             let student_actions = student.as_ref().map(|s| s.deterministic_actions(&self.env.observations, &self.env.images));
@@ -531,7 +546,11 @@ impl Distiller {
             for i in 0..n {
                 let state = &self.env.observations[i * dim..(i + 1) * dim];
                 let rows = i * ACTION_DIM..(i + 1) * ACTION_DIM;
-                self.data.offer(&self.env.envs()[i], state, &labels[rows.clone()], &mut self.progress.rng);
+                let labelled = self.data.label(&self.env.envs()[i], state, &labels[rows.clone()]);
+                held[i].push_back(labelled);
+                if held[i].len() > margin {
+                    self.data.offer_labelled(held[i].pop_front().context("one state held at least")?, &mut self.progress.rng);
+                }
                 let student_flies = student_actions.as_ref().is_some_and(|s| {
                     self.progress.rng.random::<f64>() >= beta
                         && self
@@ -553,7 +572,14 @@ impl Distiller {
                 flight.episodes += 1;
                 flight.laps += u64::from(f.stats.laps);
                 flight.crashes += usize::from(f.stats.crash.is_some());
+                if f.stats.crash.is_some() {
+                    flight.dropped += held[f.env].len();
+                    held[f.env].clear();
+                }
             }
+        }
+        for labelled in held.into_iter().flatten() {
+            self.data.offer_labelled(labelled, &mut self.progress.rng);
         }
         for (env, track) in self.tasks.report(ACTOR, self.progress.rollout, &rewards)? {
             self.env.set_track(env, track);
@@ -638,8 +664,9 @@ pub fn progress_line(s: &RoundSummary, rounds: u64) -> String {
         0 => "no episode ended".to_string(),
         n => format!("{n} episodes: laps/ep {:.2}, crashed {:.0} %", s.laps_per_episode, 100.0 * s.crash_rate),
     };
+    let dropped = if s.dropped > 0 { format!(" | dropped {} run-up states", s.dropped) } else { String::new() };
     format!(
-        "round {:>4}/{rounds} | {:>9} samples (kept {:>8}) | teacher {:>3.0} % | loss {:.4} | {episodes} | fly {:.1} s, fit {:.1} s{validation}",
+        "round {:>4}/{rounds} | {:>9} samples (kept {:>8}) | teacher {:>3.0} % | loss {:.4} | {episodes} | fly {:.1} s, fit {:.1} s{dropped}{validation}",
         s.round,
         s.samples_seen,
         s.dataset,
