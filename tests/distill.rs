@@ -221,6 +221,46 @@ fn a_student_that_reads_its_previous_action_continues_an_earlier_runs_data_set()
     assert!(format!("{err:#}").contains("previous_action"), "{err:#}");
 }
 
+#[test]
+fn a_new_teacher_relabels_an_earlier_runs_states_of_its_own_layout_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let earlier = dir.path().join("earlier");
+    let mut a = Distiller::start(DistillConfig { rounds: 2, ..tiny_config() }, &earlier).unwrap();
+    a.round_step().unwrap();
+    a.round_step().unwrap();
+    a.checkpoint().unwrap();
+    // Another teacher of the same layout: the generalist with its action head halved.
+    let mut other = learner::checkpoint::read_policy(&teacher()).unwrap();
+    let names = policy::WeightsBlob::tensor_names(&other.architecture);
+    let head = names.iter().position(|n| *n == format!("actor.{}.weight", other.architecture.hidden.len())).unwrap();
+    other.params[head].values.iter_mut().for_each(|v| *v *= 0.5);
+    let other_file = dir.path().join("other-teacher.bin");
+    std::fs::write(&other_file, other.to_bytes()).unwrap();
+    let config = |teacher: PathBuf, relabel| DistillConfig { teacher, dataset_from: Some(earlier.clone()), relabel, ..tiny_config() };
+
+    let err = Distiller::start(config(other_file.clone(), false), &dir.path().join("kept")).err().unwrap();
+    assert!(format!("{err:#}").contains("another teacher"), "{err:#}");
+    let later = dir.path().join("later");
+    let mut b = Distiller::start(config(other_file, true), &later).unwrap();
+    let path = b.checkpoint().unwrap();
+    let checkpoint = learner::checkpoint::Checkpoint::read(&path).unwrap();
+    let data = learner::distill::DistillDataset::from_bytes(checkpoint.get("dataset").unwrap()).unwrap();
+    let rows: Vec<usize> = (0..data.len()).collect();
+    assert_eq!(data.len(), 4 * 16 * 2);
+    let expected = policy::Policy::from_blob(&other).unwrap().deterministic_actions(&data.states(&rows));
+    assert_eq!(data.labels(&rows), expected, "every state carries the new teacher's label");
+    let original = policy::Policy::from_blob(&learner::checkpoint::read_policy(&teacher()).unwrap()).unwrap();
+    assert_ne!(data.labels(&rows), original.deterministic_actions(&data.states(&rows)));
+
+    // A teacher that observes other things in the same 40 numbers (the camera-sight teacher) may not.
+    let camera = Path::new(env!("CARGO_MANIFEST_DIR")).join("policies/camera-teacher.bin");
+    let err = Distiller::start(config(camera, true), &dir.path().join("camera")).err().unwrap();
+    assert!(format!("{err:#}").contains("observation layout"), "{err:#}");
+    // Nor is relabel meaningful without an earlier data set.
+    let err = Distiller::start(DistillConfig { relabel: true, ..tiny_config() }, &dir.path().join("alone")).err().unwrap();
+    assert!(format!("{err:#}").contains("relabel"), "{err:#}");
+}
+
 fn dronerace(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_dronerace")).args(args).output().expect("run dronerace")
 }

@@ -176,6 +176,19 @@ impl DistillDataset {
         out
     }
 
+    /// Labels every sample again with `teacher`'s actions for its stored state (`rows × state_dim`
+    /// numbers in, `rows × ACTION_DIM` out), a few thousand at a time.
+    pub fn relabel(&mut self, teacher: impl Fn(&[f32]) -> Vec<f32>) {
+        const ROWS: usize = 4096;
+        for (chunk, states) in self.samples.chunks_mut(ROWS).zip(self.states.chunks(ROWS * self.state_dim.max(1))) {
+            let labels = teacher(states);
+            assert_eq!(labels.len(), chunk.len() * ACTION_DIM, "one label per state");
+            for (sample, label) in chunk.iter_mut().zip(labels.chunks_exact(ACTION_DIM)) {
+                sample.label = std::array::from_fn(|k| label[k]);
+            }
+        }
+    }
+
     /// Raw state observations of samples `rows`, row after row.
     pub fn states(&self, rows: &[usize]) -> Vec<f32> {
         rows.iter().flat_map(|&r| &self.states[self.state_range(r)]).copied().collect()

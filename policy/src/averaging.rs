@@ -6,27 +6,41 @@
 //! parameters are averaged, and the mean is expressed again under the newest policy's
 //! normaliser. Apart from the normaliser's clip at ±10 standard deviations, the result is
 //! exactly the average of the policies' first layers as functions of the raw observation.
+//!
+//! A vision policy's first layers are convolutions of the image, and only part of its actor
+//! reads the normalised state, so there is no such fold: vision policies are averaged only when
+//! they share one normaliser — as the checkpoints of one distillation do, whose student keeps
+//! its teacher's, frozen.
 
 use crate::architecture::Agent;
 use crate::blob::{BlobError, WeightsBlob};
 
-/// The parameter-wise mean of `blobs` (state-based agents of one architecture); version,
-/// normaliser and parameter ids are the newest blob's (highest version).
+/// The parameter-wise mean of `blobs` (agents of one architecture; vision agents under one
+/// normaliser); version, normaliser and parameter ids are the newest blob's (highest version).
 pub fn average(blobs: &[WeightsBlob]) -> Result<WeightsBlob, BlobError> {
     let newest = blobs.iter().max_by_key(|b| b.version).ok_or_else(|| BlobError::Malformed("no policies to average".into()))?;
     for blob in blobs {
-        blob.check_agent(Agent::State)?;
         blob.check_architecture(&newest.architecture)?;
+        if newest.architecture.agent == Agent::Vision && blob.normalizer != newest.normalizer {
+            return Err(BlobError::Malformed(format!(
+                "vision policies v{} and v{} normalise their states differently: only those of one normaliser average",
+                blob.version, newest.version
+            )));
+        }
     }
     let names = WeightsBlob::tensor_names(&newest.architecture);
-    let first_layers: Vec<(usize, usize)> = ["actor", "critic"]
-        .iter()
-        .filter_map(|net| {
-            let weight = names.iter().position(|n| *n == format!("{net}.0.weight"))?;
-            let bias = names.iter().position(|n| *n == format!("{net}.0.bias"))?;
-            Some((weight, bias))
-        })
-        .collect();
+    // Under one normaliser folding changes nothing, so a vision agent's layers average as they are.
+    let first_layers: Vec<(usize, usize)> = match newest.architecture.agent {
+        Agent::Vision => Vec::new(),
+        Agent::State => ["actor", "critic"]
+            .iter()
+            .filter_map(|net| {
+                let weight = names.iter().position(|n| *n == format!("{net}.0.weight"))?;
+                let bias = names.iter().position(|n| *n == format!("{net}.0.bias"))?;
+                Some((weight, bias))
+            })
+            .collect(),
+    };
     let mut sums: Vec<Vec<f64>> = newest.params.iter().map(|p| vec![0.0; p.values.len()]).collect();
     for blob in blobs {
         let mut params: Vec<Vec<f64>> = blob.params.iter().map(|p| p.values.iter().map(|&v| f64::from(v)).collect()).collect();
@@ -173,6 +187,29 @@ mod tests {
         arch.set_observation_layout(sim::ObservationLayout { obstacle_gates: 1, ..arch.observation_layout() });
         arch.privileged_critic = true;
         averages_to_itself_under_two_normalisers(&arch);
+    }
+
+    #[test]
+    fn vision_policies_under_one_normaliser_average_elementwise_and_under_two_are_refused() {
+        use crate::vision::VisionActorCritic;
+        let arch = Architecture { hidden: vec![8], agent: Agent::Vision, ..Architecture::paper() };
+        let vision = |seed: u64, version: u64, normalizer: ObsNormalizer| {
+            let net = VisionActorCritic::new(&arch, -0.5, seed, &Device::default());
+            WeightsBlob::from_vision_model(version, &arch, &normalizer, &net)
+        };
+        let dim = arch.observation_dim;
+        let (a, b) = (vision(1, 10, skewed_normalizer(dim, 0.4)), vision(2, 20, skewed_normalizer(dim, 0.4)));
+        let mean = average(&[a.clone(), b.clone()]).unwrap();
+        assert_eq!((mean.version, mean.architecture.agent), (20, Agent::Vision));
+        for ((m, x), y) in mean.params.iter().zip(&a.params).zip(&b.params) {
+            for ((&m, &x), &y) in m.values.iter().zip(&x.values).zip(&y.values) {
+                assert!((m - (x + y) / 2.0).abs() < 1e-6, "{m} against {}", (x + y) / 2.0);
+            }
+        }
+        let other = vision(3, 30, skewed_normalizer(dim, 1.0));
+        assert!(matches!(average(&[a, other]), Err(BlobError::Malformed(m)) if m.contains("normalise")));
+        // Nor does a vision policy average with a state-based one.
+        assert!(matches!(average(&[b, blob(4, 5, skewed_normalizer(dim, 0.4))]), Err(BlobError::Architecture { .. })));
     }
 
     #[test]

@@ -54,6 +54,8 @@ fn main() -> anyhow::Result<()> {
     let mut sums = [[0f64; 4]; BINS.len()];
     // The same, for states whose observation shows the target gate (0) or does not (1).
     let mut by_sight = [[0f64; 4]; 2];
+    let (mut saturated, mut magnitude, mut change, mut count) = (0f64, 0f64, 0f64, 0f64);
+    let mut student_change = 0f64;
     for _ in 0..1500 {
         let observations = env.observations.clone();
         let labels = teacher.deterministic_actions(&observations);
@@ -83,6 +85,14 @@ fn main() -> anyhow::Result<()> {
             }
             sums[bin][3] += 1.0;
             by_sight[usize::from(hidden)][3] += 1.0;
+            for k in 0..ACTION_DIM {
+                let l = f64::from(labels[i * ACTION_DIM + k]);
+                saturated += f64::from(u8::from(l.abs() > 0.95));
+                magnitude += l * l;
+                change += (l - f64::from(observations[i * dim + 12 + k])).powi(2);
+                student_change += (f64::from(compared[2][i * ACTION_DIM + k]) - f64::from(observations[i * dim + 12 + k])).powi(2);
+                count += 1.0;
+            }
         }
         let [_, _, student_actions] = compared;
         env.step(if student_flies { &student_actions } else { &labels });
@@ -98,5 +108,12 @@ fn main() -> anyhow::Result<()> {
     for (name, s) in ["in view", "unseen"].iter().zip(&by_sight) {
         println!("{name:>8} {:>7} {:>14.4} {:>18.4} {:>9.4}", s[3], s[0] / s[3], s[1] / s[3], s[2] / s[3]);
     }
+    println!(
+        "labels: saturated {:.3}, mean square {:.4}, mean square change from previous action {:.4}",
+        saturated / count,
+        magnitude / count,
+        change / count
+    );
+    println!("student's action: mean square change from previous action {:.4}", student_change / count);
     Ok(())
 }

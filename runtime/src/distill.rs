@@ -27,7 +27,8 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sim::{
-    ACTION_DIM, Controller, EnvConfig, PilotMemory, PilotParams, RaceEnv, RandomizationParams, ReferencePilot, RewardParams, VecEnv,
+    ACTION_DIM, Controller, EnvConfig, ObservationLayout, PilotMemory, PilotParams, RaceEnv, RandomizationParams, ReferencePilot,
+    RewardParams, VecEnv,
 };
 use taskctl::{LocalTasks, SwitchParams, TaskController, TaskService};
 
@@ -100,6 +101,11 @@ pub struct DistillConfig {
     /// stays the teacher's; the samples hold whole state observations, so a student of another
     /// shape (e.g. one that reads the previous action) learns from them too. Default none.
     pub dataset_from: Option<PathBuf>,
+    /// With `dataset_from`: the earlier run may have had another teacher (of the same
+    /// observation layout), and every state of its data set is labelled again by this run's
+    /// teacher, so a new teacher reuses the states an earlier distillation paid to visit. Not
+    /// with the pilot, whose action depends on its memory of the flight. Default false.
+    pub relabel: bool,
     /// Tracks the student flies (default generated, as in training).
     pub tracks: TrackSource,
     /// Track generator.
@@ -141,6 +147,7 @@ impl Default for DistillConfig {
             initial_log_std: 0.0,
             init_from: None,
             dataset_from: None,
+            relabel: false,
             tracks: TrackSource::Generated,
             generator: TrackGenerator::default(),
             switching: SwitchParams { window: 5, alpha: 100.0, ..SwitchParams::default() },
@@ -209,6 +216,10 @@ impl DistillConfig {
             ensure!(t >= 0.0, "takeover: {t} must be ≥ 0 (the largest allowed difference from the teacher's action)");
         }
         ensure!(self.learning_rate > 0.0, "learning_rate: {} must be positive", self.learning_rate);
+        ensure!(
+            !self.relabel || (self.dataset_from.is_some() && !self.pilot_teaches()),
+            "relabel: needs dataset_from, and a policy as teacher (the pilot's action depends on its memory of the flight)"
+        );
         ensure!(
             !self.previous_action || self.student == Agent::Vision,
             "previous_action: only a vision student's actor is limited to proprioception; a state student reads the whole observation"
@@ -378,15 +389,21 @@ impl Distiller {
             pilots: Vec::new(),
         };
         let teacher_bytes = teacher_blob.as_ref().map(WeightsBlob::to_bytes);
-        let data = match &config.dataset_from {
+        let mut data = match &config.dataset_from {
             None => DistillDataset::new(config.capacity, architecture.observation_dim),
-            Some(run) => earlier_dataset(run, teacher_bytes.as_deref(), architecture.observation_dim)
-                .with_context(|| format!("dataset_from {}", run.display()))?,
+            Some(run) => {
+                let labelled_by = if config.relabel { LabelledBy::Any } else { LabelledBy::Teacher(teacher_bytes.as_deref()) };
+                earlier_dataset(run, labelled_by, architecture.observation_layout())
+                    .with_context(|| format!("dataset_from {}", run.display()))?
+            }
         };
         let mut teacher = match teacher_blob.zip(teacher_bytes) {
             Some((blob, bytes)) => Teacher::Policy(Box::new(Policy::from_blob(&blob)?), bytes),
             None => Teacher::Pilot(vec![ReferencePilot::new(PilotParams::default()); env.len()]),
         };
+        if let (true, Teacher::Policy(policy, _)) = (config.relabel, &teacher) {
+            data.relabel(|states| policy.deterministic_actions(states));
+        }
         for i in 0..env.len() {
             teacher.episode_started(i, &env);
         }
@@ -631,13 +648,31 @@ fn newest_checkpoint(dir: &Path) -> anyhow::Result<(DistillConfig, CheckpointDir
     Ok((config, checkpoints, path, checkpoint))
 }
 
-/// The data set of the distillation run in `run` (its newest checkpoint), checked to hold the
-/// labels of `teacher` (the policy's blob; `None` for the pilot) on states of `state_dim` numbers.
-fn earlier_dataset(run: &Path, teacher: Option<&[u8]>, state_dim: usize) -> anyhow::Result<DistillDataset> {
+/// Whose labels an earlier data set must hold.
+enum LabelledBy<'a> {
+    /// This teacher's: the policy's blob, `None` for the pilot.
+    Teacher(Option<&'a [u8]>),
+    /// Anyone's: they will be labelled again.
+    Any,
+}
+
+/// The data set of the distillation run in `run` (its newest checkpoint), checked to hold
+/// labels as `labelled_by` asks on states of `layout`.
+fn earlier_dataset(run: &Path, labelled_by: LabelledBy, layout: ObservationLayout) -> anyhow::Result<DistillDataset> {
     let (config, _, path, c) = newest_checkpoint(run)?;
+    // Its config records the layout its teacher observed: the same numbers may mean other things.
+    ensure!(
+        config.env.observation_layout() == layout,
+        "{}: its states are of another observation layout ({:?}; this teacher's: {layout:?})",
+        run.display(),
+        config.env.observation_layout()
+    );
+    let state_dim = layout.dim();
     let section = |name: &str| c.get(name).with_context(|| format!("{}", path.display()));
-    let labelled_by = if config.pilot_teaches() { None } else { Some(section("teacher")?) };
-    ensure!(labelled_by == teacher, "{}: its labels are another teacher's ({})", path.display(), config.teacher.display());
+    if let LabelledBy::Teacher(teacher) = labelled_by {
+        let earlier = if config.pilot_teaches() { None } else { Some(section("teacher")?) };
+        ensure!(earlier == teacher, "{}: its labels are another teacher's ({})", path.display(), config.teacher.display());
+    }
     let data = DistillDataset::from_bytes(section("dataset")?).with_context(|| format!("{}", path.display()))?;
     ensure!(
         data.state_dim() == state_dim,

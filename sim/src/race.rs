@@ -14,6 +14,7 @@ use crate::observation::{
     DEFAULT_LINE_SPACING, DEFAULT_PROXIMITY_RANGE, GateSight, ObservationFrame, ObservationLayout, ObstacleOrder, write_state_observation,
 };
 use crate::params::{QuadrotorParams, RaceParams};
+use crate::perception::GatePerception;
 use crate::pilot::RacingLine;
 use crate::quadrotor::{BodyState, Command, Quadrotor};
 use crate::randomization::RandomizationParams;
@@ -248,6 +249,9 @@ pub struct RaceEnv {
     filter: ActionFilter,
     last_gate0_pass: Option<f64>,
     stats: EpisodeStats,
+    /// The drifting gate misjudgement of the observation (with `randomization.gate_perception`).
+    #[serde(default)]
+    perception: GatePerception,
     /// The pilot's racing line (flying starts, line observation); derived from the track on
     /// first use.
     #[serde(skip)]
@@ -274,6 +278,7 @@ impl RaceEnv {
             filter: ActionFilter::default(),
             last_gate0_pass: None,
             stats: EpisodeStats::default(),
+            perception: GatePerception::default(),
             racing_line: OnceLock::new(),
         };
         env.reset();
@@ -285,6 +290,9 @@ impl RaceEnv {
         let (start, target, velocity) = self.draw_start();
         let c = &self.config;
         let mut draw = c.randomization.sample(&c.quadrotor, &start, c.race.substep(), &mut self.rng);
+        if c.randomization.gate_perception > 0.0 {
+            self.perception.restart(&mut self.rng);
+        }
         let (target, draw) = match velocity {
             Some(v) if self.clear_of_frames(&draw.start.position) => {
                 draw.start.velocity += v;
@@ -402,6 +410,9 @@ impl RaceEnv {
             view_alignment: self.camera_axis().dot(&gate.normal()).max(0.0),
         });
         self.previous_action = action;
+        if self.config.randomization.gate_perception > 0.0 {
+            self.perception.advance(&mut self.rng);
+        }
 
         let terminated = crash.is_some();
         let truncated = !terminated && self.steps >= self.config.race.max_episode_steps;
@@ -477,6 +488,10 @@ impl RaceEnv {
     pub fn observe_in(&self, layout: ObservationLayout, out: &mut [f32]) {
         let line = (layout.line_points > 0).then(|| self.racing_line());
         write_state_observation(&self.quad.body, &self.previous_action, &self.track, line.as_deref(), self.target, layout, out);
+        let sigma = self.config.randomization.gate_perception;
+        if sigma > 0.0 {
+            self.perception.apply(sigma, out);
+        }
     }
 
     /// Renders the camera image of the current state (SPEC §5) into `out` (84×84 bytes).
