@@ -660,6 +660,12 @@ enum LabelledBy<'a> {
 /// labels as `labelled_by` asks on states of `layout`.
 fn earlier_dataset(run: &Path, labelled_by: LabelledBy, layout: ObservationLayout) -> anyhow::Result<DistillDataset> {
     let (config, _, path, c) = newest_checkpoint(run)?;
+    let state_dim = layout.dim();
+    let section = |name: &str| c.get(name).with_context(|| format!("{}", path.display()));
+    if let LabelledBy::Teacher(teacher) = labelled_by {
+        let earlier = if config.pilot_teaches() { None } else { Some(section("teacher")?) };
+        ensure!(earlier == teacher, "{}: its labels are another teacher's ({})", path.display(), config.teacher.display());
+    }
     // Its config records the layout its teacher observed: the same numbers may mean other things.
     ensure!(
         config.env.observation_layout() == layout,
@@ -667,12 +673,6 @@ fn earlier_dataset(run: &Path, labelled_by: LabelledBy, layout: ObservationLayou
         run.display(),
         config.env.observation_layout()
     );
-    let state_dim = layout.dim();
-    let section = |name: &str| c.get(name).with_context(|| format!("{}", path.display()));
-    if let LabelledBy::Teacher(teacher) = labelled_by {
-        let earlier = if config.pilot_teaches() { None } else { Some(section("teacher")?) };
-        ensure!(earlier == teacher, "{}: its labels are another teacher's ({})", path.display(), config.teacher.display());
-    }
     let data = DistillDataset::from_bytes(section("dataset")?).with_context(|| format!("{}", path.display()))?;
     ensure!(
         data.state_dim() == state_dim,
