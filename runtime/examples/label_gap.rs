@@ -12,6 +12,9 @@
 //! drone to the target gate's centre, and by whether the target gate's corners are in the
 //! teacher's observation (with `gate_sight = "camera"`, only while the camera sees it). Half of (b) is the label's variance over previous actions
 //! drawn from all flights: a rough upper estimate of what a student blind to the slot cannot fit.
+//! Last, how far the label and the student's action each are from the previous action flown: a
+//! student that copied its previous action (the copycat problem of behaviour cloning with
+//! histories) would sit near it while the labels move away.
 
 #![allow(clippy::print_stdout, reason = "the table on stdout is what this analysis is for")]
 
@@ -54,8 +57,8 @@ fn main() -> anyhow::Result<()> {
     let mut sums = [[0f64; 4]; BINS.len()];
     // The same, for states whose observation shows the target gate (0) or does not (1).
     let mut by_sight = [[0f64; 4]; 2];
-    let (mut saturated, mut magnitude, mut change, mut count) = (0f64, 0f64, 0f64, 0f64);
-    let mut student_change = 0f64;
+    // How far the label and the student's action each are from the previous action flown.
+    let (mut label_change, mut student_change, mut count) = (0f64, 0f64, 0f64);
     for _ in 0..1500 {
         let observations = env.observations.clone();
         let labels = teacher.deterministic_actions(&observations);
@@ -85,12 +88,10 @@ fn main() -> anyhow::Result<()> {
             }
             sums[bin][3] += 1.0;
             by_sight[usize::from(hidden)][3] += 1.0;
-            for k in 0..ACTION_DIM {
-                let l = f64::from(labels[i * ACTION_DIM + k]);
-                saturated += f64::from(u8::from(l.abs() > 0.95));
-                magnitude += l * l;
-                change += (l - f64::from(observations[i * dim + 12 + k])).powi(2);
-                student_change += (f64::from(compared[2][i * ACTION_DIM + k]) - f64::from(observations[i * dim + 12 + k])).powi(2);
+            for (k, previous) in PREVIOUS_ACTION.enumerate() {
+                let previous = f64::from(observations[i * dim + previous]);
+                label_change += (f64::from(labels[i * ACTION_DIM + k]) - previous).powi(2);
+                student_change += (f64::from(compared[2][i * ACTION_DIM + k]) - previous).powi(2);
                 count += 1.0;
             }
         }
@@ -109,11 +110,9 @@ fn main() -> anyhow::Result<()> {
         println!("{name:>8} {:>7} {:>14.4} {:>18.4} {:>9.4}", s[3], s[0] / s[3], s[1] / s[3], s[2] / s[3]);
     }
     println!(
-        "labels: saturated {:.3}, mean square {:.4}, mean square change from previous action {:.4}",
-        saturated / count,
-        magnitude / count,
-        change / count
+        "mean squared difference from the previous action: teacher's label {:.4}, student's action {:.4}",
+        label_change / count,
+        student_change / count
     );
-    println!("student's action: mean square change from previous action {:.4}", student_change / count);
     Ok(())
 }
