@@ -560,13 +560,12 @@ impl Distiller {
             let student_actions = student.as_ref().map(|s| s.deterministic_actions(&self.env.observations, &self.env.images));
             self.student.observe(&self.env.observations);
             let mut actions = labels.clone();
-            for i in 0..n {
+            for (i, held) in held.iter_mut().enumerate() {
                 let state = &self.env.observations[i * dim..(i + 1) * dim];
                 let rows = i * ACTION_DIM..(i + 1) * ACTION_DIM;
-                let labelled = self.data.label(&self.env.envs()[i], state, &labels[rows.clone()]);
-                held[i].push_back(labelled);
-                if held[i].len() > margin {
-                    self.data.offer_labelled(held[i].pop_front().context("one state held at least")?, &mut self.progress.rng);
+                held.push_back(self.data.label(&self.env.envs()[i], state, &labels[rows.clone()]));
+                if held.len() > margin {
+                    self.data.offer_labelled(held.pop_front().context("one state held at least")?, &mut self.progress.rng);
                 }
                 let student_flies = student_actions.as_ref().is_some_and(|s| {
                     self.progress.rng.random::<f64>() >= beta
