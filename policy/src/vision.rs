@@ -21,7 +21,7 @@ pub const IMAGE_SIDE: usize = 84;
 pub const EMBEDDING: usize = 128;
 /// Length of the actor's state part: R_WB columns 0–1 (6), v (3), ω (3) — the first 12
 /// numbers of the state observation (SPEC §5 order), normalised as the critic's are.
-pub const PROPRIOCEPTION: usize = 12;
+pub const PROPRIOCEPTION: usize = sim::PREVIOUS_ACTION_RANGE.start;
 /// Length of the previous action, which follows the proprioception in the state observation.
 const PREVIOUS_ACTION: usize = sim::ACTION_DIM;
 
@@ -117,9 +117,15 @@ impl VisionActorCritic {
 
     /// The actor's half of [`VisionActorCritic::forward`]: action means only.
     pub fn actor_mean(&self, images: Tensor<4>, states: Tensor<2>) -> Tensor<2> {
+        self.actor_mean_of(self.embed(images), states)
+    }
+
+    /// Action means from embeddings already computed ([`VisionActorCritic::embed`]), e.g. when
+    /// a training-only head reads them too.
+    pub fn actor_mean_of(&self, embedding: Tensor<2>, states: Tensor<2>) -> Tensor<2> {
         let batch = states.dims()[0];
         let proprioception = states.slice([0..batch, 0..self.actor_state_len]);
-        self.actor.forward(Tensor::cat(vec![self.embed(images), proprioception], 1))
+        self.actor.forward(Tensor::cat(vec![embedding, proprioception], 1))
     }
 
     /// Every parameter's id and rank: convolutions (weight, bias), embedding, actor layers,

@@ -25,14 +25,10 @@ use anyhow::{Context, bail};
 use learner::checkpoint::read_policy;
 use policy::{Policy, VisionPolicy};
 use runtime::distill::DistillConfig;
-use sim::{ACTION_DIM, VecEnv};
+use sim::{ACTION_DIM, PREVIOUS_ACTION_RANGE, TARGET_CORNERS_RANGE, VecEnv};
 
 /// Distance bins (m) from the drone to the target gate's centre: below each bound.
 const BINS: [(f64, &str); 4] = [(1.0, "< 1 m"), (2.0, "1-2 m"), (4.0, "2-4 m"), (f64::INFINITY, "> 4 m")];
-/// Where the previous action sits in the state observation (SPEC §5 order).
-const PREVIOUS_ACTION: std::ops::Range<usize> = 12..16;
-/// Where the target gate's corners sit in the state observation (SPEC §5 order).
-const TARGET_CORNERS: std::ops::Range<usize> = 16..28;
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -65,7 +61,7 @@ fn main() -> anyhow::Result<()> {
         let (mut zeroed, mut swapped) = (observations.clone(), observations.clone());
         for i in 0..n {
             let other = (i + 1) % n;
-            for k in PREVIOUS_ACTION {
+            for k in PREVIOUS_ACTION_RANGE {
                 zeroed[i * dim + k] = 0.0;
                 swapped[i * dim + k] = observations[other * dim + k];
             }
@@ -79,7 +75,7 @@ fn main() -> anyhow::Result<()> {
             let distance = (e.body().position - e.track().gates[e.target_gate()].position).norm();
             let bin = BINS.iter().position(|(bound, _)| distance < *bound).unwrap_or(BINS.len() - 1);
             let rows = i * ACTION_DIM..(i + 1) * ACTION_DIM;
-            let hidden = observations[i * dim..(i + 1) * dim][TARGET_CORNERS].iter().all(|v| *v == 0.0);
+            let hidden = observations[i * dim..(i + 1) * dim][TARGET_CORNERS_RANGE].iter().all(|v| *v == 0.0);
             for (k, actions) in compared.iter().enumerate() {
                 let error = labels[rows.clone()].iter().zip(&actions[rows.clone()]).map(|(a, b)| f64::from(a - b).powi(2)).sum::<f64>()
                     / ACTION_DIM as f64;
@@ -88,7 +84,7 @@ fn main() -> anyhow::Result<()> {
             }
             sums[bin][3] += 1.0;
             by_sight[usize::from(hidden)][3] += 1.0;
-            for (k, previous) in PREVIOUS_ACTION.enumerate() {
+            for (k, previous) in PREVIOUS_ACTION_RANGE.enumerate() {
                 let previous = f64::from(observations[i * dim + previous]);
                 label_change += (f64::from(labels[i * ACTION_DIM + k]) - previous).powi(2);
                 student_change += (f64::from(compared[2][i * ACTION_DIM + k]) - previous).powi(2);

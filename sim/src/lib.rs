@@ -20,8 +20,8 @@ pub mod vec_env;
 pub use mirror::{ACTION_MIRROR_SIGNS, ObservationMirror};
 pub use nalgebra;
 pub use observation::{
-    DEFAULT_LINE_SPACING, DEFAULT_PROXIMITY_RANGE, GateSight, LINE_POINT_DIM, OBSTACLE_GATE_DIM, ObservationFrame, ObservationLayout,
-    ObstacleOrder, PROXIMITY_DIM, STATE_OBS_DIM,
+    DEFAULT_LINE_SPACING, DEFAULT_PROXIMITY_RANGE, GateSight, LINE_POINT_DIM, NEXT_CORNERS_RANGE, OBSTACLE_GATE_DIM, ObservationFrame,
+    ObservationLayout, ObstacleOrder, PREVIOUS_ACTION_RANGE, PROXIMITY_DIM, STATE_OBS_DIM, TARGET_CORNERS_RANGE,
 };
 pub use params::{GRAVITY, QuadrotorParams, RaceParams};
 pub use pilot::{Controller, PilotMemory, PilotParams, RacingLine, ReferencePilot};

@@ -15,6 +15,16 @@ use crate::track::Track;
 /// Length of the state observation of SPEC §5.
 pub const STATE_OBS_DIM: usize = 40;
 
+/// Where the previous action sits in the state observation (SPEC §5 order), after the
+/// attitude columns, v and ω.
+pub const PREVIOUS_ACTION_RANGE: std::ops::Range<usize> = 12..16;
+
+/// Where δp1 sits: the target gate's 4 corners relative to the drone.
+pub const TARGET_CORNERS_RANGE: std::ops::Range<usize> = 16..28;
+
+/// Where δp2 sits: the next gate's 4 corners relative to the target gate's.
+pub const NEXT_CORNERS_RANGE: std::ops::Range<usize> = 28..STATE_OBS_DIM;
+
 /// Numbers each observed obstacle gate adds: its 4 inner corners relative to the drone.
 pub const OBSTACLE_GATE_DIM: usize = 12;
 
@@ -255,7 +265,7 @@ pub fn write_state_observation(
     values[3..6].copy_from_slice(attitude.column(1).as_slice());
     values[6..9].copy_from_slice((to_frame * body.velocity).as_slice());
     values[9..12].copy_from_slice(body.body_rates.as_slice());
-    values[12..16].copy_from_slice(previous_action);
+    values[PREVIOUS_ACTION_RANGE].copy_from_slice(previous_action);
     let (show_target, show_next) = match layout.gate_sight {
         GateSight::All => (true, true),
         GateSight::Camera => {
@@ -268,11 +278,12 @@ pub fn write_state_observation(
     for c in 0..4 {
         let to_target = to_frame * (target_corners[c] - body.position);
         let between = to_frame * (next_corners[c] - target_corners[c]);
+        let (t, n) = (TARGET_CORNERS_RANGE.start + 3 * c, NEXT_CORNERS_RANGE.start + 3 * c);
         if show_target {
-            values[16 + 3 * c..19 + 3 * c].copy_from_slice(to_target.as_slice());
+            values[t..t + 3].copy_from_slice(to_target.as_slice());
         }
         if show_next {
-            values[28 + 3 * c..31 + 3 * c].copy_from_slice(between.as_slice());
+            values[n..n + 3].copy_from_slice(between.as_slice());
         }
     }
     for (o, v) in out.iter_mut().zip(values) {

@@ -11,13 +11,13 @@ use rand::Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
-use crate::observation::STATE_OBS_DIM;
+use crate::observation::{NEXT_CORNERS_RANGE, STATE_OBS_DIM, TARGET_CORNERS_RANGE};
 
 /// Where the target gate's corners start in SPEC §5's observation; the next gate's four,
 /// written relative to the target's, follow them.
-const TARGET_CORNERS: usize = 16;
+const TARGET_CORNERS: usize = TARGET_CORNERS_RANGE.start;
 /// Where the next gate's corners start.
-const NEXT_CORNERS: usize = 28;
+const NEXT_CORNERS: usize = NEXT_CORNERS_RANGE.start;
 
 /// The drifting error of the 8 corners an observation can show.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
