@@ -49,13 +49,15 @@ fn an_interrupted_distillation_resumes_bit_for_bit() {
     std::fs::create_dir_all(&straight).unwrap();
     std::fs::create_dir_all(&resumed).unwrap();
 
-    let mut a = Distiller::start(tiny_config(), &straight).unwrap();
+    // With a gate head, whose weights and moments the checkpoint must carry too.
+    let config = || DistillConfig { gate_loss_weight: 0.5, ..tiny_config() };
+    let mut a = Distiller::start(config(), &straight).unwrap();
     let shares: Vec<f64> = (0..4).map(|_| a.round_step().unwrap().teacher_share).collect();
     // β = 0.5^round of 64 steps per round: all of round 0, then about half, a quarter, an eighth.
     assert_eq!(shares[0], 1.0);
     assert!(shares[1] > 0.25 && shares[1] < 0.75 && shares[3] < shares[1], "{shares:?}");
 
-    let mut b = Distiller::start(tiny_config(), &resumed).unwrap();
+    let mut b = Distiller::start(config(), &resumed).unwrap();
     b.round_step().unwrap();
     b.round_step().unwrap(); // the checkpoint of round 2 is written here
     let before = student(&b);
@@ -66,6 +68,7 @@ fn an_interrupted_distillation_resumes_bit_for_bit() {
     b.round_step().unwrap();
     let last = b.round_step().unwrap();
     assert_eq!(last.samples_seen, 4 * 4 * 16);
+    assert!(last.gate_loss.is_finite(), "the gate head's loss is reported");
     assert!(student(&b) == student(&a), "data set, environments, curriculum and optimiser continue exactly");
     assert!(b.finished());
     // A row per round in metrics.csv, and the validated student kept as best.bin.

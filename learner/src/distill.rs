@@ -14,6 +14,7 @@ use std::sync::Arc;
 
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Bytes, Device, Tensor, TensorData};
+use policy::gate_head::{GATE_TARGETS, GateHead, gate_targets, shown_mask};
 use policy::vision::IMAGE_SIDE;
 use policy::{Agent, Architecture, ObsNormalizer, WeightsBlob, pixels_to_unit};
 use rand::Rng;
@@ -47,10 +48,15 @@ struct Sample {
 }
 
 impl Sample {
-    fn render(&self, tracks: &[Arc<Track>], out: &mut [u8]) {
+    /// Position and `R_WB`.
+    fn pose(&self) -> (Vector3<f64>, sim::nalgebra::Matrix3<f64>) {
         let [w, x, y, z] = self.attitude;
         let rotation = UnitQuaternion::new_unchecked(Quaternion::new(w, x, y, z)).to_rotation_matrix().into_inner();
-        let position = Vector3::from(self.position);
+        (Vector3::from(self.position), rotation)
+    }
+
+    fn render(&self, tracks: &[Arc<Track>], out: &mut [u8]) {
+        let (position, rotation) = self.pose();
         sim::camera::render(&tracks[self.track as usize], self.target as usize, &position, &rotation, out);
     }
 }
@@ -176,6 +182,18 @@ impl DistillDataset {
         out
     }
 
+    /// Where the gates are seen from samples `rows` (`rows.len() × 26` numbers, as
+    /// [`policy::gate_head::gate_targets`]): the targets of a student's gate head.
+    pub fn gate_targets(&self, rows: &[usize]) -> Vec<f32> {
+        rows.iter()
+            .flat_map(|&r| {
+                let sample = &self.samples[r];
+                let (position, rotation) = sample.pose();
+                gate_targets(&self.tracks[sample.track as usize], sample.target as usize, &position, &rotation)
+            })
+            .collect()
+    }
+
     /// Labels every sample again with `teacher`'s actions for its stored state (`rows × state_dim`
     /// numbers in, `rows × ACTION_DIM` out), a few thousand at a time.
     pub fn relabel(&mut self, teacher: impl Fn(&[f32]) -> Vec<f32>) {
@@ -279,7 +297,8 @@ impl DistillDataset {
 /// state-based policy, it takes the teacher's critic (same state input, so that PPO can start
 /// from the student) and its normaliser, frozen. Taught by a scripted teacher (the reference
 /// pilot), it has a fresh critic and learns its normaliser from the states it is shown
-/// ([`Student::observe`]), as PPO would.
+/// ([`Student::observe`]), as PPO would. A vision student may also carry a gate head
+/// ([`Student::with_gate_head`]) whose loss on its embedding is added to the imitation loss.
 pub struct Student {
     /// Always `Some` between calls; taken while burn's optimiser consumes and returns it.
     model: Option<Network>,
@@ -290,6 +309,17 @@ pub struct Student {
     learns_normalizer: bool,
     version: u64,
     device: Device,
+    /// The training-only gate head and the weight of its loss, when the student has one.
+    gate_head: Option<(GateHead, f64)>,
+}
+
+/// The losses of one regression step, before it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepLoss {
+    /// Mean squared error of the action means against the teacher's labels.
+    pub imitation: f64,
+    /// Mean squared error of the gate head on the gates the images show (none without a head).
+    pub gate: Option<f64>,
 }
 
 /// Adam for the regression (ε as SPEC §10; no weight decay).
@@ -360,6 +390,7 @@ impl Student {
             learns_normalizer: teacher.is_none(),
             version: 0,
             device,
+            gate_head: None,
         })
     }
 
@@ -380,7 +411,27 @@ impl Student {
             learns_normalizer,
             version: blob.version,
             device,
+            gate_head: None,
         })
+    }
+
+    /// Gives a vision student a gate head whose loss counts `weight` times the imitation loss:
+    /// `saved` ([`Student::gate_head_bytes`], on resume) or a fresh one from `seed`.
+    pub fn with_gate_head(mut self, weight: f64, saved: Option<&[u8]>, seed: u64) -> Result<Self, LearnerError> {
+        if !matches!(self.model(), Network::Vision(_)) {
+            return Err(LearnerError::State("a gate head needs a vision student".into()));
+        }
+        let head = match saved {
+            Some(bytes) => GateHead::from_bytes(bytes, &self.device).map_err(LearnerError::State)?,
+            None => GateHead::new(seed, &self.device),
+        };
+        self.gate_head = Some((head, weight));
+        Ok(self)
+    }
+
+    /// The gate head's weights, for exact resume (none without a head).
+    pub fn gate_head_bytes(&self) -> Option<Vec<u8>> {
+        self.gate_head.as_ref().map(|(head, _)| head.to_bytes())
     }
 
     #[allow(clippy::expect_used, reason = "the model is present between calls")]
@@ -413,9 +464,10 @@ impl Student {
     }
 
     /// One gradient step of the mean squared error between the student's action means and the
-    /// teacher's labels on samples `rows` of `data`; returns the loss before the step.
+    /// teacher's labels on samples `rows` of `data` (plus the gate head's weighted loss when the
+    /// student has one); returns the losses before the step.
     #[allow(clippy::expect_used, reason = "the model is present between calls; float outputs")]
-    pub fn train_step(&mut self, data: &DistillDataset, rows: &[usize], learning_rate: f64) -> f64 {
+    pub fn train_step(&mut self, data: &DistillDataset, rows: &[usize], learning_rate: f64) -> StepLoss {
         let n = rows.len();
         let dim = data.state_dim();
         let mut states = vec![0.0; n * dim];
@@ -428,17 +480,37 @@ impl Student {
                 let loss = squared_error(model.action_means(states));
                 let value = f64::from(scalar(loss.clone()));
                 let grads = GradientsParams::from_grads(loss.backward(), &model);
-                (value, Network::State(self.optimizer.step(learning_rate, model, grads)))
+                (StepLoss { imitation: value, gate: None }, Network::State(self.optimizer.step(learning_rate, model, grads)))
             }
             Network::Vision(model) => {
-                let images = Tensor::<4>::from_data(
-                    TensorData::new(pixels_to_unit(&data.images(rows)), [n, 1, IMAGE_SIDE, IMAGE_SIDE]),
-                    &self.device,
-                );
-                let loss = squared_error(model.actor_mean(images, states));
-                let value = f64::from(scalar(loss.clone()));
-                let grads = GradientsParams::from_grads(loss.backward(), &model);
-                (value, Network::Vision(self.optimizer.step(learning_rate, model, grads)))
+                let pixels = data.images(rows);
+                let images = Tensor::<4>::from_data(TensorData::new(pixels_to_unit(&pixels), [n, 1, IMAGE_SIDE, IMAGE_SIDE]), &self.device);
+                let embedding = model.embed(images);
+                let imitation = squared_error(model.actor_mean_of(embedding.clone(), states));
+                let imitation_value = f64::from(scalar(imitation.clone()));
+                match self.gate_head.take() {
+                    None => {
+                        let grads = GradientsParams::from_grads(imitation.backward(), &model);
+                        let model = self.optimizer.step(learning_rate, model, grads);
+                        (StepLoss { imitation: imitation_value, gate: None }, Network::Vision(model))
+                    }
+                    Some((head, weight)) => {
+                        let mask: Vec<f32> = pixels.chunks_exact(IMAGE_PIXELS).flat_map(shown_mask).collect();
+                        // Mean over the numbers scored, so the weight does not depend on how
+                        // often gates are in view.
+                        let scored = mask.iter().sum::<f32>().max(1.0);
+                        let mask = Tensor::<2>::from_data(TensorData::new(mask, [n, GATE_TARGETS]), &self.device);
+                        let targets = Tensor::<2>::from_data(TensorData::new(data.gate_targets(rows), [n, GATE_TARGETS]), &self.device);
+                        let gate = ((head.forward(embedding) - targets).powi_scalar(2) * mask).sum().div_scalar(scored);
+                        let gate_value = f64::from(scalar(gate.clone()));
+                        let mut grads = (imitation + gate.mul_scalar(weight)).backward();
+                        let model_grads = GradientsParams::from_module(&mut grads, &model);
+                        let head_grads = GradientsParams::from_module(&mut grads, &head);
+                        let model = self.optimizer.step(learning_rate, model, model_grads);
+                        self.gate_head = Some((self.optimizer.step(learning_rate, head, head_grads), weight));
+                        (StepLoss { imitation: imitation_value, gate: Some(gate_value) }, Network::Vision(model))
+                    }
+                }
             }
         };
         self.model = Some(model);
@@ -544,10 +616,10 @@ mod tests {
         let vision_arch = Architecture { agent: Agent::Vision, ..arch.clone() };
         let mut student = Student::new(&vision_arch, Some(&teacher), None, 0.0, 2).unwrap();
         let rows: Vec<usize> = (0..data.len()).collect();
-        let first = student.train_step(&data, &rows, 1e-3);
+        let first = student.train_step(&data, &rows, 1e-3).imitation;
         let mut last = first;
         for _ in 0..60 {
-            last = student.train_step(&data, &rows, 1e-3);
+            last = student.train_step(&data, &rows, 1e-3).imitation;
         }
         assert!(first > 0.05, "the fresh student is far from the labels: {first}");
         assert!(last < 0.25 * first, "loss {first} → {last}");
@@ -569,6 +641,42 @@ mod tests {
         assert_eq!((again, second.version()), (means, 0));
         // Exact resume: restored weights and moments take the same next step.
         let mut restored = Student::restore(&blob.to_bytes(), &student.optimizer_state(), false).unwrap();
+        assert_eq!(restored.train_step(&data, &rows, 1e-3), student.train_step(&data, &rows, 1e-3));
+        assert_eq!(restored.weights(), student.weights());
+    }
+
+    #[test]
+    fn a_gate_head_learns_where_the_gates_are_and_resumes_exactly() {
+        let arch = Architecture { hidden: vec![16, 16], ..Architecture::paper() };
+        let teacher_net = policy::ActorCritic::new(&arch, -0.5, 7, &Device::flex());
+        let teacher = WeightsBlob::from_model(1, &arch, &ObsNormalizer::new(arch.observation_dim), &teacher_net);
+        let mut data = DistillDataset::new(64, arch.observation_dim);
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let mut env = RaceEnv::new(track(), EnvConfig::default(), 1, 0);
+        for _ in 0..32 {
+            data.offer(&env, &env.observation_in(arch.observation_layout()), &[0.0; 4], &mut rng);
+            env.step(&[0.3, 0.2, -0.1, 0.2]);
+        }
+        let rows: Vec<usize> = (0..data.len()).collect();
+        let vision_arch = Architecture { agent: Agent::Vision, ..arch.clone() };
+        let plain = Student::new(&vision_arch, Some(&teacher), None, 0.0, 2).unwrap();
+        assert!(Student::new(&arch, Some(&teacher), None, 0.0, 2).unwrap().with_gate_head(1.0, None, 3).is_err(), "vision only");
+        let mut student = Student::new(&vision_arch, Some(&teacher), None, 0.0, 2).unwrap().with_gate_head(1.0, None, 3).unwrap();
+        let first = student.train_step(&data, &rows, 1e-3);
+        // The head's loss is added, not mixed in: the imitation loss is the plain student's.
+        assert_eq!(first.imitation, { plain }.train_step(&data, &rows, 1e-3).imitation);
+        let first_gate = first.gate.unwrap();
+        let mut last = first_gate;
+        for _ in 0..40 {
+            last = student.train_step(&data, &rows, 1e-3).gate.unwrap();
+        }
+        assert!(last < 0.5 * first_gate, "gate loss {first_gate} → {last}");
+        // Resume: weights, optimiser moments and head give the same next step.
+        let blob = student.weights();
+        let mut restored = Student::restore(&blob.to_bytes(), &student.optimizer_state(), false)
+            .unwrap()
+            .with_gate_head(1.0, student.gate_head_bytes().as_deref(), 99)
+            .unwrap();
         assert_eq!(restored.train_step(&data, &rows, 1e-3), student.train_step(&data, &rows, 1e-3));
         assert_eq!(restored.weights(), student.weights());
     }
@@ -636,10 +744,10 @@ mod tests {
             assert!((a - b).abs() <= 1e-9 * (1.0 + b.abs()), "{a} vs {b}");
         }
         let rows: Vec<usize> = (0..data.len()).collect();
-        let first = student.train_step(&data, &rows, 3e-3);
+        let first = student.train_step(&data, &rows, 3e-3).imitation;
         let mut last = first;
         for _ in 0..150 {
-            last = student.train_step(&data, &rows, 3e-3);
+            last = student.train_step(&data, &rows, 3e-3).imitation;
         }
         assert!(last < 0.25 * first, "loss {first} → {last}");
         // The blob is a state policy whose deterministic actions are the pilot's, roughly.

@@ -7,6 +7,7 @@ pub mod averaging;
 pub mod blob;
 pub mod dense;
 pub mod ensemble;
+pub mod gate_head;
 pub mod inference;
 pub mod network;
 pub mod normalizer;

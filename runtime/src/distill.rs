@@ -85,6 +85,11 @@ pub struct DistillConfig {
     pub minibatch: usize,
     /// Adam's learning rate, constant. Default 5e-4.
     pub learning_rate: f64,
+    /// Weight of an auxiliary loss on a vision student's CNN embedding: a training-only head
+    /// predicts where the target and next gates are (`policy::gate_head`), a dense signal of
+    /// exactly what the teacher acts on, added to the imitation loss at this weight. Default 0
+    /// (no head).
+    pub gate_loss_weight: f64,
     /// The vision student's actor also reads its previous action (beyond SPEC §5's VB actor
     /// input). The teacher's observation holds the previous action and its labels depend on
     /// it as much as they depend on anything the image shows (BENCHMARKS.md, "The teacher's
@@ -148,6 +153,7 @@ impl Default for DistillConfig {
             init_from: None,
             dataset_from: None,
             relabel: false,
+            gate_loss_weight: 0.0,
             tracks: TrackSource::Generated,
             generator: TrackGenerator::default(),
             switching: SwitchParams { window: 5, alpha: 100.0, ..SwitchParams::default() },
@@ -241,6 +247,8 @@ pub struct RoundSummary {
     pub dataset: usize,
     /// Mean regression loss of the round's steps (NaN when none were taken).
     pub loss: f64,
+    /// Mean gate-head loss of the round's steps (NaN without a head).
+    pub gate_loss: f64,
     /// Episodes that ended this round.
     pub episodes: usize,
     /// Their mean completed laps.
@@ -324,7 +332,7 @@ pub struct Distiller {
 
 /// `metrics.csv` columns after `iteration,env_steps,wall_seconds` (iteration = round,
 /// env_steps = samples seen).
-const COLUMNS: [&str; 9] = [
+const COLUMNS: [&str; 10] = [
     "distill/loss",
     "distill/teacher_share",
     "distill/dataset",
@@ -334,6 +342,7 @@ const COLUMNS: [&str; 9] = [
     "eval/success",
     "eval/mean_lap",
     "eval/seconds",
+    "distill/gate_loss",
 ];
 
 impl Distiller {
@@ -377,8 +386,11 @@ impl Distiller {
             Some(path) => Some(read_policy(path).with_context(|| format!("init_from {}", path.display()))?),
             None => None,
         };
-        let student = Student::new(&architecture, teacher_blob.as_ref(), start.as_ref(), config.initial_log_std, config.seed)
+        let mut student = Student::new(&architecture, teacher_blob.as_ref(), start.as_ref(), config.initial_log_std, config.seed)
             .with_context(|| config.init_from.as_ref().map_or(String::new(), |p| format!("init_from {}", p.display())))?;
+        if config.gate_loss_weight > 0.0 {
+            student = student.with_gate_head(config.gate_loss_weight, None, config.seed).context("gate_loss_weight")?;
+        }
         let progress = Progress {
             round: 0,
             rollout: registration.next_rollout,
@@ -416,8 +428,13 @@ impl Distiller {
     pub fn resume(dir: &Path) -> anyhow::Result<Self> {
         let (config, checkpoints, path, c) = newest_checkpoint(dir)?;
         let section = |name: &str| c.get(name).with_context(|| format!("{}", path.display()));
-        let student = Student::restore(section("weights")?, section("optimizer")?, config.pilot_teaches())
+        let mut student = Student::restore(section("weights")?, section("optimizer")?, config.pilot_teaches())
             .with_context(|| format!("{}", path.display()))?;
+        if config.gate_loss_weight > 0.0 {
+            student = student
+                .with_gate_head(config.gate_loss_weight, Some(section("gate_head")?), config.seed)
+                .with_context(|| format!("{}", path.display()))?;
+        }
         let data = DistillDataset::from_bytes(section("dataset")?).with_context(|| format!("{}", path.display()))?;
         let mut progress: Progress =
             serde_json::from_slice(section("distiller")?).with_context(|| format!("{}: distiller section", path.display()))?;
@@ -485,7 +502,7 @@ impl Distiller {
         let flight = self.fly()?;
         let fly_seconds = started.elapsed().as_secs_f64();
         let fit_started = Instant::now();
-        let loss = self.regress();
+        let (loss, gate_loss) = self.regress();
         let fit_seconds = fit_started.elapsed().as_secs_f64();
         self.progress.round += 1;
         let round = self.progress.round;
@@ -511,6 +528,7 @@ impl Distiller {
             samples_seen: self.data.seen(),
             dataset: self.data.len(),
             loss,
+            gate_loss,
             episodes: flight.episodes,
             laps_per_episode: per_episode(flight.laps as f64),
             crash_rate: per_episode(flight.crashes as f64),
@@ -530,6 +548,7 @@ impl Distiller {
             eval(&|v| v.report.success_rate),
             eval(&|v| v.report.mean_lap.unwrap_or(f64::NAN)),
             eval(&|v| v.seconds),
+            summary.gate_loss,
         ];
         let row: Vec<(&str, f64)> = COLUMNS.iter().copied().zip(values).collect();
         self.metrics.write_columns(round, summary.samples_seen, self.progress.wall_seconds, &row)?;
@@ -606,15 +625,18 @@ impl Distiller {
     }
 
     /// The round's regression steps on minibatches drawn from the whole data set; their mean
-    /// loss (NaN when there are none).
-    fn regress(&mut self) -> f64 {
+    /// imitation and gate-head losses (NaN when there are none).
+    fn regress(&mut self) -> (f64, f64) {
         let batch = self.config.minibatch.min(self.data.len());
-        let mut loss_sum = 0.0;
+        let (mut imitation, mut gate) = (0.0, 0.0);
         for _ in 0..self.config.updates_per_round {
             let rows = rand::seq::index::sample(&mut self.progress.rng, self.data.len(), batch).into_vec();
-            loss_sum += self.student.train_step(&self.data, &rows, self.config.learning_rate);
+            let loss = self.student.train_step(&self.data, &rows, self.config.learning_rate);
+            imitation += loss.imitation;
+            gate += loss.gate.unwrap_or(f64::NAN);
         }
-        if self.config.updates_per_round > 0 { loss_sum / self.config.updates_per_round as f64 } else { f64::NAN }
+        let steps = self.config.updates_per_round as f64;
+        if self.config.updates_per_round > 0 { (imitation / steps, gate / steps) } else { (f64::NAN, f64::NAN) }
     }
 
     /// Writes a periodic checkpoint of everything.
@@ -627,6 +649,9 @@ impl Distiller {
         }
         c.put("weights", self.student.weights().to_bytes());
         c.put("optimizer", self.student.optimizer_state());
+        if let Some(head) = self.student.gate_head_bytes() {
+            c.put("gate_head", head);
+        }
         c.put("dataset", self.data.to_bytes());
         c.put("taskctl", self.tasks.read(TaskController::to_snapshot_bytes));
         self.progress.envs = self.env.envs().to_vec();
@@ -699,8 +724,9 @@ pub fn progress_line(s: &RoundSummary, rounds: u64) -> String {
         n => format!("{n} episodes: laps/ep {:.2}, crashed {:.0} %", s.laps_per_episode, 100.0 * s.crash_rate),
     };
     let dropped = if s.dropped > 0 { format!(" | dropped {} run-up states", s.dropped) } else { String::new() };
+    let gate = if s.gate_loss.is_nan() { String::new() } else { format!(" (gates {:.4})", s.gate_loss) };
     format!(
-        "round {:>4}/{rounds} | {:>9} samples (kept {:>8}) | teacher {:>3.0} % | loss {:.4} | {episodes} | fly {:.1} s, fit {:.1} s{dropped}{validation}",
+        "round {:>4}/{rounds} | {:>9} samples (kept {:>8}) | teacher {:>3.0} % | loss {:.4}{gate} | {episodes} | fly {:.1} s, fit {:.1} s{dropped}{validation}",
         s.round,
         s.samples_seen,
         s.dataset,
