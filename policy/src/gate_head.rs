@@ -9,7 +9,7 @@
 //! show (no pixel of its colour) is not scored: nothing in the image says where it is.
 
 use burn::module::Module;
-use burn::tensor::{Device, Tensor};
+use burn::tensor::{Device, Tensor, TensorData};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use sim::Track;
@@ -17,8 +17,9 @@ use sim::camera::{NEXT_COLOUR, TARGET_COLOUR};
 use sim::nalgebra::{Matrix3, Vector3};
 
 use crate::network::{ExportedParam, Mlp, check_shapes};
+use crate::pixels_to_unit;
 use crate::safetensors::{self, TensorFile};
-use crate::vision::EMBEDDING;
+use crate::vision::{EMBEDDING, IMAGE_SIDE, VisionActorCritic};
 
 /// Numbers predicted per gate: 4 corners × 3, then the log distance.
 pub const PER_GATE: usize = 13;
@@ -45,6 +46,15 @@ impl GateHead {
     /// Predictions `[batch, 26]` from embeddings `[batch, 128]`.
     pub fn forward(&self, embedding: Tensor<2>) -> Tensor<2> {
         self.layer.forward(embedding)
+    }
+
+    /// Predictions (`GATE_TARGETS` per image) for camera images (84 × 84 bytes each) seen
+    /// through `model`'s CNN: for analyses of a trained student.
+    #[allow(clippy::expect_used, reason = "float outputs")]
+    pub fn predict(&self, model: &VisionActorCritic, images: &[u8], device: &Device) -> Vec<f32> {
+        let n = images.len() / (IMAGE_SIDE * IMAGE_SIDE);
+        let images = Tensor::<4>::from_data(TensorData::new(pixels_to_unit(images), [n, 1, IMAGE_SIDE, IMAGE_SIDE]), device);
+        self.forward(model.embed(images)).into_data().try_to_vec::<f32>().expect("float outputs")
     }
 
     /// The head as a safetensors file, parameter ids kept so that optimiser moments re-attach.
