@@ -115,9 +115,12 @@ impl Learner {
     }
 
     /// A fresh learner (version 0, new optimiser) whose network and normaliser start from a
-    /// trained policy: fine-tuning, e.g. the generalist on one track (thesis §3.4.4).
+    /// trained policy: fine-tuning, e.g. the generalist on one track (thesis §3.4.4). The
+    /// fine-tune may change `gate_sight`: the gate corners mean the same, only when they are
+    /// shown changes.
     pub fn from_policy(profile: Profile, total_env_steps: u64, seed: u64, blob: &WeightsBlob) -> Result<Self, LearnerError> {
-        blob.check_architecture(&profile.architecture).map_err(|e| LearnerError::State(e.to_string()))?;
+        let expected = Architecture { gate_sight: blob.architecture.gate_sight, ..profile.architecture.clone() };
+        blob.check_architecture(&expected).map_err(|e| LearnerError::State(e.to_string()))?;
         let mut learner = Self::new(profile, total_env_steps, seed);
         learner.model = Some(Network::from_blob(blob, &learner.device).map_err(|e| LearnerError::State(e.to_string()))?);
         learner.counters.normalizer = blob.normalizer.clone();
@@ -284,4 +287,25 @@ pub(crate) fn adam(profile: &Profile) -> ModuleOptimizer {
     let ppo = &profile.ppo;
     let decay = (ppo.weight_decay > 0.0).then(|| WeightDecayConfig::new(ppo.weight_decay as f32));
     AdamConfig::new().with_epsilon(ppo.adam_epsilon as f32).with_weight_decay(decay).init()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::Profile;
+
+    #[test]
+    fn a_fine_tune_may_change_which_gate_corners_are_shown_and_nothing_else() {
+        let camera = Architecture { gate_sight: sim::GateSight::Camera, ..Architecture::cpu() };
+        let net = ActorCritic::new(&camera, -0.5, 7, &Device::flex());
+        let blob = WeightsBlob::from_model(3, &camera, &ObsNormalizer::new(camera.observation_dim), &net);
+        let profile = |architecture: Architecture| Profile { architecture, ..Profile::cpu() };
+        let corners = Architecture { gate_sight: sim::GateSight::Corners, ..camera.clone() };
+        let learner = Learner::from_policy(profile(corners.clone()), 1000, 0, &blob).unwrap();
+        let tuned = learner.weights();
+        assert_eq!((tuned.architecture, tuned.params.len()), (corners, blob.params.len()), "the run's sight, the start's weights");
+        assert!(tuned.params.iter().zip(&blob.params).all(|(a, b)| a.values == b.values));
+        let wider = Architecture { hidden: vec![64, 64], ..camera };
+        assert!(Learner::from_policy(profile(wider), 1000, 0, &blob).is_err(), "other shapes are still refused");
+    }
 }

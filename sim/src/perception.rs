@@ -45,9 +45,9 @@ impl GatePerception {
     }
 
     /// Moves every corner `observation` shows (those out of view are all zeros and stay so) by
-    /// `sigma` × its distance × its drift. The next gate's corners are relative to the
-    /// target's, so their distance is that of their sum.
-    pub fn apply(&self, sigma: f64, observation: &mut [f32]) {
+    /// `hypot(sigma × its distance, floor)` × its drift. The next gate's corners are relative
+    /// to the target's, so their distance is that of their sum.
+    pub fn apply(&self, sigma: f64, floor: f64, observation: &mut [f32]) {
         assert!(observation.len() >= STATE_OBS_DIM, "a state observation");
         let corner = |o: &[f32], start: usize| -> [f64; 3] { std::array::from_fn(|k| f64::from(o[start + k])) };
         for c in 0..4 {
@@ -58,13 +58,13 @@ impl GatePerception {
             if seen(&between) {
                 let d = norm(std::array::from_fn(|k| to_target[k] + between[k]));
                 for k in 0..3 {
-                    observation[next + k] += (sigma * d * self.drift[4 + c][k]) as f32;
+                    observation[next + k] += ((sigma * d).hypot(floor) * self.drift[4 + c][k]) as f32;
                 }
             }
             if seen(&to_target) {
                 let d = norm(to_target);
                 for k in 0..3 {
-                    observation[target + k] += (sigma * d * self.drift[c][k]) as f32;
+                    observation[target + k] += ((sigma * d).hypot(floor) * self.drift[c][k]) as f32;
                 }
             }
         }
@@ -88,7 +88,7 @@ mod tests {
             observation[TARGET_CORNERS + 3 * c] = if c < 2 { 2.0 } else { 8.0 };
         }
         let mut seen = observation;
-        p.apply(0.05, &mut seen);
+        p.apply(0.05, 0.0, &mut seen);
         assert!(seen[NEXT_CORNERS..].iter().all(|v| *v == 0.0), "an unseen gate stays unseen");
         assert!(seen[..TARGET_CORNERS] == observation[..TARGET_CORNERS], "only the gates move");
         for c in 0..4 {
@@ -98,6 +98,17 @@ mod tests {
                 assert!((moved - 0.05 * d * p.drift[c][k]).abs() < 1e-5, "corner {c}: {moved}");
             }
         }
+        // A floor of 0.3 m dominates near (2 m: hypot(0.1, 0.3)) and fades far (8 m: hypot(0.4, 0.3)).
+        let mut floored = observation;
+        p.apply(0.05, 0.3, &mut floored);
+        for c in 0..4 {
+            let scale = if c < 2 { 0.1f64.hypot(0.3) } else { 0.4f64.hypot(0.3) };
+            for k in 0..3 {
+                let moved = f64::from(floored[TARGET_CORNERS + 3 * c + k] - observation[TARGET_CORNERS + 3 * c + k]);
+                assert!((moved - scale * p.drift[c][k]).abs() < 1e-5, "corner {c} with a floor: {moved}");
+            }
+        }
+        assert!(floored[NEXT_CORNERS..].iter().all(|v| *v == 0.0), "an unseen gate stays unseen under a floor too");
         // Over many steps the drift keeps unit variance and a lag-1 correlation of ρ.
         let (mut sum_sq, mut lagged, mut n) = (0.0, 0.0, 0.0);
         for _ in 0..20_000 {

@@ -290,7 +290,7 @@ impl RaceEnv {
         let (start, target, velocity) = self.draw_start();
         let c = &self.config;
         let mut draw = c.randomization.sample(&c.quadrotor, &start, c.race.substep(), &mut self.rng);
-        if c.randomization.gate_perception > 0.0 {
+        if c.randomization.misjudges_gates() {
             self.perception.restart(&mut self.rng);
         }
         let (target, draw) = match velocity {
@@ -410,7 +410,7 @@ impl RaceEnv {
             view_alignment: self.camera_axis().dot(&gate.normal()).max(0.0),
         });
         self.previous_action = action;
-        if self.config.randomization.gate_perception > 0.0 {
+        if self.config.randomization.misjudges_gates() {
             self.perception.advance(&mut self.rng);
         }
 
@@ -488,9 +488,9 @@ impl RaceEnv {
     pub fn observe_in(&self, layout: ObservationLayout, out: &mut [f32]) {
         let line = (layout.line_points > 0).then(|| self.racing_line());
         write_state_observation(&self.quad.body, &self.previous_action, &self.track, line.as_deref(), self.target, layout, out);
-        let sigma = self.config.randomization.gate_perception;
-        if sigma > 0.0 {
-            self.perception.apply(sigma, out);
+        let r = &self.config.randomization;
+        if r.misjudges_gates() {
+            self.perception.apply(r.gate_perception, r.gate_perception_floor, out);
         }
     }
 

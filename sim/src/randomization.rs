@@ -39,6 +39,12 @@ pub struct RandomizationParams {
     /// sideways. Trains a teacher whose vision student sees less exactly than it does; beyond
     /// SPEC §3, 0 in every profile (BENCHMARKS.md, "A teacher that expects to misjudge gates").
     pub gate_perception: f64,
+    /// Least misjudgement of a seen gate's corners (m per axis), however near: combined with
+    /// `gate_perception · distance` as independent errors (root of the sum of squares). Close
+    /// to a gate the camera shows only part of its frame, and a student's judgement of where
+    /// the corners are stops improving with nearness (BENCHMARKS.md, "What the student's
+    /// embedding knows of the gates"). 0 in every profile.
+    pub gate_perception_floor: f64,
 }
 
 impl Default for RandomizationParams {
@@ -48,6 +54,11 @@ impl Default for RandomizationParams {
 }
 
 impl RandomizationParams {
+    /// True when the gates an observation shows are misjudged (`gate_perception` or its floor).
+    pub fn misjudges_gates(&self) -> bool {
+        self.gate_perception > 0.0 || self.gate_perception_floor > 0.0
+    }
+
     /// The state-based (SB) training profile.
     pub fn state_based() -> Self {
         Self {
@@ -62,6 +73,7 @@ impl RandomizationParams {
             start_attitude: 20f64.to_radians(),
             start_body_rates: 45f64.to_radians(),
             gate_perception: 0.0,
+            gate_perception_floor: 0.0,
         }
     }
 
@@ -79,6 +91,7 @@ impl RandomizationParams {
             start_attitude: 10f64.to_radians(),
             start_body_rates: 25f64.to_radians(),
             gate_perception: 0.0,
+            gate_perception_floor: 0.0,
         }
     }
 
@@ -101,6 +114,7 @@ impl RandomizationParams {
             start_attitude: 0.0,
             start_body_rates: 0.0,
             gate_perception: 0.0,
+            gate_perception_floor: 0.0,
         }
     }
 }
