@@ -189,14 +189,21 @@ fn teachers_that_observe_racing_line_points_teach_in_their_own_layout() {
     assert_eq!(written.env.line_points, 4, "the run's config records the layout it flew");
 }
 
+/// A two-round run in `dir/earlier`, its checkpoint written (what `dataset_from` reads: a run's
+/// newest checkpoint); the run and its last round.
+fn earlier_run(dir: &Path) -> (PathBuf, Distiller, runtime::distill::RoundSummary) {
+    let earlier = dir.join("earlier");
+    let mut a = Distiller::start(DistillConfig { rounds: 2, ..tiny_config() }, &earlier).unwrap();
+    a.round_step().unwrap();
+    let last = a.round_step().unwrap();
+    a.checkpoint().unwrap();
+    (earlier, a, last)
+}
+
 #[test]
 fn a_student_that_reads_its_previous_action_continues_an_earlier_runs_data_set() {
     let dir = tempfile::tempdir().unwrap();
-    let earlier = dir.path().join("earlier");
-    let mut a = Distiller::start(DistillConfig { rounds: 2, ..tiny_config() }, &earlier).unwrap();
-    a.round_step().unwrap();
-    let held = a.round_step().unwrap();
-    a.checkpoint().unwrap(); // what `dataset_from` reads: the run's newest checkpoint
+    let (earlier, a, held) = earlier_run(dir.path());
     let start = dir.path().join("earlier-student.bin");
     std::fs::write(&start, a.student().to_bytes()).unwrap();
 
@@ -227,11 +234,7 @@ fn a_student_that_reads_its_previous_action_continues_an_earlier_runs_data_set()
 #[test]
 fn a_new_teacher_relabels_an_earlier_runs_states_of_its_own_layout_only() {
     let dir = tempfile::tempdir().unwrap();
-    let earlier = dir.path().join("earlier");
-    let mut a = Distiller::start(DistillConfig { rounds: 2, ..tiny_config() }, &earlier).unwrap();
-    a.round_step().unwrap();
-    a.round_step().unwrap();
-    a.checkpoint().unwrap();
+    let (earlier, _, _) = earlier_run(dir.path());
     // Another teacher of the same layout: the generalist with its action head halved.
     let mut other = learner::checkpoint::read_policy(&teacher()).unwrap();
     let names = policy::WeightsBlob::tensor_names(&other.architecture);

@@ -35,14 +35,14 @@ fn main() -> anyhow::Result<()> {
     // Per environment: its target gate, and the steps since all / any of its corners were seen.
     let mut target: Vec<usize> = env.envs().iter().map(|e| e.target_gate()).collect();
     let mut since = vec![[0usize; 2]; n];
-    let mut length: Vec<u64> = vec![0; n];
+    let mut length = vec![0u32; n];
     let (mut all_gaps, mut any_gaps) = (Vec::new(), Vec::new());
     for _ in 0..1500 {
         let actions = teacher.deterministic_actions(&env.observations);
         env.step(&actions);
         for (i, e) in env.envs().iter().enumerate() {
-            let restarted = (e.stats().length as u64) < length[i];
-            length[i] = e.stats().length as u64;
+            let restarted = e.stats().length < length[i];
+            length[i] = e.stats().length;
             if restarted || e.target_gate() != target[i] {
                 // A passage is counted; a new episode only starts the count again.
                 if !restarted {

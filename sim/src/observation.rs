@@ -271,27 +271,27 @@ pub fn write_state_observation(
     values[6..9].copy_from_slice((to_frame * body.velocity).as_slice());
     values[9..12].copy_from_slice(body.body_rates.as_slice());
     values[PREVIOUS_ACTION_RANGE].copy_from_slice(previous_action);
+    // Per corner: whether δp1's and δp2's are shown (δp2's is written from δp1's, so needs it).
     let rotation = body.rotation();
-    let (show_target, show_next) = match layout.gate_sight {
-        GateSight::All | GateSight::Corners => (true, true),
+    let shown: [(bool, bool); 4] = match layout.gate_sight {
+        GateSight::All => [(true, true); 4],
         GateSight::Camera => {
             let seen = |g: usize| crate::camera::gate_in_view(&track.gates[g], &body.position, &rotation);
             let target_seen = seen(target);
-            (target_seen, target_seen && seen(track.next_index(target)))
+            [(target_seen, target_seen && seen(track.next_index(target))); 4]
+        }
+        GateSight::Corners => {
+            let seen = |corner: &Vector3<f64>| crate::camera::point_in_view(corner, &body.position, &rotation);
+            std::array::from_fn(|c| {
+                let target_seen = seen(&target_corners[c]);
+                (target_seen, target_seen && seen(&next_corners[c]))
+            })
         }
     };
-    for c in 0..4 {
+    for (c, (show_target, show_next)) in shown.into_iter().enumerate() {
         let to_target = to_frame * (target_corners[c] - body.position);
         let between = to_frame * (next_corners[c] - target_corners[c]);
         let (t, n) = (TARGET_CORNERS_RANGE.start + 3 * c, NEXT_CORNERS_RANGE.start + 3 * c);
-        let (show_target, show_next) = match layout.gate_sight {
-            GateSight::Corners => {
-                let seen = |corner: &Vector3<f64>| crate::camera::point_in_view(corner, &body.position, &rotation);
-                let target_seen = seen(&target_corners[c]);
-                (target_seen, target_seen && seen(&next_corners[c]))
-            }
-            _ => (show_target, show_next),
-        };
         if show_target {
             values[t..t + 3].copy_from_slice(to_target.as_slice());
         }

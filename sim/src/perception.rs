@@ -13,12 +13,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::observation::{NEXT_CORNERS_RANGE, STATE_OBS_DIM, TARGET_CORNERS_RANGE};
 
-/// Where the target gate's corners start in SPEC §5's observation; the next gate's four,
-/// written relative to the target's, follow them.
-const TARGET_CORNERS: usize = TARGET_CORNERS_RANGE.start;
-/// Where the next gate's corners start.
-const NEXT_CORNERS: usize = NEXT_CORNERS_RANGE.start;
-
 /// The drifting error of the 8 corners an observation can show.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct GatePerception {
@@ -51,7 +45,7 @@ impl GatePerception {
         assert!(observation.len() >= STATE_OBS_DIM, "a state observation");
         let corner = |o: &[f32], start: usize| -> [f64; 3] { std::array::from_fn(|k| f64::from(o[start + k])) };
         for c in 0..4 {
-            let (target, next) = (TARGET_CORNERS + 3 * c, NEXT_CORNERS + 3 * c);
+            let (target, next) = (TARGET_CORNERS_RANGE.start + 3 * c, NEXT_CORNERS_RANGE.start + 3 * c);
             let (to_target, between) = (corner(observation, target), corner(observation, next));
             let seen = |v: &[f64; 3]| v.iter().any(|x| *x != 0.0);
             let norm = |v: [f64; 3]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
@@ -85,16 +79,16 @@ mod tests {
         let mut observation = [0f32; STATE_OBS_DIM];
         // Target corners 2 m and 8 m away along x; the next gate out of view.
         for c in 0..4 {
-            observation[TARGET_CORNERS + 3 * c] = if c < 2 { 2.0 } else { 8.0 };
+            observation[TARGET_CORNERS_RANGE.start + 3 * c] = if c < 2 { 2.0 } else { 8.0 };
         }
         let mut seen = observation;
         p.apply(0.05, 0.0, &mut seen);
-        assert!(seen[NEXT_CORNERS..].iter().all(|v| *v == 0.0), "an unseen gate stays unseen");
-        assert!(seen[..TARGET_CORNERS] == observation[..TARGET_CORNERS], "only the gates move");
+        assert!(seen[NEXT_CORNERS_RANGE].iter().all(|v| *v == 0.0), "an unseen gate stays unseen");
+        assert!(seen[..TARGET_CORNERS_RANGE.start] == observation[..TARGET_CORNERS_RANGE.start], "only the gates move");
         for c in 0..4 {
             let d = if c < 2 { 2.0 } else { 8.0 };
             for k in 0..3 {
-                let moved = f64::from(seen[TARGET_CORNERS + 3 * c + k] - observation[TARGET_CORNERS + 3 * c + k]);
+                let moved = f64::from(seen[TARGET_CORNERS_RANGE.start + 3 * c + k] - observation[TARGET_CORNERS_RANGE.start + 3 * c + k]);
                 assert!((moved - 0.05 * d * p.drift[c][k]).abs() < 1e-5, "corner {c}: {moved}");
             }
         }
@@ -104,11 +98,12 @@ mod tests {
         for c in 0..4 {
             let scale = if c < 2 { 0.1f64.hypot(0.3) } else { 0.4f64.hypot(0.3) };
             for k in 0..3 {
-                let moved = f64::from(floored[TARGET_CORNERS + 3 * c + k] - observation[TARGET_CORNERS + 3 * c + k]);
+                let moved =
+                    f64::from(floored[TARGET_CORNERS_RANGE.start + 3 * c + k] - observation[TARGET_CORNERS_RANGE.start + 3 * c + k]);
                 assert!((moved - scale * p.drift[c][k]).abs() < 1e-5, "corner {c} with a floor: {moved}");
             }
         }
-        assert!(floored[NEXT_CORNERS..].iter().all(|v| *v == 0.0), "an unseen gate stays unseen under a floor too");
+        assert!(floored[NEXT_CORNERS_RANGE].iter().all(|v| *v == 0.0), "an unseen gate stays unseen under a floor too");
         // Over many steps the drift keeps unit variance and a lag-1 correlation of ρ.
         let (mut sum_sq, mut lagged, mut n) = (0.0, 0.0, 0.0);
         for _ in 0..20_000 {
