@@ -69,6 +69,8 @@ fn an_interrupted_distillation_resumes_bit_for_bit() {
     let last = b.round_step().unwrap();
     assert_eq!(last.samples_seen, 4 * 4 * 16);
     assert!(last.gate_loss.is_finite(), "the gate head's loss is reported");
+    let err = Distiller::start(DistillConfig { gate_loss_weight: -1.0, ..tiny_config() }, &dir.path().join("negative")).err().unwrap();
+    assert!(format!("{err:#}").contains("gate_loss_weight"), "{err:#}");
     assert!(student(&b) == student(&a), "data set, environments, curriculum and optimiser continue exactly");
     assert!(b.finished());
     // A row per round in metrics.csv, and the validated student kept as best.bin.

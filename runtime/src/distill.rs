@@ -222,6 +222,7 @@ impl DistillConfig {
             ensure!(t >= 0.0, "takeover: {t} must be ≥ 0 (the largest allowed difference from the teacher's action)");
         }
         ensure!(self.learning_rate > 0.0, "learning_rate: {} must be positive", self.learning_rate);
+        ensure!(self.gate_loss_weight >= 0.0, "gate_loss_weight: {} must be ≥ 0 (0: no gate head)", self.gate_loss_weight);
         ensure!(
             !self.relabel || (self.dataset_from.is_some() && !self.pilot_teaches()),
             "relabel: needs dataset_from, and a policy as teacher (the pilot's action depends on its memory of the flight)"
