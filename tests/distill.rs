@@ -49,8 +49,10 @@ fn an_interrupted_distillation_resumes_bit_for_bit() {
     std::fs::create_dir_all(&straight).unwrap();
     std::fs::create_dir_all(&resumed).unwrap();
 
-    // With a gate head, whose weights and moments the checkpoint must carry too.
-    let config = || DistillConfig { gate_loss_weight: 0.5, ..tiny_config() };
+    // With a gate head, whose weights and moments the checkpoint must carry too, and stacked
+    // camera frames, whose histories it must carry.
+    let stack = sim::FrameStack { frames: 2, stride: 3 };
+    let config = || DistillConfig { gate_loss_weight: 0.5, frame_stack: stack, ..tiny_config() };
     let mut a = Distiller::start(config(), &straight).unwrap();
     let shares: Vec<f64> = (0..4).map(|_| a.round_step().unwrap().teacher_share).collect();
     // β = 0.5^round of 64 steps per round: all of round 0, then about half, a quarter, an eighth.
@@ -77,7 +79,7 @@ fn an_interrupted_distillation_resumes_bit_for_bit() {
     let rows = std::fs::read_to_string(resumed.join("metrics.csv")).unwrap().lines().count();
     assert_eq!(rows, 1 + 4);
     let best = learner::checkpoint::read_policy(&resumed.join("checkpoints/best.bin")).unwrap();
-    assert_eq!(best.architecture.agent, policy::Agent::Vision);
+    assert_eq!((best.architecture.agent, best.architecture.frame_stack), (policy::Agent::Vision, stack));
 }
 
 #[test]
@@ -231,6 +233,14 @@ fn a_student_that_reads_its_previous_action_continues_an_earlier_runs_data_set()
         .err()
         .unwrap();
     assert!(format!("{err:#}").contains("previous_action"), "{err:#}");
+
+    // A student seeing stacked frames starts from the single-frame one, but cannot learn from
+    // samples that hold one frame.
+    let stack = sim::FrameStack { frames: 3, stride: 4 };
+    let err = Distiller::start(DistillConfig { frame_stack: stack, ..config() }, &dir.path().join("stacked")).err().unwrap();
+    assert!(format!("{err:#}").contains("camera frames"), "{err:#}");
+    let stacked = Distiller::start(DistillConfig { frame_stack: stack, dataset_from: None, ..config() }, &dir.path().join("stacked-new")).unwrap();
+    assert_eq!(stacked.student().architecture.frame_stack, stack, "the single-frame start is widened");
 }
 
 #[test]

@@ -15,49 +15,43 @@ use std::sync::Arc;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Bytes, Device, Tensor, TensorData};
 use policy::gate_head::{GATE_TARGETS, GateHead, gate_targets, shown_mask};
-use policy::vision::IMAGE_SIDE;
-use policy::{Agent, Architecture, ObsNormalizer, WeightsBlob, pixels_to_unit};
+use policy::vision::image_tensor;
+use policy::{Agent, Architecture, ObsNormalizer, WeightsBlob};
 use rand::Rng;
 use rayon::prelude::*;
 use sim::camera::IMAGE_PIXELS;
-use sim::nalgebra::{Quaternion, UnitQuaternion, Vector3};
-use sim::{ACTION_DIM, RaceEnv, STATE_OBS_DIM, Track};
+use sim::frame_stack::render_frames;
+use sim::{ACTION_DIM, CameraHistory, CameraPose, FrameStack, RaceEnv, STATE_OBS_DIM, Track};
 
 use crate::learner::{LearnerError, Network};
 use crate::ppo::update::scalar;
 
-/// The frame of a serialised data set (format 2: the state length is recorded).
-const DATASET_FRAME: frames::FrameKind = frames::FrameKind { magic: b"DRDAGGER", format: 2, name: "distillation data set" };
+/// The frame of a serialised data set (format 3: the frame stack and each sample's frames).
+const DATASET_FRAME: frames::FrameKind = frames::FrameKind { magic: b"DRDAGGER", format: 3, name: "distillation data set" };
 
-/// Format 1, still read: every state SPEC §5's 40 numbers.
+/// Format 2, still read: one frame a sample, the state length recorded.
+const DATASET_FRAME_V2: frames::FrameKind = frames::FrameKind { format: 2, ..DATASET_FRAME };
+
+/// Format 1, still read: one frame a sample, every state SPEC §5's 40 numbers.
 const DATASET_FRAME_V1: frames::FrameKind = frames::FrameKind { format: 1, ..DATASET_FRAME };
 
-/// One visited state: where the camera was and the teacher's label (its raw state observation
-/// is the data set's row of the same index).
+/// One visited state: where the camera was at the frames the student sees and the teacher's
+/// label (its raw state observation is the data set's row of the same index).
 #[derive(Clone, Debug, PartialEq)]
 struct Sample {
     /// Index into the data set's track table.
     track: u32,
-    /// Target gate (the renderer colours it brightest).
-    target: u32,
-    position: [f64; 3],
-    /// Attitude quaternion (w, x, y, z).
-    attitude: [f64; 4],
+    /// The camera poses of the frames seen, the current one first.
+    frames: Vec<CameraPose>,
     /// Teacher's deterministic action.
     label: [f32; ACTION_DIM],
 }
 
 impl Sample {
-    /// Position and `R_WB`.
-    fn pose(&self) -> (Vector3<f64>, sim::nalgebra::Matrix3<f64>) {
-        let [w, x, y, z] = self.attitude;
-        let rotation = UnitQuaternion::new_unchecked(Quaternion::new(w, x, y, z)).to_rotation_matrix().into_inner();
-        (Vector3::from(self.position), rotation)
-    }
-
-    fn render(&self, tracks: &[Arc<Track>], out: &mut [u8]) {
-        let (position, rotation) = self.pose();
-        sim::camera::render(&tracks[self.track as usize], self.target as usize, &position, &rotation, out);
+    /// The current camera pose.
+    #[allow(clippy::indexing_slicing, reason = "a sample holds at least its current frame")]
+    fn now(&self) -> &CameraPose {
+        &self.frames[0]
     }
 }
 
@@ -81,14 +75,22 @@ pub struct DistillDataset {
     /// Raw state observations (the teacher's layout), `state_dim` per sample, in sample order.
     states: Vec<f32>,
     state_dim: usize,
+    /// The camera frames every sample holds.
+    frame_stack: FrameStack,
     capacity: usize,
     seen: u64,
 }
 
 impl DistillDataset {
-    /// An empty data set holding at most `capacity` samples of `state_dim`-number states.
-    pub fn new(capacity: usize, state_dim: usize) -> Self {
-        Self { capacity: capacity.max(1), state_dim, ..Self::default() }
+    /// An empty data set holding at most `capacity` samples of `state_dim`-number states and
+    /// the camera frames of `frame_stack`.
+    pub fn new(capacity: usize, state_dim: usize, frame_stack: FrameStack) -> Self {
+        Self { capacity: capacity.max(1), state_dim, frame_stack, ..Self::default() }
+    }
+
+    /// The camera frames every sample holds.
+    pub fn frame_stack(&self) -> FrameStack {
+        self.frame_stack
     }
 
     /// Length of a sample's raw state observation.
@@ -111,26 +113,24 @@ impl DistillDataset {
         self.seen
     }
 
-    /// Offers the state `env` is in, its raw observation `state` (`state_dim` numbers) and the
-    /// teacher's `label`.
+    /// Offers the state `env` is in with its current camera frame (a data set of single
+    /// frames), its raw observation `state` (`state_dim` numbers) and the teacher's `label`.
     pub fn offer(&mut self, env: &RaceEnv, state: &[f32], label: &[f32], rng: &mut impl Rng) {
-        let labelled = self.label(env, state, label);
+        let mut camera = CameraHistory::new(FrameStack::default());
+        camera.record(CameraPose::of(env));
+        let labelled = self.label(env, &camera, state, label);
         self.offer_labelled(labelled, rng);
     }
 
-    /// The state `env` is in, labelled, to be offered later ([`DistillDataset::offer_labelled`])
+    /// The state `env` is in, with the frames `camera` (its history, of the data set's frame
+    /// stack) shows of it, labelled, to be offered later ([`DistillDataset::offer_labelled`])
     /// or dropped: e.g. held back until it is known not to be the run-up to a crash.
-    pub fn label(&mut self, env: &RaceEnv, state: &[f32], label: &[f32]) -> LabelledState {
+    pub fn label(&mut self, env: &RaceEnv, camera: &CameraHistory, state: &[f32], label: &[f32]) -> LabelledState {
         assert_eq!(state.len(), self.state_dim, "a state of the data set's length");
-        let body = env.body();
-        let a = body.attitude;
-        let sample = Sample {
-            track: self.track_id(env.track()),
-            target: env.target_gate() as u32,
-            position: body.position.into(),
-            attitude: [a.w, a.i, a.j, a.k],
-            label: std::array::from_fn(|i| label[i]),
-        };
+        assert_eq!(camera.stack(), self.frame_stack, "a camera history of the data set's frame stack");
+        let frames = camera.frames();
+        debug_assert_eq!(frames.first(), Some(&CameraPose::of(env)), "the history is the environment's");
+        let sample = Sample { track: self.track_id(env.track()), frames, label: std::array::from_fn(|i| label[i]) };
         LabelledState { sample, state: state.to_vec() }
     }
 
@@ -175,10 +175,15 @@ impl DistillDataset {
         id
     }
 
-    /// The camera images of samples `rows` (`rows.len() × 84 × 84` bytes), rendered again.
+    /// The camera observations of samples `rows` (`rows.len() × frames × 84 × 84` bytes, each
+    /// sample's current frame first), rendered again.
     pub fn images(&self, rows: &[usize]) -> Vec<u8> {
-        let mut out = vec![0u8; rows.len() * IMAGE_PIXELS];
-        out.par_chunks_mut(IMAGE_PIXELS).zip(rows.par_iter()).for_each(|(image, &row)| self.samples[row].render(&self.tracks, image));
+        let len = self.frame_stack.image_len();
+        let mut out = vec![0u8; rows.len() * len];
+        out.par_chunks_mut(len).zip(rows.par_iter()).for_each(|(images, &row)| {
+            let sample = &self.samples[row];
+            render_frames(&sample.frames, &self.tracks[sample.track as usize], images);
+        });
         out
     }
 
@@ -188,8 +193,8 @@ impl DistillDataset {
         rows.iter()
             .flat_map(|&r| {
                 let sample = &self.samples[r];
-                let (position, rotation) = sample.pose();
-                gate_targets(&self.tracks[sample.track as usize], sample.target as usize, &position, &rotation)
+                let (position, rotation) = sample.now().position_and_rotation();
+                gate_targets(&self.tracks[sample.track as usize], sample.now().target as usize, &position, &rotation)
             })
             .collect()
     }
@@ -217,8 +222,8 @@ impl DistillDataset {
         rows.iter().flat_map(|&r| self.samples[r].label).collect()
     }
 
-    /// The data set as bytes (a `frames` frame): capacity, count seen, state length, the tracks
-    /// (JSON), the samples.
+    /// The data set as bytes (a `frames` frame): capacity, count seen, state length, frame
+    /// stack, the tracks (JSON), the samples.
     #[allow(clippy::expect_used, reason = "tracks serialise")]
     pub fn to_bytes(&self) -> Vec<u8> {
         let tracks: Vec<&Track> = self.tracks.iter().map(Arc::as_ref).collect();
@@ -227,14 +232,18 @@ impl DistillDataset {
         body.extend_from_slice(&(self.capacity as u64).to_le_bytes());
         body.extend_from_slice(&self.seen.to_le_bytes());
         body.extend_from_slice(&(self.state_dim as u64).to_le_bytes());
+        body.extend_from_slice(&(self.frame_stack.frames as u64).to_le_bytes());
+        body.extend_from_slice(&(self.frame_stack.stride as u64).to_le_bytes());
         body.extend_from_slice(&(tracks.len() as u64).to_le_bytes());
         body.extend_from_slice(&tracks);
         body.extend_from_slice(&(self.samples.len() as u64).to_le_bytes());
         for (i, s) in self.samples.iter().enumerate() {
             body.extend_from_slice(&s.track.to_le_bytes());
-            body.extend_from_slice(&s.target.to_le_bytes());
-            for v in s.position.iter().chain(&s.attitude) {
-                body.extend_from_slice(&v.to_le_bytes());
+            for frame in &s.frames {
+                body.extend_from_slice(&frame.target.to_le_bytes());
+                for v in frame.position.iter().chain(&frame.attitude) {
+                    body.extend_from_slice(&v.to_le_bytes());
+                }
             }
             frames::put_f32s(&mut body, &self.states[self.state_range(i)]);
             frames::put_f32s(&mut body, &s.label);
@@ -242,13 +251,15 @@ impl DistillDataset {
         DATASET_FRAME.encode(&body)
     }
 
-    /// Reads [`DistillDataset::to_bytes`]' output, or a format-1 data set (written before the
-    /// state length was recorded: SPEC §5's 40 numbers); errors say what is wrong.
+    /// Reads [`DistillDataset::to_bytes`]' output, or a data set of an earlier format (one
+    /// frame a sample; format 1 also without the state length: SPEC §5's 40 numbers); errors
+    /// say what is wrong.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, LearnerError> {
-        let (body, recorded_dim) = match DATASET_FRAME.decode(bytes) {
-            Ok(body) => (body, true),
-            Err(frames::FrameError::UnsupportedFormat { found: 1, .. }) => {
-                (DATASET_FRAME_V1.decode(bytes).map_err(|e| LearnerError::State(e.to_string()))?, false)
+        let (body, format) = match DATASET_FRAME.decode(bytes) {
+            Ok(body) => (body, 3),
+            Err(frames::FrameError::UnsupportedFormat { found: found @ (1 | 2), .. }) => {
+                let kind = if found == 1 { DATASET_FRAME_V1 } else { DATASET_FRAME_V2 };
+                (kind.decode(bytes).map_err(|e| LearnerError::State(e.to_string()))?, found)
             }
             Err(e) => return Err(LearnerError::State(e.to_string())),
         };
@@ -257,39 +268,43 @@ impl DistillDataset {
         let mut r = frames::Reader::new(body, 0);
         let capacity = r.u64().map_err(short)? as usize;
         let seen = r.u64().map_err(short)?;
-        let state_dim = if recorded_dim { r.u64().map_err(short)? as usize } else { STATE_OBS_DIM };
+        let state_dim = if format >= 2 { r.u64().map_err(short)? as usize } else { STATE_OBS_DIM };
+        let frame_stack = match format {
+            3 => FrameStack { frames: r.u64().map_err(short)? as usize, stride: r.u64().map_err(short)? as usize },
+            _ => FrameStack::default(),
+        };
+        frame_stack.check().map_err(bad)?;
         let json_len = r.u64().map_err(short)? as usize;
         let tracks: Vec<Track> = serde_json::from_slice(r.take(json_len).map_err(short)?).map_err(|e| bad(format!("track table: {e}")))?;
         let tracks: Vec<Arc<Track>> = tracks.into_iter().map(Arc::new).collect();
         let count = r.u64().map_err(short)? as usize;
-        let mut samples = Vec::with_capacity(r.capacity_for(count, 8 + 7 * 8 + (state_dim + ACTION_DIM) * 4));
+        let frame_bytes = 4 + 7 * 8;
+        let mut samples = Vec::with_capacity(r.capacity_for(count, 4 + frame_stack.frames * frame_bytes + (state_dim + ACTION_DIM) * 4));
         let mut states = Vec::with_capacity(samples.capacity() * state_dim);
         for i in 0..count {
             let track = r.u32().map_err(short)?;
-            let target = r.u32().map_err(short)?;
-            let mut pose = [0f64; 7];
-            for v in &mut pose {
-                *v = r.f64().map_err(short)?;
+            let gates = tracks.get(track as usize).map(|t| t.gates.len()).ok_or_else(|| bad(format!("sample {i}: no track {track}")))?;
+            let mut frames = Vec::with_capacity(frame_stack.frames);
+            for _ in 0..frame_stack.frames {
+                let target = r.u32().map_err(short)?;
+                if target as usize >= gates {
+                    return Err(bad(format!("sample {i}: target gate {target} of a {gates}-gate track")));
+                }
+                let mut pose = [0f64; 7];
+                for v in &mut pose {
+                    *v = r.f64().map_err(short)?;
+                }
+                frames.push(CameraPose { target, position: [pose[0], pose[1], pose[2]], attitude: [pose[3], pose[4], pose[5], pose[6]] });
             }
             states.extend(r.f32s(state_dim).map_err(short)?);
             let label = r.f32s(ACTION_DIM).map_err(short)?;
-            let gates = tracks.get(track as usize).map(|t| t.gates.len()).ok_or_else(|| bad(format!("sample {i}: no track {track}")))?;
-            if target as usize >= gates {
-                return Err(bad(format!("sample {i}: target gate {target} of a {gates}-gate track")));
-            }
-            samples.push(Sample {
-                track,
-                target,
-                position: [pose[0], pose[1], pose[2]],
-                attitude: [pose[3], pose[4], pose[5], pose[6]],
-                label: std::array::from_fn(|k| label[k]),
-            });
+            samples.push(Sample { track, frames, label: std::array::from_fn(|k| label[k]) });
         }
         if r.remaining() != 0 || samples.len() > capacity.max(1) {
             return Err(bad(format!("{} bytes after {count} samples, capacity {capacity}", r.remaining())));
         }
         let track_index = tracks.iter().enumerate().map(|(i, t)| (Arc::as_ptr(t) as usize, i as u32)).collect();
-        Ok(Self { tracks, track_index, samples, states, state_dim, capacity: capacity.max(1), seen })
+        Ok(Self { tracks, track_index, samples, states, state_dim, frame_stack, capacity: capacity.max(1), seen })
     }
 }
 
@@ -352,6 +367,15 @@ impl Student {
             _ => None,
         };
         let start = widened.as_ref().or(start);
+        // A single-frame vision start learns to see earlier frames as well, the same way: its
+        // first convolution gains zero weights for them.
+        let stacked = match start {
+            Some(blob) if blob.architecture.agent == Agent::Vision && blob.architecture.frame_stack != architecture.frame_stack => {
+                Some(blob.with_frame_stack(architecture.frame_stack).map_err(start_error)?)
+            }
+            _ => None,
+        };
+        let start = stacked.as_ref().or(start);
         if let Some(blob) = start {
             // A vision student's CNN and actor read the image and the proprioception alone, and
             // its critic becomes the teacher's: a start taught in another layout fits.
@@ -372,7 +396,12 @@ impl Student {
                 let teacher_error = |e: policy::BlobError| LearnerError::State(format!("teacher: {e}"));
                 teacher.check_agent(Agent::State).map_err(teacher_error)?;
                 teacher
-                    .check_architecture(&Architecture { agent: Agent::State, vision_previous_action: false, ..architecture.clone() })
+                    .check_architecture(&Architecture {
+                        agent: Agent::State,
+                        vision_previous_action: false,
+                        frame_stack: FrameStack::default(),
+                        ..architecture.clone()
+                    })
                     .map_err(teacher_error)?;
                 let critic = teacher.model(&device).map_err(teacher_error)?.critic;
                 match &mut model {
@@ -483,9 +512,9 @@ impl Student {
                 (StepLoss { imitation: value, gate: None }, Network::State(self.optimizer.step(learning_rate, model, grads)))
             }
             Network::Vision(model) => {
+                assert_eq!(data.frame_stack().frames, model.frames(), "a data set of the frames the student sees");
                 let pixels = data.images(rows);
-                let images = Tensor::<4>::from_data(TensorData::new(pixels_to_unit(&pixels), [n, 1, IMAGE_SIDE, IMAGE_SIDE]), &self.device);
-                let embedding = model.embed(images);
+                let embedding = model.embed(image_tensor(&pixels, data.frame_stack().frames, &self.device));
                 let imitation = squared_error(model.actor_mean_of(embedding.clone(), states));
                 let imitation_value = f64::from(scalar(imitation.clone()));
                 match self.gate_head.take() {
@@ -495,7 +524,9 @@ impl Student {
                         (StepLoss { imitation: imitation_value, gate: None }, Network::Vision(model))
                     }
                     Some((head, weight)) => {
-                        let mask: Vec<f32> = pixels.chunks_exact(IMAGE_PIXELS).flat_map(shown_mask).collect();
+                        // The head places the gates of the current frame, each observation's first.
+                        let observation = data.frame_stack().image_len();
+                        let mask: Vec<f32> = pixels.chunks_exact(observation).flat_map(|o| shown_mask(&o[..IMAGE_PIXELS])).collect();
                         // Mean over the numbers scored, so the weight does not depend on how
                         // often gates are in view.
                         let scored = mask.iter().sum::<f32>().max(1.0);
@@ -524,6 +555,7 @@ mod tests {
     use super::*;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
+    use sim::nalgebra::Vector3;
     use sim::{Controller, EnvConfig, Gate};
 
     fn track() -> Arc<Track> {
@@ -535,7 +567,7 @@ mod tests {
     fn the_reservoir_keeps_its_cap_and_a_uniform_sample_and_the_bytes_round_trip() {
         // Line points make the state longer than SPEC §5's; the data set keeps whatever it is given.
         let layout = sim::ObservationLayout { line_points: 3, ..sim::ObservationLayout::spec(sim::ObservationFrame::Heading) };
-        let mut data = DistillDataset::new(100, layout.dim());
+        let mut data = DistillDataset::new(100, layout.dim(), FrameStack::default());
         let mut rng = ChaCha8Rng::seed_from_u64(0);
         let mut env = RaceEnv::new(track(), EnvConfig::default(), 0, 0);
         let mut offered = Vec::new();
@@ -571,7 +603,7 @@ mod tests {
 
     #[test]
     fn a_sample_renders_the_image_its_environment_showed() {
-        let mut data = DistillDataset::new(10, STATE_OBS_DIM);
+        let mut data = DistillDataset::new(10, STATE_OBS_DIM, FrameStack::default());
         let mut env = RaceEnv::new(track(), EnvConfig::default(), 3, 1);
         for _ in 0..20 {
             env.step(&[0.2, 0.1, 0.0, 0.3]);
@@ -584,16 +616,70 @@ mod tests {
     }
 
     #[test]
-    fn a_format_1_data_set_still_reads_as_40_number_states() {
-        let mut data = DistillDataset::new(10, STATE_OBS_DIM);
+    fn format_1_and_2_data_sets_still_read_as_single_frames() {
+        let mut data = DistillDataset::new(10, STATE_OBS_DIM, FrameStack::default());
         let env = RaceEnv::new(track(), EnvConfig::default(), 3, 1);
         let state: Vec<f32> = (0..STATE_OBS_DIM).map(|i| i as f32).collect();
         data.offer(&env, &state, &[0.5; 4], &mut ChaCha8Rng::seed_from_u64(0));
-        // Format 1 is format 2 without the state length (the third u64 of the body).
+        // Format 2 is format 3 of single frames without the frame stack (the fourth and fifth
+        // u64 of the body), format 1 is format 2 without the state length (the third).
         let body = DATASET_FRAME.decode(&data.to_bytes()).unwrap().to_vec();
-        let v1 = DATASET_FRAME_V1.encode(&[&body[..16], &body[24..]].concat());
-        let back = DistillDataset::from_bytes(&v1).unwrap();
-        assert_eq!((back.state_dim(), back.states(&[0]), back.labels(&[0])), (STATE_OBS_DIM, state, vec![0.5; 4]));
+        let v2 = DATASET_FRAME_V2.encode(&[&body[..24], &body[40..]].concat());
+        let v1 = DATASET_FRAME_V1.encode(&[&body[..16], &body[40..]].concat());
+        for earlier in [v1, v2] {
+            let back = DistillDataset::from_bytes(&earlier).unwrap();
+            assert_eq!((back.state_dim(), back.states(&[0]), back.labels(&[0])), (STATE_OBS_DIM, state.clone(), vec![0.5; 4]));
+            assert_eq!((back.frame_stack(), back.images(&[0])), (FrameStack::default(), data.images(&[0])));
+        }
+    }
+
+    #[test]
+    fn a_stacked_frame_data_set_renders_each_samples_earlier_frames_and_a_stacked_student_learns_from_them() {
+        let arch = Architecture { hidden: vec![16, 16], ..Architecture::paper() };
+        let teacher = WeightsBlob::from_model(
+            1,
+            &arch,
+            &ObsNormalizer::new(arch.observation_dim),
+            &policy::ActorCritic::new(&arch, -0.5, 7, &Device::flex()),
+        );
+        let stack = FrameStack { frames: 3, stride: 2 };
+        let mut data = DistillDataset::new(64, arch.observation_dim, stack);
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let mut env = RaceEnv::new(track(), EnvConfig::default(), 1, 0);
+        let mut camera = CameraHistory::new(stack);
+        camera.restart(CameraPose::of(&env));
+        let mut shown = Vec::new();
+        for step in 0..24 {
+            let mut image = vec![0u8; IMAGE_PIXELS];
+            env.render_camera(&mut image);
+            shown.push(image);
+            let labelled = data.label(&env, &camera, &env.observation_in(arch.observation_layout()), &[step as f32 / 24.0, 0.5, 0.0, -0.5]);
+            data.offer_labelled(labelled, &mut rng);
+            env.step(&[0.3, 0.2, -0.1, 0.2]);
+            camera.record(CameraPose::of(&env));
+        }
+        assert_eq!(data.images(&[10]), [&shown[10][..], &shown[8], &shown[6]].concat(), "the frames of steps 10, 8 and 6");
+        assert_eq!(data.images(&[1]), [&shown[1][..], &shown[0], &shown[0]].concat(), "the first frame stands in before it");
+        let back = DistillDataset::from_bytes(&data.to_bytes()).unwrap();
+        let rows: Vec<usize> = (0..data.len()).collect();
+        assert_eq!((back.frame_stack(), back.images(&rows)), (stack, data.images(&rows)), "the frames round-trip");
+
+        // A stacked student started from a single-frame one acts as it did, then learns.
+        let vision_arch = Architecture { agent: Agent::Vision, ..arch.clone() };
+        let single = Student::new(&vision_arch, Some(&teacher), None, 0.0, 2).unwrap().weights();
+        let stacked_arch = Architecture { frame_stack: stack, ..vision_arch };
+        let mut student = Student::new(&stacked_arch, Some(&teacher), Some(&single), 0.0, 3).unwrap();
+        let (images, states) = (data.images(&rows), data.states(&rows));
+        let current: Vec<u8> = images.chunks_exact(stack.image_len()).flat_map(|o| o[..IMAGE_PIXELS].to_vec()).collect();
+        let act = |blob: &WeightsBlob, images: &[u8]| policy::VisionPolicy::from_blob(blob).unwrap().mean_actions(images, &states);
+        assert_eq!(act(&student.weights(), &images), act(&single, &current));
+        let first = student.train_step(&data, &rows, 1e-3).imitation;
+        let mut last = first;
+        for _ in 0..40 {
+            last = student.train_step(&data, &rows, 1e-3).imitation;
+        }
+        assert!(last < 0.5 * first, "loss {first} → {last}");
+        assert_eq!(student.weights().architecture.frame_stack, stack);
     }
 
     #[test]
@@ -603,7 +689,7 @@ mod tests {
         let teacher_net = policy::ActorCritic::new(&arch, -0.5, 7, &Device::flex());
         let teacher = WeightsBlob::from_model(1, &arch, &ObsNormalizer::new(arch.observation_dim), &teacher_net);
         let teacher_policy = policy::Policy::from_blob(&teacher).unwrap();
-        let mut data = DistillDataset::new(64, arch.observation_dim);
+        let mut data = DistillDataset::new(64, arch.observation_dim, FrameStack::default());
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let mut env = RaceEnv::new(track(), EnvConfig::default(), 1, 0);
         for _ in 0..32 {
@@ -650,7 +736,7 @@ mod tests {
         let arch = Architecture { hidden: vec![16, 16], ..Architecture::paper() };
         let teacher_net = policy::ActorCritic::new(&arch, -0.5, 7, &Device::flex());
         let teacher = WeightsBlob::from_model(1, &arch, &ObsNormalizer::new(arch.observation_dim), &teacher_net);
-        let mut data = DistillDataset::new(64, arch.observation_dim);
+        let mut data = DistillDataset::new(64, arch.observation_dim, FrameStack::default());
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let mut env = RaceEnv::new(track(), EnvConfig::default(), 1, 0);
         for _ in 0..32 {
@@ -719,7 +805,7 @@ mod tests {
         let mut pilot = sim::ReferencePilot::default();
         pilot.reset(&env);
         let mut student = Student::new(&arch, None, None, -0.5, 3).unwrap();
-        let mut data = DistillDataset::new(256, arch.observation_dim);
+        let mut data = DistillDataset::new(256, arch.observation_dim, FrameStack::default());
         let mut rng = ChaCha8Rng::seed_from_u64(4);
         let mut shown = Vec::new();
         for _ in 0..128 {

@@ -119,6 +119,13 @@ impl Learner {
     /// fine-tune may change `gate_sight`: the gate corners mean the same, only when they are
     /// shown changes.
     pub fn from_policy(profile: Profile, total_env_steps: u64, seed: u64, blob: &WeightsBlob) -> Result<Self, LearnerError> {
+        if !blob.architecture.frame_stack.is_single() {
+            // PPO's actors send one camera image a step; stacked frames are distillation's.
+            return Err(LearnerError::State(format!(
+                "the policy sees {} camera frames; PPO trains policies that see one (stacked frames are for distillation)",
+                blob.architecture.frame_stack.frames
+            )));
+        }
         let expected = Architecture { gate_sight: blob.architecture.gate_sight, ..profile.architecture.clone() };
         blob.check_architecture(&expected).map_err(|e| LearnerError::State(e.to_string()))?;
         let mut learner = Self::new(profile, total_env_steps, seed);
@@ -307,5 +314,17 @@ mod tests {
         assert!(tuned.params.iter().zip(&blob.params).all(|(a, b)| a.values == b.values));
         let wider = Architecture { hidden: vec![64, 64], ..camera };
         assert!(Learner::from_policy(profile(wider), 1000, 0, &blob).is_err(), "other shapes are still refused");
+    }
+
+    #[test]
+    fn ppo_refuses_a_policy_that_sees_stacked_frames_naming_them() {
+        let vision = Architecture { agent: Agent::Vision, ..Architecture::cpu() };
+        let net = policy::vision::VisionActorCritic::new(&vision, 0.0, 1, &Device::flex());
+        let single = WeightsBlob::from_vision_model(1, &vision, &ObsNormalizer::new(vision.observation_dim), &net);
+        let profile = Profile { architecture: vision, ..Profile::cpu() };
+        assert!(Learner::from_policy(profile.clone(), 1000, 0, &single).is_ok());
+        let stacked = single.with_frame_stack(sim::FrameStack { frames: 4, stride: 8 }).unwrap();
+        let err = Learner::from_policy(profile, 1000, 0, &stacked).err().unwrap().to_string();
+        assert!(err.contains("4 camera frames"), "{err}");
     }
 }

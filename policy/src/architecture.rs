@@ -78,6 +78,10 @@ pub struct Architecture {
     /// depend on the previous action its observation holds. Left out of blobs when false.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub vision_previous_action: bool,
+    /// The camera frames a vision actor sees (beyond SPEC §5's one: earlier frames too, so it
+    /// remembers gates that left the image). Left out of blobs when it is the single frame.
+    #[serde(default, skip_serializing_if = "sim::FrameStack::is_single")]
+    pub frame_stack: sim::FrameStack,
 }
 
 /// True for SPEC's gate sight, which blobs leave out.
@@ -124,6 +128,7 @@ impl Architecture {
             agent: Agent::State,
             privileged_critic: false,
             vision_previous_action: false,
+            frame_stack: sim::FrameStack::default(),
         }
     }
 

@@ -140,6 +140,33 @@ impl WeightsBlob {
         Ok(widened)
     }
 
+    /// This single-frame vision policy seeing the frames of `stack`
+    /// ([`Architecture::frame_stack`]): the first convolution gains zero weights for the
+    /// earlier frames, so it acts exactly as before until it is trained further.
+    pub fn with_frame_stack(&self, stack: sim::FrameStack) -> Result<Self, BlobError> {
+        self.check_agent(Agent::Vision)?;
+        let found = self.architecture.frame_stack;
+        if found == stack {
+            return Ok(self.clone());
+        }
+        if !found.is_single() {
+            return Err(BlobError::Malformed(format!("a policy seeing {} frames cannot be made to see {}", found.frames, stack.frames)));
+        }
+        let mut widened = self.clone();
+        widened.architecture.frame_stack = stack;
+        // The first parameter is the first convolution's weight, `[out, 1, k, k]` row-major:
+        // each output channel's kernel is followed by zero kernels for the earlier frames.
+        let weight = widened.params.first_mut().ok_or_else(|| BlobError::Malformed("no parameters".into()))?;
+        let &[out, 1, k, k2] = weight.shape.as_slice() else {
+            return Err(BlobError::Malformed(format!("first convolution's weight has shape {:?}", weight.shape)));
+        };
+        let kernel = k * k2;
+        weight.values = weight.values.chunks_exact(kernel).flat_map(|w| w.iter().copied().chain(std::iter::repeat_n(0.0, (stack.frames - 1) * kernel))).collect();
+        weight.shape = vec![out, stack.frames, k, k2];
+        crate::network::check_shapes(&Self::shapes(&widened.architecture), &widened.params).map_err(BlobError::Malformed)?;
+        Ok(widened)
+    }
+
     /// Parameter shapes of `architecture`, in export order.
     fn shapes(architecture: &Architecture) -> Vec<Vec<usize>> {
         match architecture.agent {

@@ -9,7 +9,7 @@
 //! show (no pixel of its colour) is not scored: nothing in the image says where it is.
 
 use burn::module::Module;
-use burn::tensor::{Device, Tensor, TensorData};
+use burn::tensor::{Device, Tensor};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use sim::Track;
@@ -17,9 +17,8 @@ use sim::camera::{NEXT_COLOUR, TARGET_COLOUR};
 use sim::nalgebra::{Matrix3, Vector3};
 
 use crate::network::{ExportedParam, Mlp, check_shapes};
-use crate::pixels_to_unit;
 use crate::safetensors::{self, TensorFile};
-use crate::vision::{EMBEDDING, IMAGE_SIDE, VisionActorCritic};
+use crate::vision::{EMBEDDING, VisionActorCritic, image_tensor};
 
 /// Numbers predicted per gate: 4 corners × 3, then the log distance.
 pub const PER_GATE: usize = 13;
@@ -48,12 +47,11 @@ impl GateHead {
         self.layer.forward(embedding)
     }
 
-    /// Predictions (`GATE_TARGETS` per image) for camera images (84 × 84 bytes each) seen
-    /// through `model`'s CNN: for analyses of a trained student.
+    /// Predictions (`GATE_TARGETS` per observation) for camera observations (84 × 84 bytes
+    /// per frame of `model`'s) seen through `model`'s CNN: for analyses of a trained student.
     #[allow(clippy::expect_used, reason = "float outputs")]
     pub fn predict(&self, model: &VisionActorCritic, images: &[u8], device: &Device) -> Vec<f32> {
-        let n = images.len() / (IMAGE_SIDE * IMAGE_SIDE);
-        let images = Tensor::<4>::from_data(TensorData::new(pixels_to_unit(images), [n, 1, IMAGE_SIDE, IMAGE_SIDE]), device);
+        let images = image_tensor(images, model.frames(), device);
         self.forward(model.embed(images)).into_data().try_to_vec::<f32>().expect("float outputs")
     }
 

@@ -7,12 +7,12 @@ use burn::module::Module;
 use burn::tensor::{Device, Tensor, TensorData};
 use rand::Rng;
 use rand_distr::StandardNormal;
-use sim::{Controller, RaceEnv};
+use sim::{CameraHistory, CameraPose, Controller, RaceEnv};
 
 use crate::blob::{BlobError, WeightsBlob};
 use crate::network::ActorCritic;
 use crate::normalizer::ObsNormalizer;
-use crate::vision::{IMAGE_SIDE, VisionActorCritic};
+use crate::vision::{VisionActorCritic, image_tensor};
 
 /// ln(2π) / 2, the normalising constant of a Gaussian log-density per dimension.
 pub const HALF_LN_2PI: f64 = 0.918_938_533_204_672_8;
@@ -151,6 +151,8 @@ pub struct VisionPolicy {
     normalizer: ObsNormalizer,
     log_std: Vec<f32>,
     layout: sim::ObservationLayout,
+    /// The camera frames it sees.
+    frame_stack: sim::FrameStack,
     version: u64,
     device: Device,
 }
@@ -162,7 +164,8 @@ impl VisionPolicy {
         let model = blob.vision_model(&device)?.valid();
         let log_std = blob.params.last().map(|p| p.values.clone()).unwrap_or_default();
         let layout = blob.architecture.observation_layout();
-        Ok(Self { model, normalizer: blob.normalizer.clone(), log_std, layout, version: blob.version, device })
+        let frame_stack = blob.architecture.frame_stack;
+        Ok(Self { model, normalizer: blob.normalizer.clone(), log_std, layout, frame_stack, version: blob.version, device })
     }
 
     /// Policy version this was built from.
@@ -175,8 +178,13 @@ impl VisionPolicy {
         self.layout
     }
 
-    /// Action means of a batch: `n` camera images (`n × 84 × 84` bytes, as the renderer writes
-    /// them) and their raw state observations (`n × 40`, in the policy's frame; their
+    /// The camera frames it sees: each of its observations is that many images.
+    pub fn frame_stack(&self) -> sim::FrameStack {
+        self.frame_stack
+    }
+
+    /// Action means of a batch: `n` camera observations (`n × frames × 84 × 84` bytes, as the
+    /// renderer writes them, current frame first) and their raw state observations (`n × 40`, in the policy's frame; their
     /// proprioceptive part feeds the actor), one row of means per image.
     #[allow(clippy::expect_used, reason = "float outputs")]
     pub fn mean_actions(&self, images: &[u8], raw_states: &[f32]) -> Vec<f32> {
@@ -214,12 +222,11 @@ impl VisionPolicy {
         Tensor::<2>::from_data(TensorData::new(states, [raw_states.len() / dim, dim]), &self.device)
     }
 
-    /// The network's inputs: images `[n, 1, 84, 84]` in [0, 1] and normalised states.
+    /// The network's inputs: images `[n, frames, 84, 84]` in [0, 1] and normalised states.
     fn inputs(&self, images: &[u8], raw_states: &[f32]) -> (Tensor<4>, Tensor<2>) {
         let n = raw_states.len() / self.normalizer.dim();
-        assert_eq!(images.len(), n * IMAGE_SIDE * IMAGE_SIDE, "one image per state row");
-        let images = Tensor::<4>::from_data(TensorData::new(pixels_to_unit(images), [n, 1, IMAGE_SIDE, IMAGE_SIDE]), &self.device);
-        (images, self.states(raw_states))
+        assert_eq!(images.len(), n * self.frame_stack.image_len(), "one camera observation per state row");
+        (image_tensor(images, self.frame_stack.frames, &self.device), self.states(raw_states))
     }
 }
 
@@ -297,24 +304,30 @@ pub fn pixels_to_unit(image: &[u8]) -> Vec<f32> {
 }
 
 /// Flies a [`RaceEnv`] with a vision policy's deterministic mean action: renders the camera
-/// every step (SPEC §5), as evaluation of a vision agent needs.
+/// every step (SPEC §5), as evaluation of a vision agent needs, and the earlier frames a
+/// stacked-frame policy sees from the poses it remembers.
 pub struct VisionPolicyController {
     policy: Arc<VisionPolicy>,
+    camera: CameraHistory,
     image: Vec<u8>,
 }
 
 impl VisionPolicyController {
     /// A controller sharing `policy`.
     pub fn new(policy: Arc<VisionPolicy>) -> Self {
-        Self { policy, image: vec![0; sim::camera::IMAGE_PIXELS] }
+        let stack = policy.frame_stack();
+        Self { policy, camera: CameraHistory::new(stack), image: vec![0; stack.image_len()] }
     }
 }
 
 impl Controller for VisionPolicyController {
-    fn reset(&mut self, _env: &RaceEnv) {}
+    fn reset(&mut self, env: &RaceEnv) {
+        self.camera.restart(CameraPose::of(env));
+    }
 
     fn act(&mut self, env: &RaceEnv) -> [f32; 4] {
-        env.render_camera(&mut self.image);
+        self.camera.record(CameraPose::of(env));
+        self.camera.render(env.track(), &mut self.image);
         let action = self.policy.deterministic_actions(&self.image, &env.observation_in(self.policy.layout));
         std::array::from_fn(|i| action[i])
     }

@@ -27,7 +27,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sim::{
-    ACTION_DIM, Controller, EnvConfig, ObservationLayout, PilotMemory, PilotParams, RaceEnv, RandomizationParams, ReferencePilot,
+    ACTION_DIM, CameraHistory, CameraPose, Controller, EnvConfig, FrameStack, ObservationLayout, PilotMemory, PilotParams, RaceEnv, RandomizationParams, ReferencePilot,
     RewardParams, VecEnv,
 };
 use taskctl::{LocalTasks, SwitchParams, TaskController, TaskService};
@@ -96,6 +96,11 @@ pub struct DistillConfig {
     /// previous action"), so a student without it cannot copy them. A start (`init_from`)
     /// without it is widened with zero weights. Default false.
     pub previous_action: bool,
+    /// The camera frames the vision student sees: the current one and `frames − 1` earlier
+    /// ones, `stride` steps apart (beyond SPEC §5's one: a memory of gates that left the image;
+    /// BENCHMARKS.md, "Stacked frames"). A single-frame start (`init_from`) is widened with
+    /// zero weights. Default one frame.
+    pub frame_stack: FrameStack,
     /// The student's log standard deviation, for vision PPO started from it (SPEC §10 VB: 0).
     pub initial_log_std: f64,
     /// Start the student's CNN and actor from this vision policy (checkpoint or blob of the
@@ -148,6 +153,7 @@ impl Default for DistillConfig {
             updates_per_round: 160,
             minibatch: 64,
             previous_action: false,
+            frame_stack: FrameStack::default(),
             learning_rate: 5e-4,
             initial_log_std: 0.0,
             init_from: None,
@@ -231,6 +237,11 @@ impl DistillConfig {
             !self.previous_action || self.student == Agent::Vision,
             "previous_action: only a vision student's actor is limited to proprioception; a state student reads the whole observation"
         );
+        self.frame_stack.check().map_err(anyhow::Error::msg)?;
+        ensure!(
+            self.frame_stack.is_single() || self.student == Agent::Vision,
+            "frame_stack: only a vision student sees camera frames; a state student reads the whole observation"
+        );
         Ok(())
     }
 }
@@ -289,6 +300,10 @@ struct Progress {
     /// The pilots' memories when the pilot teaches (one per environment).
     #[serde(default)]
     pilots: Vec<Option<PilotMemory>>,
+    /// The environments' camera histories (checkpoints before frame stacks have none: single
+    /// frames, which the environments' states give again).
+    #[serde(default)]
+    cameras: Vec<CameraHistory>,
 }
 
 /// Who labels the visited states.
@@ -324,6 +339,8 @@ pub struct Distiller {
     student: Student,
     data: DistillDataset,
     env: VecEnv,
+    /// Each environment's recent camera poses: the frames the student sees and the samples hold.
+    cameras: Vec<CameraHistory>,
     tasks: LocalTasks,
     progress: Progress,
     checkpoints: CheckpointDir,
@@ -368,7 +385,12 @@ impl Distiller {
                 }
                 // The teacher's observation is the student's state input and its critic's.
                 config.env.set_observation_layout(blob.architecture.observation_layout());
-                Architecture { agent: config.student, vision_previous_action: config.previous_action, ..blob.architecture.clone() }
+                Architecture {
+                    agent: config.student,
+                    vision_previous_action: config.previous_action,
+                    frame_stack: config.frame_stack,
+                    ..blob.architecture.clone()
+                }
             }
             None => {
                 let mut architecture = learner::config::Profile::cpu().architecture;
@@ -376,13 +398,19 @@ impl Distiller {
                     architecture.hidden = hidden.clone();
                 }
                 architecture.set_observation_layout(config.env.observation_layout());
-                Architecture { agent: config.student, vision_previous_action: config.previous_action, ..architecture }
+                Architecture {
+                    agent: config.student,
+                    vision_previous_action: config.previous_action,
+                    frame_stack: config.frame_stack,
+                    ..architecture
+                }
             }
         };
         config.write(&dir.join("config.toml"))?;
         let tasks = LocalTasks::new(config.tracks.task_controller(config.envs, config.generator, config.switching, config.seed)?, None);
         let registration = tasks.register(ACTOR, config.envs)?;
-        let env = with_images(VecEnv::new(registration.tracks, config.env, config.seed), config.student);
+        let env = VecEnv::new(registration.tracks, config.env, config.seed);
+        let cameras = fresh_cameras(&env, config.frame_stack);
         let start = match &config.init_from {
             Some(path) => Some(read_policy(path).with_context(|| format!("init_from {}", path.display()))?),
             None => None,
@@ -400,13 +428,14 @@ impl Distiller {
             rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0xDA66_E400),
             envs: Vec::new(),
             pilots: Vec::new(),
+            cameras: Vec::new(),
         };
         let teacher_bytes = teacher_blob.as_ref().map(WeightsBlob::to_bytes);
         let mut data = match &config.dataset_from {
-            None => DistillDataset::new(config.capacity, architecture.observation_dim),
+            None => DistillDataset::new(config.capacity, architecture.observation_dim, config.frame_stack),
             Some(run) => {
                 let labelled_by = if config.relabel { LabelledBy::Any } else { LabelledBy::Teacher(teacher_bytes.as_deref()) };
-                earlier_dataset(run, labelled_by, architecture.observation_layout())
+                earlier_dataset(run, labelled_by, architecture.observation_layout(), config.frame_stack)
                     .with_context(|| format!("dataset_from {}", run.display()))?
             }
         };
@@ -422,7 +451,7 @@ impl Distiller {
         }
         let (metrics, validator) = Self::around(&config, dir)?;
         let dir = dir.to_path_buf();
-        Ok(Self { config, dir, teacher, student, data, env, tasks, progress, checkpoints, metrics, validator })
+        Ok(Self { config, dir, teacher, student, data, env, cameras, tasks, progress, checkpoints, metrics, validator })
     }
 
     /// Continues the distillation in `dir` from its newest checkpoint.
@@ -440,7 +469,19 @@ impl Distiller {
         let mut progress: Progress =
             serde_json::from_slice(section("distiller")?).with_context(|| format!("{}: distiller section", path.display()))?;
         let tasks = LocalTasks::new(TaskController::from_snapshot_bytes(section("taskctl")?, &path)?, None);
-        let env = with_images(VecEnv::from_envs(std::mem::take(&mut progress.envs)), config.student);
+        let env = VecEnv::from_envs(std::mem::take(&mut progress.envs));
+        let cameras = match std::mem::take(&mut progress.cameras) {
+            cameras if cameras.is_empty() => fresh_cameras(&env, config.frame_stack),
+            cameras => cameras,
+        };
+        ensure!(
+            cameras.len() == env.len() && cameras.iter().all(|c| c.stack() == config.frame_stack),
+            "{}: {} camera histories for {} environments, not all of frame stack {:?}",
+            path.display(),
+            cameras.len(),
+            env.len(),
+            config.frame_stack
+        );
         let teacher = match config.pilot_teaches() {
             false => {
                 let bytes = section("teacher")?.to_vec();
@@ -463,7 +504,7 @@ impl Distiller {
         };
         let (metrics, validator) = Self::around(&config, dir)?;
         let dir = dir.to_path_buf();
-        Ok(Self { config, dir, teacher, student, data, env, tasks, progress, checkpoints, metrics, validator })
+        Ok(Self { config, dir, teacher, student, data, env, cameras, tasks, progress, checkpoints, metrics, validator })
     }
 
     /// What start and resume build alike from the config: the metrics files and the validator.
@@ -575,15 +616,25 @@ impl Distiller {
         let mut flight = Flight::default();
         let margin = self.config.crash_margin;
         let mut held: Vec<VecDeque<LabelledState>> = (0..n).map(|_| VecDeque::with_capacity(margin + 1)).collect();
+        let sees_images = self.config.student == Agent::Vision;
+        let mut images = vec![0u8; if sees_images { n * self.config.frame_stack.image_len() } else { 0 }];
         for _ in 0..self.config.steps_per_round {
             let labels = self.teacher.labels(&self.env);
-            let student_actions = student.as_ref().map(|s| s.deterministic_actions(&self.env.observations, &self.env.images));
+            if sees_images {
+                let envs = self.env.envs();
+                images
+                    .par_chunks_mut(self.config.frame_stack.image_len())
+                    .zip(self.cameras.par_iter())
+                    .enumerate()
+                    .for_each(|(i, (out, camera))| camera.render(envs[i].track(), out));
+            }
+            let student_actions = student.as_ref().map(|s| s.deterministic_actions(&self.env.observations, &images));
             self.student.observe(&self.env.observations);
             let mut actions = labels.clone();
             for (i, held) in held.iter_mut().enumerate() {
                 let state = &self.env.observations[i * dim..(i + 1) * dim];
                 let rows = i * ACTION_DIM..(i + 1) * ACTION_DIM;
-                held.push_back(self.data.label(&self.env.envs()[i], state, &labels[rows.clone()]));
+                held.push_back(self.data.label(&self.env.envs()[i], &self.cameras[i], state, &labels[rows.clone()]));
                 if held.len() > margin {
                     self.data.offer_labelled(held.pop_front().context("one state held at least")?, &mut self.progress.rng);
                 }
@@ -600,10 +651,14 @@ impl Distiller {
                 }
             }
             self.env.step(&actions);
+            for (camera, env) in self.cameras.iter_mut().zip(self.env.envs()) {
+                camera.record(CameraPose::of(env));
+            }
             for (total, r) in rewards.iter_mut().zip(&self.env.rewards) {
                 *total += f64::from(*r);
             }
             for f in &self.env.finished {
+                self.cameras[f.env].restart(CameraPose::of(&self.env.envs()[f.env]));
                 self.teacher.episode_started(f.env, &self.env);
                 flight.episodes += 1;
                 flight.laps += u64::from(f.stats.laps);
@@ -619,6 +674,7 @@ impl Distiller {
         }
         for (env, track) in self.tasks.report(ACTOR, self.progress.rollout, &rewards)? {
             self.env.set_track(env, track);
+            self.cameras[env].restart(CameraPose::of(&self.env.envs()[env]));
             self.teacher.episode_started(env, &self.env);
         }
         self.progress.rollout += 1;
@@ -656,8 +712,10 @@ impl Distiller {
         c.put("dataset", self.data.to_bytes());
         c.put("taskctl", self.tasks.read(TaskController::to_snapshot_bytes));
         self.progress.envs = self.env.envs().to_vec();
+        self.progress.cameras = self.cameras.clone();
         c.put("distiller", serde_json::to_vec(&self.progress).expect("environments and counters serialise"));
         self.progress.envs.clear();
+        self.progress.cameras.clear();
         self.progress.pilots.clear();
         Ok(self.checkpoints.save(&c, self.progress.round)?)
     }
@@ -682,8 +740,8 @@ enum LabelledBy<'a> {
 }
 
 /// The data set of the distillation run in `run` (its newest checkpoint), checked to hold
-/// labels as `labelled_by` asks on states of `layout`.
-fn earlier_dataset(run: &Path, labelled_by: LabelledBy, layout: ObservationLayout) -> anyhow::Result<DistillDataset> {
+/// labels as `labelled_by` asks on states of `layout` and the camera frames of `frame_stack`.
+fn earlier_dataset(run: &Path, labelled_by: LabelledBy, layout: ObservationLayout, frame_stack: FrameStack) -> anyhow::Result<DistillDataset> {
     let (config, _, path, c) = newest_checkpoint(run)?;
     let state_dim = layout.dim();
     let section = |name: &str| c.get(name).with_context(|| format!("{}", path.display()));
@@ -705,15 +763,25 @@ fn earlier_dataset(run: &Path, labelled_by: LabelledBy, layout: ObservationLayou
         path.display(),
         data.state_dim()
     );
+    ensure!(
+        data.frame_stack() == frame_stack,
+        "{}: its samples hold the camera frames of {:?}; this student sees {frame_stack:?}",
+        path.display(),
+        data.frame_stack()
+    );
     Ok(data)
 }
 
-/// `env`, rendering camera images when the student sees them.
-fn with_images(env: VecEnv, student: Agent) -> VecEnv {
-    match student {
-        Agent::Vision => env.with_images(),
-        Agent::State => env,
-    }
+/// A camera history of `stack` for each of `env`'s environments, starting at its current pose.
+fn fresh_cameras(env: &VecEnv, stack: FrameStack) -> Vec<CameraHistory> {
+    env.envs()
+        .iter()
+        .map(|e| {
+            let mut camera = CameraHistory::new(stack);
+            camera.restart(CameraPose::of(e));
+            camera
+        })
+        .collect()
 }
 
 /// The progress line of one round.

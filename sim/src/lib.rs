@@ -3,6 +3,7 @@
 
 pub mod camera;
 pub mod eval;
+pub mod frame_stack;
 pub mod mirror;
 pub mod observation;
 pub mod params;
@@ -17,6 +18,7 @@ pub mod seed;
 pub mod track;
 pub mod vec_env;
 
+pub use frame_stack::{CameraHistory, CameraPose, FrameStack};
 pub use mirror::{ACTION_MIRROR_SIGNS, ObservationMirror};
 pub use nalgebra;
 pub use observation::{
