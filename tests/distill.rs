@@ -239,7 +239,8 @@ fn a_student_that_reads_its_previous_action_continues_an_earlier_runs_data_set()
     let stack = sim::FrameStack { frames: 3, stride: 4 };
     let err = Distiller::start(DistillConfig { frame_stack: stack, ..config() }, &dir.path().join("stacked")).err().unwrap();
     assert!(format!("{err:#}").contains("camera frames"), "{err:#}");
-    let stacked = Distiller::start(DistillConfig { frame_stack: stack, dataset_from: None, ..config() }, &dir.path().join("stacked-new")).unwrap();
+    let stacked =
+        Distiller::start(DistillConfig { frame_stack: stack, dataset_from: None, ..config() }, &dir.path().join("stacked-new")).unwrap();
     assert_eq!(stacked.student().architecture.frame_stack, stack, "the single-frame start is widened");
 }
 

@@ -161,7 +161,11 @@ impl WeightsBlob {
             return Err(BlobError::Malformed(format!("first convolution's weight has shape {:?}", weight.shape)));
         };
         let kernel = k * k2;
-        weight.values = weight.values.chunks_exact(kernel).flat_map(|w| w.iter().copied().chain(std::iter::repeat_n(0.0, (stack.frames - 1) * kernel))).collect();
+        weight.values = weight
+            .values
+            .chunks_exact(kernel)
+            .flat_map(|w| w.iter().copied().chain(std::iter::repeat_n(0.0, (stack.frames - 1) * kernel)))
+            .collect();
         weight.shape = vec![out, stack.frames, k, k2];
         crate::network::check_shapes(&Self::shapes(&widened.architecture), &widened.params).map_err(BlobError::Malformed)?;
         Ok(widened)

@@ -235,18 +235,18 @@ impl VisionPolicy {
 /// proprioceptive part; both critics read the state.
 #[derive(Debug)]
 pub enum ActingPolicy {
-    /// State-based.
-    State(Policy),
+    /// State-based (boxed, as the vision one: the two differ much in size).
+    State(Box<Policy>),
     /// Vision-based.
-    Vision(VisionPolicy),
+    Vision(Box<VisionPolicy>),
 }
 
 impl ActingPolicy {
     /// The policy of `blob`, by the agent it records.
     pub fn from_blob(blob: &WeightsBlob) -> Result<Self, BlobError> {
         Ok(match blob.architecture.agent {
-            crate::Agent::State => Self::State(Policy::from_blob(blob)?),
-            crate::Agent::Vision => Self::Vision(VisionPolicy::from_blob(blob)?),
+            crate::Agent::State => Self::State(Box::new(Policy::from_blob(blob)?)),
+            crate::Agent::Vision => Self::Vision(Box::new(VisionPolicy::from_blob(blob)?)),
         })
     }
 

@@ -60,8 +60,6 @@ pub struct VisionActorCritic {
     negative_slope: f64,
     /// How many of the state observation's first numbers the actor reads ([`actor_state_len`]).
     actor_state_len: usize,
-    /// Camera frames per observation: the first convolution's input channels.
-    frames: usize,
 }
 
 impl VisionActorCritic {
@@ -102,13 +100,12 @@ impl VisionActorCritic {
             log_std: parameter(vec![initial_log_std as f32; arch.action_dim], [arch.action_dim], device),
             negative_slope: slope,
             actor_state_len: actor_state_len(arch),
-            frames: arch.frame_stack.frames,
         }
     }
 
     /// Camera frames per observation (the first convolution's input channels).
     pub fn frames(&self) -> usize {
-        self.frames
+        self.convolutions.first().map_or(1, |conv| conv.weight.dims()[1])
     }
 
     /// Embeddings `[batch, 128]` of images `[batch, frames, 84, 84]` scaled to [0, 1] (one
@@ -225,7 +222,6 @@ impl VisionActorCritic {
             log_std: loaded(&log_std[0], device),
             negative_slope: arch.negative_slope,
             actor_state_len: actor_state_len(arch),
-            frames: arch.frame_stack.frames,
         })
     }
 

@@ -27,8 +27,8 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sim::{
-    ACTION_DIM, CameraHistory, CameraPose, Controller, EnvConfig, FrameStack, ObservationLayout, PilotMemory, PilotParams, RaceEnv, RandomizationParams, ReferencePilot,
-    RewardParams, VecEnv,
+    ACTION_DIM, CameraHistory, CameraPose, Controller, EnvConfig, FrameStack, ObservationLayout, PilotMemory, PilotParams, RaceEnv,
+    RandomizationParams, ReferencePilot, RewardParams, VecEnv,
 };
 use taskctl::{LocalTasks, SwitchParams, TaskController, TaskService};
 
@@ -741,7 +741,12 @@ enum LabelledBy<'a> {
 
 /// The data set of the distillation run in `run` (its newest checkpoint), checked to hold
 /// labels as `labelled_by` asks on states of `layout` and the camera frames of `frame_stack`.
-fn earlier_dataset(run: &Path, labelled_by: LabelledBy, layout: ObservationLayout, frame_stack: FrameStack) -> anyhow::Result<DistillDataset> {
+fn earlier_dataset(
+    run: &Path,
+    labelled_by: LabelledBy,
+    layout: ObservationLayout,
+    frame_stack: FrameStack,
+) -> anyhow::Result<DistillDataset> {
     let (config, _, path, c) = newest_checkpoint(run)?;
     let state_dim = layout.dim();
     let section = |name: &str| c.get(name).with_context(|| format!("{}", path.display()));
