@@ -116,19 +116,21 @@ impl DistillDataset {
     /// Offers the state `env` is in with its current camera frame (a data set of single
     /// frames), its raw observation `state` (`state_dim` numbers) and the teacher's `label`.
     pub fn offer(&mut self, env: &RaceEnv, state: &[f32], label: &[f32], rng: &mut impl Rng) {
-        let mut camera = CameraHistory::new(FrameStack::default());
-        camera.record(CameraPose::of(env));
-        let labelled = self.label(env, &camera, state, label);
+        let labelled = self.label(env, None, state, label);
         self.offer_labelled(labelled, rng);
     }
 
     /// The state `env` is in, with the frames `camera` (its history, of the data set's frame
-    /// stack) shows of it, labelled, to be offered later ([`DistillDataset::offer_labelled`])
-    /// or dropped: e.g. held back until it is known not to be the run-up to a crash.
-    pub fn label(&mut self, env: &RaceEnv, camera: &CameraHistory, state: &[f32], label: &[f32]) -> LabelledState {
+    /// stack; `None`: the current frame of a single-frame data set) shows of it, labelled, to
+    /// be offered later ([`DistillDataset::offer_labelled`]) or dropped: e.g. held back until
+    /// it is known not to be the run-up to a crash.
+    pub fn label(&mut self, env: &RaceEnv, camera: Option<&CameraHistory>, state: &[f32], label: &[f32]) -> LabelledState {
         assert_eq!(state.len(), self.state_dim, "a state of the data set's length");
-        assert_eq!(camera.stack(), self.frame_stack, "a camera history of the data set's frame stack");
-        let frames = camera.frames();
+        let frames = match camera {
+            Some(camera) => camera.frames(),
+            None => vec![CameraPose::of(env)],
+        };
+        assert_eq!(frames.len(), self.frame_stack.frames, "the frames of the data set's frame stack");
         debug_assert_eq!(frames.first(), Some(&CameraPose::of(env)), "the history is the environment's");
         let sample = Sample { track: self.track_id(env.track()), frames, label: std::array::from_fn(|i| label[i]) };
         LabelledState { sample, state: state.to_vec() }
@@ -653,7 +655,8 @@ mod tests {
             let mut image = vec![0u8; IMAGE_PIXELS];
             env.render_camera(&mut image);
             shown.push(image);
-            let labelled = data.label(&env, &camera, &env.observation_in(arch.observation_layout()), &[step as f32 / 24.0, 0.5, 0.0, -0.5]);
+            let labelled =
+                data.label(&env, Some(&camera), &env.observation_in(arch.observation_layout()), &[step as f32 / 24.0, 0.5, 0.0, -0.5]);
             data.offer_labelled(labelled, &mut rng);
             env.step(&[0.3, 0.2, -0.1, 0.2]);
             camera.record(CameraPose::of(&env));

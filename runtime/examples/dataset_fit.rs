@@ -38,11 +38,14 @@ fn main() -> anyhow::Result<()> {
     for chunk in rows.chunks(512) {
         let images = data.images(chunk);
         let means = student.mean_actions(&images, &data.states(chunk));
-        for ((image, mean), label) in
-            images.chunks_exact(IMAGE_PIXELS).zip(means.chunks_exact(ACTION_DIM)).zip(data.labels(chunk).chunks_exact(ACTION_DIM))
+        for ((image, mean), label) in images
+            .chunks_exact(data.frame_stack().image_len())
+            .zip(means.chunks_exact(ACTION_DIM))
+            .zip(data.labels(chunk).chunks_exact(ACTION_DIM))
         {
             let error = mean.iter().zip(label).map(|(m, l)| f64::from(m - l).powi(2)).sum::<f64>() / ACTION_DIM as f64;
-            let row = usize::from(!image.contains(&TARGET_COLOUR));
+            // Whether the current frame (each observation's first) shows the target gate.
+            let row = usize::from(!image[..IMAGE_PIXELS].contains(&TARGET_COLOUR));
             sums[row][0] += error;
             sums[row][1] += 1.0;
         }

@@ -44,14 +44,16 @@ fn main() -> anyhow::Result<()> {
     let mut config = DistillConfig::read(Path::new(config))?;
     config.env.set_observation_layout(blob.architecture.observation_layout());
     let tracks = racetracks::validation_set(32)?.into_iter().map(Arc::new).collect();
-    let mut env = VecEnv::new(tracks, config.env, 7).with_images();
+    let mut env = VecEnv::new(tracks, config.env, 7).with_frame_stack(blob.architecture.frame_stack);
+    let observation = blob.architecture.frame_stack.image_len();
     // Per bin: summed squared corner angles (rad²), corners, summed squared relative distance
     // errors, states.
     let mut sums = [[0f64; 4]; BINS.len()];
     for _ in 0..1500 {
         let predicted = head.predict(&model, &env.images, &device);
         for (i, e) in env.envs().iter().enumerate() {
-            if !env.images[i * IMAGE_PIXELS..(i + 1) * IMAGE_PIXELS].contains(&TARGET_COLOUR) {
+            // The current frame comes first.
+            if !env.images[i * observation..i * observation + IMAGE_PIXELS].contains(&TARGET_COLOUR) {
                 continue;
             }
             let body = e.body();

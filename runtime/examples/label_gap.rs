@@ -43,11 +43,12 @@ fn main() -> anyhow::Result<()> {
     let teacher_blob = read_policy(Path::new(teacher)).with_context(|| format!("teacher {teacher}"))?;
     let teacher = Policy::from_blob(&teacher_blob)?;
     let student = VisionPolicy::from_blob(&read_policy(Path::new(student)).with_context(|| format!("student {student}"))?)?;
+    let frame_stack = student.frame_stack();
     let mut config = DistillConfig::read(Path::new(config))?;
     // The teacher reads what it was trained on, as in `distill`.
     config.env.set_observation_layout(teacher_blob.architecture.observation_layout());
     let tracks = racetracks::validation_set(32)?.into_iter().map(Arc::new).collect();
-    let mut env = VecEnv::new(tracks, config.env, 7).with_images();
+    let mut env = VecEnv::new(tracks, config.env, 7).with_frame_stack(frame_stack);
     let (n, dim) = (env.len(), env.observation_dim());
     // Per bin: summed squared errors of (zeroed, another's, student) and the count of states.
     let mut sums = [[0f64; 4]; BINS.len()];

@@ -27,7 +27,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sim::{
-    ACTION_DIM, CameraHistory, CameraPose, Controller, EnvConfig, FrameStack, ObservationLayout, PilotMemory, PilotParams, RaceEnv,
+    ACTION_DIM, CameraHistory, Controller, EnvConfig, FrameStack, ObservationLayout, PilotMemory, PilotParams, RaceEnv,
     RandomizationParams, ReferencePilot, RewardParams, VecEnv,
 };
 use taskctl::{LocalTasks, SwitchParams, TaskController, TaskService};
@@ -300,8 +300,8 @@ struct Progress {
     /// The pilots' memories when the pilot teaches (one per environment).
     #[serde(default)]
     pilots: Vec<Option<PilotMemory>>,
-    /// The environments' camera histories (checkpoints before frame stacks have none: single
-    /// frames, which the environments' states give again).
+    /// The environments' camera histories (none for a state student, nor in checkpoints
+    /// written before frame stacks).
     #[serde(default)]
     cameras: Vec<CameraHistory>,
 }
@@ -339,8 +339,6 @@ pub struct Distiller {
     student: Student,
     data: DistillDataset,
     env: VecEnv,
-    /// Each environment's recent camera poses: the frames the student sees and the samples hold.
-    cameras: Vec<CameraHistory>,
     tasks: LocalTasks,
     progress: Progress,
     checkpoints: CheckpointDir,
@@ -409,8 +407,7 @@ impl Distiller {
         config.write(&dir.join("config.toml"))?;
         let tasks = LocalTasks::new(config.tracks.task_controller(config.envs, config.generator, config.switching, config.seed)?, None);
         let registration = tasks.register(ACTOR, config.envs)?;
-        let env = VecEnv::new(registration.tracks, config.env, config.seed);
-        let cameras = fresh_cameras(&env, config.frame_stack);
+        let env = with_images(VecEnv::new(registration.tracks, config.env, config.seed), &config);
         let start = match &config.init_from {
             Some(path) => Some(read_policy(path).with_context(|| format!("init_from {}", path.display()))?),
             None => None,
@@ -451,7 +448,7 @@ impl Distiller {
         }
         let (metrics, validator) = Self::around(&config, dir)?;
         let dir = dir.to_path_buf();
-        Ok(Self { config, dir, teacher, student, data, env, cameras, tasks, progress, checkpoints, metrics, validator })
+        Ok(Self { config, dir, teacher, student, data, env, tasks, progress, checkpoints, metrics, validator })
     }
 
     /// Continues the distillation in `dir` from its newest checkpoint.
@@ -469,19 +466,13 @@ impl Distiller {
         let mut progress: Progress =
             serde_json::from_slice(section("distiller")?).with_context(|| format!("{}: distiller section", path.display()))?;
         let tasks = LocalTasks::new(TaskController::from_snapshot_bytes(section("taskctl")?, &path)?, None);
-        let env = VecEnv::from_envs(std::mem::take(&mut progress.envs));
-        let cameras = match std::mem::take(&mut progress.cameras) {
-            cameras if cameras.is_empty() => fresh_cameras(&env, config.frame_stack),
-            cameras => cameras,
-        };
-        ensure!(
-            cameras.len() == env.len() && cameras.iter().all(|c| c.stack() == config.frame_stack),
-            "{}: {} camera histories for {} environments, not all of frame stack {:?}",
-            path.display(),
-            cameras.len(),
-            env.len(),
-            config.frame_stack
-        );
+        let mut env = with_images(VecEnv::from_envs(std::mem::take(&mut progress.envs)), &config);
+        // Checkpoints written before frame stacks have no histories: single frames, which the
+        // environments' states give again.
+        let cameras = std::mem::take(&mut progress.cameras);
+        if !cameras.is_empty() {
+            env.restore_cameras(cameras).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        }
         let teacher = match config.pilot_teaches() {
             false => {
                 let bytes = section("teacher")?.to_vec();
@@ -504,7 +495,7 @@ impl Distiller {
         };
         let (metrics, validator) = Self::around(&config, dir)?;
         let dir = dir.to_path_buf();
-        Ok(Self { config, dir, teacher, student, data, env, cameras, tasks, progress, checkpoints, metrics, validator })
+        Ok(Self { config, dir, teacher, student, data, env, tasks, progress, checkpoints, metrics, validator })
     }
 
     /// What start and resume build alike from the config: the metrics files and the validator.
@@ -616,25 +607,15 @@ impl Distiller {
         let mut flight = Flight::default();
         let margin = self.config.crash_margin;
         let mut held: Vec<VecDeque<LabelledState>> = (0..n).map(|_| VecDeque::with_capacity(margin + 1)).collect();
-        let sees_images = self.config.student == Agent::Vision;
-        let mut images = vec![0u8; if sees_images { n * self.config.frame_stack.image_len() } else { 0 }];
         for _ in 0..self.config.steps_per_round {
             let labels = self.teacher.labels(&self.env);
-            if sees_images {
-                let envs = self.env.envs();
-                images
-                    .par_chunks_mut(self.config.frame_stack.image_len())
-                    .zip(self.cameras.par_iter())
-                    .enumerate()
-                    .for_each(|(i, (out, camera))| camera.render(envs[i].track(), out));
-            }
-            let student_actions = student.as_ref().map(|s| s.deterministic_actions(&self.env.observations, &images));
+            let student_actions = student.as_ref().map(|s| s.deterministic_actions(&self.env.observations, &self.env.images));
             self.student.observe(&self.env.observations);
             let mut actions = labels.clone();
             for (i, held) in held.iter_mut().enumerate() {
                 let state = &self.env.observations[i * dim..(i + 1) * dim];
                 let rows = i * ACTION_DIM..(i + 1) * ACTION_DIM;
-                held.push_back(self.data.label(&self.env.envs()[i], &self.cameras[i], state, &labels[rows.clone()]));
+                held.push_back(self.data.label(&self.env.envs()[i], self.env.cameras().get(i), state, &labels[rows.clone()]));
                 if held.len() > margin {
                     self.data.offer_labelled(held.pop_front().context("one state held at least")?, &mut self.progress.rng);
                 }
@@ -651,14 +632,10 @@ impl Distiller {
                 }
             }
             self.env.step(&actions);
-            for (camera, env) in self.cameras.iter_mut().zip(self.env.envs()) {
-                camera.record(CameraPose::of(env));
-            }
             for (total, r) in rewards.iter_mut().zip(&self.env.rewards) {
                 *total += f64::from(*r);
             }
             for f in &self.env.finished {
-                self.cameras[f.env].restart(CameraPose::of(&self.env.envs()[f.env]));
                 self.teacher.episode_started(f.env, &self.env);
                 flight.episodes += 1;
                 flight.laps += u64::from(f.stats.laps);
@@ -674,7 +651,6 @@ impl Distiller {
         }
         for (env, track) in self.tasks.report(ACTOR, self.progress.rollout, &rewards)? {
             self.env.set_track(env, track);
-            self.cameras[env].restart(CameraPose::of(&self.env.envs()[env]));
             self.teacher.episode_started(env, &self.env);
         }
         self.progress.rollout += 1;
@@ -712,7 +688,7 @@ impl Distiller {
         c.put("dataset", self.data.to_bytes());
         c.put("taskctl", self.tasks.read(TaskController::to_snapshot_bytes));
         self.progress.envs = self.env.envs().to_vec();
-        self.progress.cameras = self.cameras.clone();
+        self.progress.cameras = self.env.cameras().to_vec();
         c.put("distiller", serde_json::to_vec(&self.progress).expect("environments and counters serialise"));
         self.progress.envs.clear();
         self.progress.cameras.clear();
@@ -777,16 +753,12 @@ fn earlier_dataset(
     Ok(data)
 }
 
-/// A camera history of `stack` for each of `env`'s environments, starting at its current pose.
-fn fresh_cameras(env: &VecEnv, stack: FrameStack) -> Vec<CameraHistory> {
-    env.envs()
-        .iter()
-        .map(|e| {
-            let mut camera = CameraHistory::new(stack);
-            camera.restart(CameraPose::of(e));
-            camera
-        })
-        .collect()
+/// `env`, rendering the camera frames the student sees when it sees them.
+fn with_images(env: VecEnv, config: &DistillConfig) -> VecEnv {
+    match config.student {
+        Agent::Vision => env.with_frame_stack(config.frame_stack),
+        Agent::State => env,
+    }
 }
 
 /// The progress line of one round.
