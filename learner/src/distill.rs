@@ -373,7 +373,7 @@ impl Student {
         // first convolution gains zero weights for them.
         let stacked = match start {
             Some(blob) if blob.architecture.agent == Agent::Vision && blob.architecture.frame_stack != architecture.frame_stack => {
-                Some(blob.with_frame_stack(architecture.frame_stack).map_err(start_error)?)
+                Some(blob.with_frame_stack(architecture.frame_stack, policy::FrameWidening::Zero).map_err(start_error)?)
             }
             _ => None,
         };

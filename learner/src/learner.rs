@@ -323,7 +323,7 @@ mod tests {
         let single = WeightsBlob::from_vision_model(1, &vision, &ObsNormalizer::new(vision.observation_dim), &net);
         let profile = Profile { architecture: vision, ..Profile::cpu() };
         assert!(Learner::from_policy(profile.clone(), 1000, 0, &single).is_ok());
-        let stacked = single.with_frame_stack(sim::FrameStack { frames: 4, stride: 8 }).unwrap();
+        let stacked = single.with_frame_stack(sim::FrameStack { frames: 4, stride: 8 }, policy::FrameWidening::Zero).unwrap();
         let err = Learner::from_policy(profile, 1000, 0, &stacked).err().unwrap().to_string();
         assert!(err.contains("4 camera frames"), "{err}");
     }

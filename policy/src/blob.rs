@@ -13,6 +13,7 @@
 //! Blobs of the earlier framed layout (`DRPOLICY`, format 1) are still read.
 
 use burn::tensor::Device;
+use serde::{Deserialize, Serialize};
 
 use crate::architecture::{Agent, Architecture};
 use crate::network::{ActorCritic, ExportedParam};
@@ -141,9 +142,9 @@ impl WeightsBlob {
     }
 
     /// This single-frame vision policy seeing the frames of `stack`
-    /// ([`Architecture::frame_stack`]): the first convolution gains zero weights for the
-    /// earlier frames, so it acts exactly as before until it is trained further.
-    pub fn with_frame_stack(&self, stack: sim::FrameStack) -> Result<Self, BlobError> {
+    /// ([`Architecture::frame_stack`]): the first convolution gains weights for the earlier
+    /// frames as `widening` says.
+    pub fn with_frame_stack(&self, stack: sim::FrameStack, widening: FrameWidening) -> Result<Self, BlobError> {
         self.check_agent(Agent::Vision)?;
         let found = self.architecture.frame_stack;
         if found == stack {
@@ -155,16 +156,19 @@ impl WeightsBlob {
         let mut widened = self.clone();
         widened.architecture.frame_stack = stack;
         // The first parameter is the first convolution's weight, `[out, 1, k, k]` row-major:
-        // each output channel's kernel is followed by zero kernels for the earlier frames.
+        // each output channel's kernel becomes `frames` kernels, the current frame's first.
         let weight = widened.params.first_mut().ok_or_else(|| BlobError::Malformed("no parameters".into()))?;
         let &[out, 1, k, k2] = weight.shape.as_slice() else {
             return Err(BlobError::Malformed(format!("first convolution's weight has shape {:?}", weight.shape)));
         };
-        let kernel = k * k2;
+        let (kernel, frames) = (k * k2, stack.frames);
         weight.values = weight
             .values
             .chunks_exact(kernel)
-            .flat_map(|w| w.iter().copied().chain(std::iter::repeat_n(0.0, (stack.frames - 1) * kernel)))
+            .flat_map(|w| match widening {
+                FrameWidening::Zero => w.iter().copied().chain(std::iter::repeat_n(0.0, (frames - 1) * kernel)).collect::<Vec<f32>>(),
+                FrameWidening::Inflate => w.iter().map(|v| v / frames as f32).cycle().take(frames * kernel).collect(),
+            })
             .collect();
         weight.shape = vec![out, stack.frames, k, k2];
         crate::network::check_shapes(&Self::shapes(&widened.architecture), &widened.params).map_err(BlobError::Malformed)?;
@@ -382,6 +386,19 @@ impl From<Truncated> for BlobError {
     fn from(t: Truncated) -> Self {
         Self::Truncated { needed: t.needed, at: t.at }
     }
+}
+
+/// How a single-frame vision policy's first convolution is widened to see stacked frames.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FrameWidening {
+    /// Zero kernels for the earlier frames: it acts exactly as before until trained further.
+    #[default]
+    Zero,
+    /// Every frame gets the current frame's kernel ÷ frames (the inflation of Carreira and
+    /// Zisserman's I3D): it acts as before on a still scene, and every frame's kernel starts
+    /// where gradients reach it at full strength.
+    Inflate,
 }
 
 #[cfg(test)]

@@ -18,7 +18,7 @@ pub mod safetensors;
 pub mod vision;
 
 pub use architecture::{Agent, Architecture};
-pub use blob::{BlobError, WeightsBlob};
+pub use blob::{BlobError, FrameWidening, WeightsBlob};
 /// The burn device networks are built on (the CPU).
 pub use burn::tensor::Device;
 pub use ensemble::EnsembleController;

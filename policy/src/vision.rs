@@ -425,7 +425,7 @@ mod tests {
             &VisionActorCritic::import(&arch, &params, &device).unwrap(),
         );
         let stack = FrameStack { frames: 3, stride: 2 };
-        let stacked = WeightsBlob::from_bytes(&single.with_frame_stack(stack).unwrap().to_bytes()).unwrap();
+        let stacked = WeightsBlob::from_bytes(&single.with_frame_stack(stack, crate::FrameWidening::Zero).unwrap().to_bytes()).unwrap();
         assert_eq!(stacked.architecture.frame_stack, stack, "the stack round-trips in the blob");
         assert_eq!(stacked.params[0].shape, vec![32, 3, 8, 8]);
         let image: Vec<u8> = (0..IMAGE_SIDE * IMAGE_SIDE).map(|i| (i * 7 % 256) as u8).collect();
@@ -437,7 +437,16 @@ mod tests {
         let mut trained = stacked.clone();
         trained.params[0].values.iter_mut().for_each(|w| *w += 0.01);
         assert_ne!(act(&trained, &with_earlier), act(&trained, &[image.clone(), vec![0; 2 * IMAGE_SIDE * IMAGE_SIDE]].concat()));
-        assert!(trained.with_frame_stack(FrameStack { frames: 2, stride: 1 }).is_err(), "a stacked policy is not restacked");
+        assert!(
+            trained.with_frame_stack(FrameStack { frames: 2, stride: 1 }, crate::FrameWidening::Zero).is_err(),
+            "a stacked policy is not restacked"
+        );
+        // Inflated: each frame the current kernel ÷ 3, so a still scene gives the same actions.
+        let inflated = single.with_frame_stack(stack, crate::FrameWidening::Inflate).unwrap();
+        let still = [image.clone(), image.clone(), image.clone()].concat();
+        let (a, b) = (act(&inflated, &still), act(&single, &image));
+        assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-4), "{a:?} {b:?}");
+        assert_ne!(act(&inflated, &with_earlier), b, "and it sees the earlier frames from the start");
 
         let policy = std::sync::Arc::new(VisionPolicy::from_blob(&trained).unwrap());
         let gates = vec![

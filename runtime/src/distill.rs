@@ -20,7 +20,7 @@ use std::time::Instant;
 use anyhow::{Context, bail, ensure};
 use learner::checkpoint::{Checkpoint, CheckpointDir, read_policy};
 use learner::distill::{DistillDataset, LabelledState, Student};
-use policy::{ActingPolicy, Agent, Architecture, Policy, WeightsBlob};
+use policy::{ActingPolicy, Agent, Architecture, FrameWidening, Policy, WeightsBlob};
 use racetracks::TrackGenerator;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -101,6 +101,11 @@ pub struct DistillConfig {
     /// BENCHMARKS.md, "Stacked frames"). A single-frame start (`init_from`) is widened with
     /// zero weights. Default one frame.
     pub frame_stack: FrameStack,
+    /// How a single-frame start (`init_from`) is widened to `frame_stack`: `zero` kernels for
+    /// the earlier frames (it acts exactly as before), or `inflate`d — each frame the current
+    /// one's kernel ÷ frames (it acts as before on a still scene, and its earlier-frame
+    /// kernels start at full size). Default zero.
+    pub frame_widening: FrameWidening,
     /// The student's log standard deviation, for vision PPO started from it (SPEC §10 VB: 0).
     pub initial_log_std: f64,
     /// Start the student's CNN and actor from this vision policy (checkpoint or blob of the
@@ -154,6 +159,7 @@ impl Default for DistillConfig {
             minibatch: 64,
             previous_action: false,
             frame_stack: FrameStack::default(),
+            frame_widening: FrameWidening::Zero,
             learning_rate: 5e-4,
             initial_log_std: 0.0,
             init_from: None,
@@ -409,7 +415,16 @@ impl Distiller {
         let registration = tasks.register(ACTOR, config.envs)?;
         let env = with_images(VecEnv::new(registration.tracks, config.env, config.seed), &config);
         let start = match &config.init_from {
-            Some(path) => Some(read_policy(path).with_context(|| format!("init_from {}", path.display()))?),
+            Some(path) => {
+                let blob = read_policy(path).with_context(|| format!("init_from {}", path.display()))?;
+                // Student::new widens a single-frame start with zero kernels itself.
+                Some(match (config.frame_widening, blob.architecture.agent) {
+                    (FrameWidening::Inflate, Agent::Vision) if blob.architecture.frame_stack.is_single() => blob
+                        .with_frame_stack(config.frame_stack, FrameWidening::Inflate)
+                        .with_context(|| format!("init_from {}", path.display()))?,
+                    _ => blob,
+                })
+            }
             None => None,
         };
         let mut student = Student::new(&architecture, teacher_blob.as_ref(), start.as_ref(), config.initial_log_std, config.seed)
