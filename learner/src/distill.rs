@@ -49,7 +49,6 @@ struct Sample {
 
 impl Sample {
     /// The current camera pose.
-    #[allow(clippy::indexing_slicing, reason = "a sample holds at least its current frame")]
     fn now(&self) -> &CameraPose {
         &self.frames[0]
     }

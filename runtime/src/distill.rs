@@ -98,8 +98,8 @@ pub struct DistillConfig {
     pub previous_action: bool,
     /// The camera frames the vision student sees: the current one and `frames − 1` earlier
     /// ones, `stride` steps apart (beyond SPEC §5's one: a memory of gates that left the image;
-    /// BENCHMARKS.md, "Stacked frames"). A single-frame start (`init_from`) is widened with
-    /// zero weights. Default one frame.
+    /// BENCHMARKS.md, "Stacked camera frames"). A single-frame start (`init_from`) is widened
+    /// as `frame_widening` says. Default one frame.
     pub frame_stack: FrameStack,
     /// How a single-frame start (`init_from`) is widened to `frame_stack`: `zero` kernels for
     /// the earlier frames (it acts exactly as before), or `inflate`d — each frame the current
