@@ -184,8 +184,9 @@ impl VisionPolicy {
     }
 
     /// Action means of a batch: `n` camera observations (`n × frames × 84 × 84` bytes, as the
-    /// renderer writes them, current frame first) and their raw state observations (`n × 40`, in the policy's frame; their
-    /// proprioceptive part feeds the actor), one row of means per image.
+    /// renderer writes them, current frame first) and their raw state observations (`n × 40`,
+    /// in the policy's frame; their proprioceptive part feeds the actor), one row of means per
+    /// observation.
     #[allow(clippy::expect_used, reason = "float outputs")]
     pub fn mean_actions(&self, images: &[u8], raw_states: &[f32]) -> Vec<f32> {
         let (images, states) = self.inputs(images, raw_states);
