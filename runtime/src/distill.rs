@@ -417,12 +417,13 @@ impl Distiller {
         let start = match &config.init_from {
             Some(path) => {
                 let blob = read_policy(path).with_context(|| format!("init_from {}", path.display()))?;
-                // Student::new widens a single-frame start with zero kernels itself.
-                Some(match (config.frame_widening, blob.architecture.agent) {
-                    (FrameWidening::Inflate, Agent::Vision) if blob.architecture.frame_stack.is_single() => blob
-                        .with_frame_stack(config.frame_stack, FrameWidening::Inflate)
+                // A vision start sees the student's frames, widened as `frame_widening` says
+                // (nothing to do when it sees them already).
+                Some(match blob.architecture.agent {
+                    Agent::Vision => blob
+                        .with_frame_stack(config.frame_stack, config.frame_widening)
                         .with_context(|| format!("init_from {}", path.display()))?,
-                    _ => blob,
+                    Agent::State => blob,
                 })
             }
             None => None,
