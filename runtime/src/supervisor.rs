@@ -124,9 +124,13 @@ impl Supervised {
     }
 }
 
-fn free_port() -> anyhow::Result<SocketAddr> {
-    let listener = TcpListener::bind("127.0.0.1:0").context("finding a free local port")?;
-    Ok(listener.local_addr()?)
+/// Two distinct free local ports, for the task controller and the learner. Both listeners are
+/// held until both ports are known: one dropped before the next bind lets the kernel hand the
+/// same port out twice (seen in CI: the learner could not bind the task controller's port).
+fn two_free_ports() -> anyhow::Result<(SocketAddr, SocketAddr)> {
+    let bind = || TcpListener::bind("127.0.0.1:0").context("finding a free local port");
+    let (first, second) = (bind()?, bind()?);
+    Ok((first.local_addr()?, second.local_addr()?))
 }
 
 fn wait_for_port(addr: SocketAddr, process: &mut Supervised) -> anyhow::Result<()> {
@@ -155,7 +159,7 @@ pub fn run(plan: ClusterPlan) -> anyhow::Result<()> {
     anyhow::ensure!(plan.actors <= plan.envs, "--actors {} exceeds the {} environments of the run", plan.actors, plan.envs);
     let stop = stop_flag()?;
     let config = plan.dir.join("config.toml").display().to_string();
-    let (taskctl_addr, learner_addr) = (free_port()?, free_port()?);
+    let (taskctl_addr, learner_addr) = two_free_ports()?;
     let shm_run = shm_run_id(&plan.dir);
     let transport = match plan.transport {
         Transport::Shm => "shm",
