@@ -110,7 +110,7 @@ pub fn time_gradient_step(profile: &Profile, samples: usize, repeats: usize, dev
     let rows: Vec<usize> = (0..samples).collect();
     let ids = model.param_ids();
     let (groups, _) = clip_groups(ids.len(), PpoNetwork::critic_param_count(&model), config);
-    let loss = |model: &ActorCritic| minibatch_loss(model, batch.minibatch(&rows, device), config).0;
+    let loss = |model: &ActorCritic| minibatch_loss(model, batch.minibatch(&rows, None, device), config).0;
     let force = |model: &ActorCritic| drop(model.log_std.val().into_data());
     let (forward, backward, optimizer) = time_steps(profile, model, (&ids, &groups), repeats, loss, force);
     let mut dims = vec![arch.observation_dim];
@@ -135,7 +135,7 @@ pub fn time_vision_gradient_step(profile: &Profile, samples: usize, repeats: usi
     let rows: Vec<usize> = (0..samples).collect();
     let ids = model.param_ids();
     let (groups, _) = clip_groups(ids.len(), PpoNetwork::critic_param_count(&model), config);
-    let loss = |model: &VisionActorCritic| minibatch_loss(model, batch.minibatch(&rows, device), config).0;
+    let loss = |model: &VisionActorCritic| minibatch_loss(model, batch.minibatch(&rows, None, device), config).0;
     let force = |model: &VisionActorCritic| drop(model.log_std.val().into_data());
     let (forward, backward, optimizer) = time_steps(profile, model, (&ids, &groups), repeats, loss, force);
     let flops = 2.0 * 3.0 * (VisionActorCritic::macs_per_sample(arch) * samples) as f64;

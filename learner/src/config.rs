@@ -51,6 +51,17 @@ pub struct PpoConfig {
     /// Beyond the thesis; 0 (off) by default, and left out of files when it is.
     #[serde(skip_serializing_if = "is_zero")]
     pub mirror_coef: f64,
+    /// Vision agent only: the CNN and its embedding layer take no step, and the update trains
+    /// the actor MLP, the critic and the log std on embeddings computed once per iteration —
+    /// PPO on top of a distilled student's perception, at a fraction of the full CNN step's
+    /// cost. Beyond the thesis; off by default, and left out of files when it is.
+    #[serde(skip_serializing_if = "is_false")]
+    pub freeze_encoder: bool,
+}
+
+/// True for `false`, the frozen encoder's "off".
+fn is_false(x: &bool) -> bool {
+    !*x
 }
 
 /// True for 0, the mirror term's "off".
@@ -78,6 +89,7 @@ impl Default for PpoConfig {
             initial_log_std: -0.5,
             critic_warmup_iterations: 0,
             mirror_coef: 0.0,
+            freeze_encoder: false,
         }
     }
 }

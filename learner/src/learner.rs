@@ -117,7 +117,7 @@ impl Learner {
     /// A fresh learner (version 0, new optimiser) whose network and normaliser start from a
     /// trained policy: fine-tuning, e.g. the generalist on one track (thesis §3.4.4). The
     /// fine-tune may change `gate_sight`: the gate corners mean the same, only when they are
-    /// shown changes.
+    /// shown changes. A vision actor that reads its previous action keeps reading it.
     pub fn from_policy(profile: Profile, total_env_steps: u64, seed: u64, blob: &WeightsBlob) -> Result<Self, LearnerError> {
         if !blob.architecture.frame_stack.is_single() {
             // PPO's actors send one camera image a step; stacked frames are distillation's.
@@ -126,6 +126,10 @@ impl Learner {
                 blob.architecture.frame_stack.frames
             )));
         }
+        // Whether a vision actor reads its previous action is the policy's own (a distilled
+        // student's): the environments write that action either way.
+        let mut profile = profile;
+        profile.architecture.vision_previous_action = blob.architecture.vision_previous_action;
         let expected = Architecture { gate_sight: blob.architecture.gate_sight, ..profile.architecture.clone() };
         blob.check_architecture(&expected).map_err(|e| LearnerError::State(e.to_string()))?;
         let mut learner = Self::new(profile, total_env_steps, seed);
@@ -326,5 +330,32 @@ mod tests {
         let stacked = single.with_frame_stack(sim::FrameStack { frames: 4, stride: 8 }, policy::FrameWidening::Zero).unwrap();
         let err = Learner::from_policy(profile, 1000, 0, &stacked).err().unwrap().to_string();
         assert!(err.contains("4 camera frames"), "{err}");
+    }
+
+    /// PPO from a distilled student: its actor keeps reading the previous action though the
+    /// run's profile does not say so, and the log std it was given is the one it trains from.
+    #[test]
+    fn ppo_from_a_student_keeps_its_previous_action_input_and_the_log_std_it_is_given() {
+        let vision = Architecture { agent: Agent::Vision, ..Architecture::cpu() };
+        let net = policy::vision::VisionActorCritic::new(&vision, 0.0, 1, &Device::flex());
+        let student = WeightsBlob::from_vision_model(7, &vision, &ObsNormalizer::new(vision.observation_dim), &net)
+            .with_vision_previous_action()
+            .unwrap()
+            .with_log_std(-1.5)
+            .unwrap();
+        let profile = Profile { architecture: vision, ..Profile::cpu() };
+        let learner = Learner::from_policy(profile, 1000, 0, &student).unwrap();
+        let weights = learner.weights();
+        assert!(weights.architecture.vision_previous_action);
+        assert_eq!(weights.params, student.params, "the student's parameters, its log std −1.5 among them");
+        assert!(weights.params.last().unwrap().values.iter().all(|&v| v == -1.5));
+        assert!(weights.vision_model(&Device::flex()).is_ok(), "the written blob reads back");
+        let state_blob = WeightsBlob::from_model(
+            1,
+            &Architecture::cpu(),
+            &ObsNormalizer::new(40),
+            &ActorCritic::new(&Architecture::cpu(), -0.5, 1, &Device::flex()),
+        );
+        assert!(state_blob.with_log_std(-2.0).unwrap().params.last().unwrap().values == vec![-2.0; 4]);
     }
 }

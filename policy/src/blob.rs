@@ -141,6 +141,19 @@ impl WeightsBlob {
         Ok(widened)
     }
 
+    /// This policy with its log standard deviation (the last parameter, one per action
+    /// dimension) set to `log_std` everywhere: a distilled student's exploration noise is not
+    /// what regression trained, so PPO from it chooses the noise it starts with.
+    pub fn with_log_std(&self, log_std: f32) -> Result<Self, BlobError> {
+        let mut changed = self.clone();
+        let last = changed.params.last_mut().ok_or_else(|| BlobError::Malformed("no parameters".into()))?;
+        if last.shape != [self.architecture.action_dim] {
+            return Err(BlobError::Malformed(format!("the last parameter has shape {:?}, not a log std's", last.shape)));
+        }
+        last.values.fill(log_std);
+        Ok(changed)
+    }
+
     /// This single-frame vision policy seeing the frames of `stack`
     /// ([`Architecture::frame_stack`]): the first convolution gains weights for the earlier
     /// frames as `widening` says.

@@ -108,6 +108,10 @@ pub struct TrainConfig {
     /// Start from this trained policy (checkpoint or weights blob) instead of a fresh network:
     /// fine-tuning. Its architecture must match the profile's.
     pub init_from: Option<PathBuf>,
+    /// Log standard deviation the policy of `init_from` starts PPO with, in every action
+    /// dimension; unset keeps the policy's own. A distilled student's is whatever its
+    /// distillation started with (regression does not train it).
+    pub init_log_std: Option<f64>,
     /// Imitate the reference pilot before PPO and start from the imitation (`[warm_start]`;
     /// none by default). Exclusive with `init_from`.
     pub warm_start: Option<crate::warm_start::WarmStart>,
@@ -142,6 +146,7 @@ impl Default for TrainConfig {
             // best.bin is the policy a run ships (BENCHMARKS.md, issue 10).
             eval: crate::validation::EvalSettings { tracks: 100, ..Default::default() },
             init_from: None,
+            init_log_std: None,
             warm_start: None,
             agent: Agent::State,
         }
@@ -199,8 +204,14 @@ impl TrainConfig {
         let profile = self.resolved_profile()?;
         Ok(match &self.init_from {
             None => Learner::new(profile, self.total_env_steps, self.seed),
-            Some(path) => Learner::from_policy(profile, self.total_env_steps, self.seed, &learner::checkpoint::read_policy(path)?)
-                .map_err(|e| TrainError::Config(format!("init_from {}: {e}", path.display())))?,
+            Some(path) => {
+                let config_error = |e: &dyn std::fmt::Display| TrainError::Config(format!("init_from {}: {e}", path.display()));
+                let mut policy = learner::checkpoint::read_policy(path)?;
+                if let Some(log_std) = self.init_log_std {
+                    policy = policy.with_log_std(log_std as f32).map_err(|e| config_error(&e))?;
+                }
+                Learner::from_policy(profile, self.total_env_steps, self.seed, &policy).map_err(|e| config_error(&e))?
+            }
         })
     }
 
@@ -254,6 +265,14 @@ impl TrainConfig {
                 return Err(TrainError::Config(
                     "ppo.mirror_coef: the mirror term needs the state-based agent and an observation frame with a mirror (world or heading, not body)".into(),
                 ));
+            }
+        }
+        if profile.ppo.freeze_encoder && self.agent != Agent::Vision {
+            return Err(TrainError::Config("ppo.freeze_encoder: only the vision agent has an encoder (agent = \"vision\")".into()));
+        }
+        if let Some(log_std) = self.init_log_std {
+            if self.init_from.is_none() || !log_std.is_finite() {
+                return Err(TrainError::Config(format!("init_log_std: {log_std} needs init_from and a finite value")));
             }
         }
         if profile.envs == 0 || profile.ppo.n_steps == 0 || profile.ppo.batch_size == 0 || profile.ppo.n_epochs == 0 {
@@ -604,6 +623,16 @@ mod tests {
         let text = "privileged_critic = true\n[env]\nline_points = 0\nobstacle_gates = 2\nobstacle_order = \"track\"\n";
         let arch = TrainConfig::from_toml(text).unwrap().resolved_profile().unwrap().architecture;
         assert_eq!((arch.observation_dim, arch.actor_input_dim(), arch.privileged_critic), (64, 40, true));
+    }
+
+    #[test]
+    fn a_frozen_encoder_needs_the_vision_agent_and_a_start_log_std_needs_a_start() {
+        let refused = |text: &str| TrainConfig::from_toml(text).unwrap().resolved_profile().unwrap_err().to_string();
+        assert!(refused("[ppo]\nfreeze_encoder = true\n").contains("ppo.freeze_encoder"));
+        let vision = TrainConfig::from_toml("agent = \"vision\"\n[ppo]\nfreeze_encoder = true\n").unwrap();
+        assert!(vision.resolved_profile().unwrap().ppo.freeze_encoder);
+        assert!(refused("init_log_std = -1.5\n").contains("init_log_std: -1.5 needs init_from"));
+        assert!(TrainConfig::from_toml("init_from = \"student.bin\"\ninit_log_std = -1.5\n").unwrap().resolved_profile().is_ok());
     }
 
     #[test]

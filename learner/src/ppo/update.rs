@@ -5,7 +5,7 @@
 use burn::module::{Module, ParamId};
 use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor, TensorData};
-use policy::vision::IMAGE_SIDE;
+use policy::vision::{EMBEDDING, IMAGE_SIDE, image_tensor};
 use policy::{ActorCritic, VisionActorCritic};
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
@@ -81,6 +81,7 @@ pub struct UpdateStats {
 /// One minibatch on the device: rows of a [`TrainingBatch`], advantages normalised over it.
 pub struct Minibatch {
     images: Option<Tensor<4>>,
+    embeddings: Option<Tensor<2>>,
     observations: Tensor<2>,
     actions: Tensor<2>,
     old_log_probs: Tensor<1>,
@@ -94,9 +95,15 @@ impl Minibatch {
         self.observations.clone()
     }
 
-    /// Its camera images `[b, 1, 84, 84]` in [0, 1], when the batch has images.
+    /// Its camera images `[b, 1, 84, 84]` in [0, 1], when the batch has images and no
+    /// embeddings of them.
     pub fn images(&self) -> Option<Tensor<4>> {
         self.images.clone()
+    }
+
+    /// Its images' embeddings `[b, 128]` by a frozen encoder, constants of the graph.
+    pub fn embeddings(&self) -> Option<Tensor<2>> {
+        self.embeddings.clone()
     }
 }
 
@@ -113,6 +120,11 @@ pub trait PpoNetwork: Module {
     /// Action means `[b, action_dim]` of normalised state observations alone, for the
     /// imitation term; `None` for a network that needs more (the vision agent's images).
     fn state_action_means(&self, states: Tensor<2>) -> Option<Tensor<2>>;
+    /// The embeddings (`n × 128`) of every image of `batch` by the network's encoder, without a
+    /// graph, for an update that freezes the encoder; `None` for a network without one.
+    fn encode(&self, _batch: &TrainingBatch, _device: &Device) -> Option<Vec<f32>> {
+        None
+    }
 }
 
 impl PpoNetwork for ActorCritic {
@@ -140,7 +152,10 @@ impl PpoNetwork for ActorCritic {
 impl PpoNetwork for VisionActorCritic {
     #[allow(clippy::expect_used, reason = "the learner admits a vision agent's chunks only with their images")]
     fn outputs(&self, m: &Minibatch) -> (Tensor<2>, Tensor<1>) {
-        self.forward(m.images().expect("a vision agent's minibatch has images"), m.observations())
+        match m.embeddings() {
+            Some(embeddings) => (self.actor_mean_of(embeddings, m.observations()), self.critic.forward(m.observations()).squeeze_dim(1)),
+            None => self.forward(m.images().expect("a vision agent's minibatch has images"), m.observations()),
+        }
     }
 
     fn log_std(&self) -> Tensor<1> {
@@ -158,11 +173,29 @@ impl PpoNetwork for VisionActorCritic {
     fn state_action_means(&self, _states: Tensor<2>) -> Option<Tensor<2>> {
         None
     }
+
+    #[allow(clippy::expect_used, reason = "float embeddings")]
+    fn encode(&self, batch: &TrainingBatch, device: &Device) -> Option<Vec<f32>> {
+        // On the inner backend: no graph is recorded, as none would be differentiated.
+        let (encoder, device) = (self.valid(), device.clone().without_autodiff());
+        let frames = self.frames();
+        let observation = frames * IMAGE_SIDE * IMAGE_SIDE;
+        let mut embeddings = Vec::with_capacity(batch.len() * EMBEDDING);
+        for images in batch.images.chunks(ENCODE_ROWS * observation) {
+            let embedded = encoder.embed(image_tensor(images, frames, &device));
+            embeddings.extend(embedded.into_data().try_into_vec::<f32>().expect("float embeddings"));
+        }
+        Some(embeddings)
+    }
 }
 
+/// Images embedded at a time by [`PpoNetwork::encode`]: a bounded working set of activations.
+const ENCODE_ROWS: usize = 512;
+
 impl TrainingBatch {
-    /// The rows `rows` as a [`Minibatch`] on `device`.
-    pub fn minibatch(&self, rows: &[usize], device: &Device) -> Minibatch {
+    /// The rows `rows` as a [`Minibatch`] on `device`; with `embeddings` (`n × 128`, a frozen
+    /// encoder's) the minibatch carries their rows instead of its images.
+    pub fn minibatch(&self, rows: &[usize], embeddings: Option<&[f32]>, device: &Device) -> Minibatch {
         let n = self.len();
         let (obs_dim, act_dim) = (self.observations.len() / n, self.actions.len() / n);
         let take = |data: &[f32], width: usize| -> Vec<f32> {
@@ -172,12 +205,14 @@ impl TrainingBatch {
         let mut advantages = take(&self.advantages, 1);
         normalize_advantages(&mut advantages);
         let pixels = IMAGE_SIDE * IMAGE_SIDE;
-        let images = (!self.images.is_empty()).then(|| {
+        let embeddings = embeddings.map(|e| Tensor::<2>::from_data(TensorData::new(take(e, EMBEDDING), [b, EMBEDDING]), device));
+        let images = (embeddings.is_none() && !self.images.is_empty()).then(|| {
             let bytes: Vec<u8> = rows.iter().flat_map(|&i| self.images[i * pixels..(i + 1) * pixels].iter().copied()).collect();
             Tensor::<4>::from_data(TensorData::new(policy::pixels_to_unit(&bytes), [b, 1, IMAGE_SIDE, IMAGE_SIDE]), device)
         });
         Minibatch {
             images,
+            embeddings,
             observations: Tensor::<2>::from_data(TensorData::new(take(&self.observations, obs_dim), [b, obs_dim]), device),
             actions: Tensor::<2>::from_data(TensorData::new(take(&self.actions, act_dim), [b, act_dim]), device),
             old_log_probs: Tensor::<1>::from_data(TensorData::new(take(&self.old_log_probs, 1), [b]), device),
@@ -294,10 +329,13 @@ pub fn update<N: PpoNetwork>(
     // The extra terms move the policy, so they are left out while only the critic trains.
     let imitation = step.imitation.filter(|_| step.train_policy);
     let mirror = step.mirror.filter(|_| step.train_policy);
+    // A frozen encoder takes no step, so its embeddings are the same in every epoch: computed
+    // once here, they replace the images, and no gradient reaches its parameters.
+    let embeddings = if config.freeze_encoder { model.encode(batch, device) } else { None };
     for _ in 0..config.n_epochs {
         indices.shuffle(rng);
         for rows in indices.chunks(config.batch_size.min(batch.len())) {
-            let minibatch = batch.minibatch(rows, device);
+            let minibatch = batch.minibatch(rows, embeddings.as_deref(), device);
             let (means, values) = model.outputs(&minibatch);
             // The mirror term reads the same observations, so it is taken before the PPO loss consumes them.
             let mirrored = mirror.and_then(|term| model.state_action_means(term.mirrored(minibatch.observations())).map(|m| (term, m)));
@@ -581,6 +619,64 @@ mod tests {
         };
         assert!((log_std_after(0.0) + 1.0).abs() < 1e-6, "no entropy term: {}", log_std_after(0.0));
         assert!(log_std_after(0.01) > -1.0 + 0.04, "widened: {}", log_std_after(0.01));
+    }
+
+    /// A frozen encoder: the minibatch of embeddings gives the same outputs as the images,
+    /// the update leaves the convolutions and the embedding layer bit for bit and trains the
+    /// actor; without the freeze the same update moves the convolutions too.
+    #[test]
+    fn a_frozen_encoder_takes_no_step_and_its_embeddings_give_the_images_outputs() {
+        let device = Device::flex().autodiff();
+        let arch = policy::Architecture { hidden: vec![16], agent: policy::Agent::Vision, ..policy::Architecture::paper() };
+        let n = 24;
+        let pixels = IMAGE_SIDE * IMAGE_SIDE;
+        let images: Vec<u8> = (0..n * pixels).map(|i| if (i * 7919 % 1013) < 150 { 255 } else { (i % 3 * 55) as u8 }).collect();
+        let batch = TrainingBatch {
+            observations: (0..n * 40).map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0).collect(),
+            actions: (0..n * 4).map(|i| ((i * 13 % 17) as f32 / 8.0) - 1.0).collect(),
+            old_log_probs: vec![-3.0; n],
+            advantages: (0..n).map(|i| if i % 2 == 0 { 1.0 } else { -1.0 }).collect(),
+            returns: vec![1.0; n],
+            old_values: vec![0.0; n],
+            images,
+        };
+        let model = VisionActorCritic::new(&arch, -0.5, 3, &device);
+        let rows: Vec<usize> = (0..n).collect();
+        let embeddings = model.encode(&batch, &device).unwrap();
+        assert_eq!(embeddings.len(), n * EMBEDDING);
+        let (from_images, values) = model.outputs(&batch.minibatch(&rows, None, &device));
+        let frozen = batch.minibatch(&rows, Some(&embeddings), &device);
+        assert!(frozen.images().is_none(), "embeddings replace the images");
+        let (from_embeddings, frozen_values) = model.outputs(&frozen);
+        let largest_difference = |a: Tensor<2>, b: Tensor<2>| f64::from(scalar((a - b).abs().max()));
+        assert!(largest_difference(from_images, from_embeddings) < 1e-6);
+        assert!(
+            largest_difference(values.unsqueeze_dim(1), frozen_values.unsqueeze_dim(1)) == 0.0,
+            "the critic reads the state either way"
+        );
+        // Export order: three convolutions and the embedding layer (weight, bias each), then the actor.
+        let encoder_params = 2 * VisionActorCritic::CONVOLUTION_COUNT + 2;
+        let weights = |m: &VisionActorCritic| {
+            let params: Vec<Vec<f32>> = m.export().into_iter().map(|p| p.values).collect();
+            let actor = params[encoder_params].clone();
+            (params[..encoder_params].to_vec(), actor)
+        };
+        let before = weights(&model);
+        let run = |freeze_encoder: bool| {
+            let model = VisionActorCritic::new(&arch, -0.5, 3, &device);
+            let mut optimizer = burn::optim::AdamConfig::new().init();
+            let config = PpoConfig { batch_size: 12, n_epochs: 2, freeze_encoder, ..PpoConfig::default() };
+            let step = UpdateStep { learning_rate: 1e-3, train_policy: true, imitation: None, mirror: None };
+            let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(0);
+            let (model, stats) = update(model, &mut optimizer, &batch, &config, &step, &mut rng, &device);
+            assert_eq!(stats.gradient_steps, 4);
+            weights(&model)
+        };
+        let (encoder, actor) = run(true);
+        assert!(encoder == before.0, "the encoder is untouched");
+        assert!(actor != before.1, "the actor trains");
+        let (encoder, _) = run(false);
+        assert!(encoder[0] != before.0[0], "unfrozen, the same update moves the first convolution");
     }
 
     #[test]
