@@ -270,10 +270,10 @@ impl TrainConfig {
         if profile.ppo.freeze_encoder && self.agent != Agent::Vision {
             return Err(TrainError::Config("ppo.freeze_encoder: only the vision agent has an encoder (agent = \"vision\")".into()));
         }
-        if let Some(log_std) = self.init_log_std {
-            if self.init_from.is_none() || !log_std.is_finite() {
-                return Err(TrainError::Config(format!("init_log_std: {log_std} needs init_from and a finite value")));
-            }
+        if let Some(log_std) = self.init_log_std
+            && (self.init_from.is_none() || !log_std.is_finite())
+        {
+            return Err(TrainError::Config(format!("init_log_std: {log_std} needs init_from and a finite value")));
         }
         if profile.envs == 0 || profile.ppo.n_steps == 0 || profile.ppo.batch_size == 0 || profile.ppo.n_epochs == 0 {
             return Err(TrainError::Config("envs, ppo.n_steps, ppo.batch_size and ppo.n_epochs must be ≥ 1".into()));
