@@ -51,17 +51,43 @@ pub struct PpoConfig {
     /// Beyond the thesis; 0 (off) by default, and left out of files when it is.
     #[serde(skip_serializing_if = "is_zero")]
     pub mirror_coef: f64,
-    /// Vision agent only: the CNN and its embedding layer take no step, and the update trains
-    /// the actor MLP, the critic and the log std on embeddings computed once per iteration —
-    /// PPO on top of a distilled student's perception, at a fraction of the full CNN step's
-    /// cost. Beyond the thesis; off by default, and left out of files when it is.
-    #[serde(skip_serializing_if = "is_false")]
-    pub freeze_encoder: bool,
+    /// Vision agent only: which of its image layers take no step in PPO (`nothing`, the
+    /// `convolutions`, or the whole `encoder`: convolutions and embedding layer). Their outputs
+    /// are computed once per iteration and the epochs train the rest on them — PPO on top of a
+    /// distilled student's perception, at a fraction of the full CNN step's cost. Beyond the
+    /// thesis; `nothing` by default, and left out of files then.
+    #[serde(skip_serializing_if = "Frozen::is_nothing")]
+    pub frozen: Frozen,
 }
 
-/// True for `false`, the frozen encoder's "off".
-fn is_false(x: &bool) -> bool {
-    !*x
+/// The vision agent's layers a PPO update leaves as they are ([`PpoConfig::frozen`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Frozen {
+    /// Every layer trains (SPEC).
+    #[default]
+    Nothing,
+    /// The three convolutions; the embedding layer, actor, critic and log std train.
+    Convolutions,
+    /// The convolutions and the embedding layer; actor, critic and log std train.
+    Encoder,
+}
+
+impl Frozen {
+    /// True for [`Frozen::Nothing`], the default.
+    pub fn is_nothing(&self) -> bool {
+        *self == Self::Nothing
+    }
+
+    /// Width of the frozen layers' output per sample, which the update computes once; `None`
+    /// when nothing is frozen.
+    pub fn output_width(&self) -> Option<usize> {
+        match self {
+            Self::Nothing => None,
+            Self::Convolutions => Some(policy::vision::CONV_OUTPUT),
+            Self::Encoder => Some(policy::vision::EMBEDDING),
+        }
+    }
 }
 
 /// True for 0, the mirror term's "off".
@@ -89,7 +115,7 @@ impl Default for PpoConfig {
             initial_log_std: -0.5,
             critic_warmup_iterations: 0,
             mirror_coef: 0.0,
-            freeze_encoder: false,
+            frozen: Frozen::Nothing,
         }
     }
 }

@@ -10,5 +10,5 @@ pub mod distill;
 pub mod learner;
 pub mod ppo;
 
-pub use config::{PpoConfig, Profile};
+pub use config::{Frozen, PpoConfig, Profile};
 pub use learner::{IterationReport, Learner, LearnerError};

@@ -110,16 +110,25 @@ impl VisionActorCritic {
 
     /// Embeddings `[batch, 128]` of images `[batch, frames, 84, 84]` scaled to [0, 1] (one
     /// channel per frame of the architecture's frame stack, the current one first).
-    #[allow(clippy::expect_used, reason = "every layer is built with a bias")]
     pub fn embed(&self, images: Tensor<4>) -> Tensor<2> {
+        self.embed_convolved(self.convolve(images))
+    }
+
+    /// The convolutions' output `[batch, 3136]`, flattened, of images as [`VisionActorCritic::embed`] reads them.
+    pub fn convolve(&self, images: Tensor<4>) -> Tensor<2> {
         let mut x = images;
         for conv in &self.convolutions {
             x = leaky_relu(conv.forward(x), self.negative_slope);
         }
         let batch = x.dims()[0];
-        let flat = x.reshape([batch, CONV_OUTPUT]);
+        x.reshape([batch, CONV_OUTPUT])
+    }
+
+    /// Embeddings `[batch, 128]` of convolution outputs ([`VisionActorCritic::convolve`]).
+    #[allow(clippy::expect_used, reason = "every layer is built with a bias")]
+    pub fn embed_convolved(&self, convolved: Tensor<2>) -> Tensor<2> {
         let bias = self.embedding.bias.as_ref().expect("built with a bias").val();
-        dense(flat, self.embedding.weight.val(), bias, Some(self.negative_slope))
+        dense(convolved, self.embedding.weight.val(), bias, Some(self.negative_slope))
     }
 
     /// Action means `[batch, action_dim]` and values `[batch]` from images `[batch, frames, 84, 84]`

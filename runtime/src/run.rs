@@ -267,8 +267,8 @@ impl TrainConfig {
                 ));
             }
         }
-        if profile.ppo.freeze_encoder && self.agent != Agent::Vision {
-            return Err(TrainError::Config("ppo.freeze_encoder: only the vision agent has an encoder (agent = \"vision\")".into()));
+        if !profile.ppo.frozen.is_nothing() && self.agent != Agent::Vision {
+            return Err(TrainError::Config("ppo.frozen: only the vision agent has image layers to freeze (agent = \"vision\")".into()));
         }
         if let Some(log_std) = self.init_log_std
             && (self.init_from.is_none() || !log_std.is_finite())
@@ -626,11 +626,11 @@ mod tests {
     }
 
     #[test]
-    fn a_frozen_encoder_needs_the_vision_agent_and_a_start_log_std_needs_a_start() {
+    fn frozen_layers_need_the_vision_agent_and_a_start_log_std_needs_a_start() {
         let refused = |text: &str| TrainConfig::from_toml(text).unwrap().resolved_profile().unwrap_err().to_string();
-        assert!(refused("[ppo]\nfreeze_encoder = true\n").contains("ppo.freeze_encoder"));
-        let vision = TrainConfig::from_toml("agent = \"vision\"\n[ppo]\nfreeze_encoder = true\n").unwrap();
-        assert!(vision.resolved_profile().unwrap().ppo.freeze_encoder);
+        assert!(refused("[ppo]\nfrozen = \"encoder\"\n").contains("ppo.frozen"));
+        let vision = TrainConfig::from_toml("agent = \"vision\"\n[ppo]\nfrozen = \"convolutions\"\n").unwrap();
+        assert_eq!(vision.resolved_profile().unwrap().ppo.frozen, learner::Frozen::Convolutions);
         assert!(refused("init_log_std = -1.5\n").contains("init_log_std: -1.5 needs init_from"));
         assert!(TrainConfig::from_toml("init_from = \"student.bin\"\ninit_log_std = -1.5\n").unwrap().resolved_profile().is_ok());
     }

@@ -5,7 +5,7 @@
 use burn::module::{Module, ParamId};
 use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor, TensorData};
-use policy::vision::{EMBEDDING, IMAGE_SIDE, image_tensor};
+use policy::vision::{IMAGE_SIDE, image_tensor};
 use policy::{ActorCritic, VisionActorCritic};
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 use super::imitation::ImitationTerm;
 use super::loss::{clipped_surrogate, gaussian_entropy, log_prob, normalize_advantages, value_loss};
 use super::mirror::MirrorTerm;
-use crate::config::PpoConfig;
+use crate::config::{Frozen, PpoConfig};
 
 /// The samples of one rollout, flattened (`n` rows).
 #[derive(Clone, Debug, Default)]
@@ -81,7 +81,8 @@ pub struct UpdateStats {
 /// One minibatch on the device: rows of a [`TrainingBatch`], advantages normalised over it.
 pub struct Minibatch {
     images: Option<Tensor<4>>,
-    embeddings: Option<Tensor<2>>,
+    frozen: Frozen,
+    frozen_outputs: Option<Tensor<2>>,
     observations: Tensor<2>,
     actions: Tensor<2>,
     old_log_probs: Tensor<1>,
@@ -95,15 +96,16 @@ impl Minibatch {
         self.observations.clone()
     }
 
-    /// Its camera images `[b, 1, 84, 84]` in [0, 1], when the batch has images and no
-    /// embeddings of them.
+    /// Its camera images `[b, 1, 84, 84]` in [0, 1], when the batch has images and they
+    /// do not pass through frozen layers.
     pub fn images(&self) -> Option<Tensor<4>> {
         self.images.clone()
     }
 
-    /// Its images' embeddings `[b, 128]` by a frozen encoder, constants of the graph.
-    pub fn embeddings(&self) -> Option<Tensor<2>> {
-        self.embeddings.clone()
+    /// Which layers are frozen, and their outputs on its images (`[b, width]`, constants of
+    /// the graph), when some are.
+    pub fn frozen_outputs(&self) -> Option<(Frozen, Tensor<2>)> {
+        self.frozen_outputs.clone().map(|outputs| (self.frozen, outputs))
     }
 }
 
@@ -120,9 +122,10 @@ pub trait PpoNetwork: Module {
     /// Action means `[b, action_dim]` of normalised state observations alone, for the
     /// imitation term; `None` for a network that needs more (the vision agent's images).
     fn state_action_means(&self, states: Tensor<2>) -> Option<Tensor<2>>;
-    /// The embeddings (`n × 128`) of every image of `batch` by the network's encoder, without a
-    /// graph, for an update that freezes the encoder; `None` for a network without one.
-    fn encode(&self, _batch: &TrainingBatch, _device: &Device) -> Option<Vec<f32>> {
+    /// The outputs of the `frozen` layers on every image of `batch` (`n × width`), without a
+    /// graph, for an update that leaves those layers as they are; `None` for a network without
+    /// such layers.
+    fn frozen_outputs(&self, _batch: &TrainingBatch, _frozen: Frozen, _device: &Device) -> Option<Vec<f32>> {
         None
     }
 }
@@ -152,10 +155,12 @@ impl PpoNetwork for ActorCritic {
 impl PpoNetwork for VisionActorCritic {
     #[allow(clippy::expect_used, reason = "the learner admits a vision agent's chunks only with their images")]
     fn outputs(&self, m: &Minibatch) -> (Tensor<2>, Tensor<1>) {
-        match m.embeddings() {
-            Some(embeddings) => (self.actor_mean_of(embeddings, m.observations()), self.critic.forward(m.observations()).squeeze_dim(1)),
-            None => self.forward(m.images().expect("a vision agent's minibatch has images"), m.observations()),
-        }
+        let embeddings = match m.frozen_outputs() {
+            Some((Frozen::Encoder, embeddings)) => embeddings,
+            Some((Frozen::Convolutions, convolved)) => self.embed_convolved(convolved),
+            _ => return self.forward(m.images().expect("a vision agent's minibatch has images"), m.observations()),
+        };
+        (self.actor_mean_of(embeddings, m.observations()), self.critic.forward(m.observations()).squeeze_dim(1))
     }
 
     fn log_std(&self) -> Tensor<1> {
@@ -174,28 +179,31 @@ impl PpoNetwork for VisionActorCritic {
         None
     }
 
-    #[allow(clippy::expect_used, reason = "float embeddings")]
-    fn encode(&self, batch: &TrainingBatch, device: &Device) -> Option<Vec<f32>> {
+    #[allow(clippy::expect_used, reason = "float outputs")]
+    fn frozen_outputs(&self, batch: &TrainingBatch, frozen: Frozen, device: &Device) -> Option<Vec<f32>> {
+        let width = frozen.output_width()?;
         // On the inner backend: no graph is recorded, as none would be differentiated.
-        let (encoder, device) = (self.valid(), device.clone().without_autodiff());
+        let (network, device) = (self.valid(), device.clone().without_autodiff());
         let frames = self.frames();
         let observation = frames * IMAGE_SIDE * IMAGE_SIDE;
-        let mut embeddings = Vec::with_capacity(batch.len() * EMBEDDING);
-        for images in batch.images.chunks(ENCODE_ROWS * observation) {
-            let embedded = encoder.embed(image_tensor(images, frames, &device));
-            embeddings.extend(embedded.into_data().try_into_vec::<f32>().expect("float embeddings"));
+        let mut outputs = Vec::with_capacity(batch.len() * width);
+        for images in batch.images.chunks(FROZEN_ROWS * observation) {
+            let convolved = network.convolve(image_tensor(images, frames, &device));
+            let output = if frozen == Frozen::Encoder { network.embed_convolved(convolved) } else { convolved };
+            outputs.extend(output.into_data().try_into_vec::<f32>().expect("float outputs"));
         }
-        Some(embeddings)
+        Some(outputs)
     }
 }
 
-/// Images embedded at a time by [`PpoNetwork::encode`]: a bounded working set of activations.
-const ENCODE_ROWS: usize = 512;
+/// Images passed through the frozen layers at a time: a bounded working set of activations.
+const FROZEN_ROWS: usize = 512;
 
 impl TrainingBatch {
-    /// The rows `rows` as a [`Minibatch`] on `device`; with `embeddings` (`n × 128`, a frozen
-    /// encoder's) the minibatch carries their rows instead of its images.
-    pub fn minibatch(&self, rows: &[usize], embeddings: Option<&[f32]>, device: &Device) -> Minibatch {
+    /// The rows `rows` as a [`Minibatch`] on `device`; with `frozen` layers and their outputs
+    /// on the batch ([`PpoNetwork::frozen_outputs`]) the minibatch carries those rows instead
+    /// of its images.
+    pub fn minibatch(&self, rows: &[usize], frozen: Option<(Frozen, &[f32])>, device: &Device) -> Minibatch {
         let n = self.len();
         let (obs_dim, act_dim) = (self.observations.len() / n, self.actions.len() / n);
         let take = |data: &[f32], width: usize| -> Vec<f32> {
@@ -205,14 +213,18 @@ impl TrainingBatch {
         let mut advantages = take(&self.advantages, 1);
         normalize_advantages(&mut advantages);
         let pixels = IMAGE_SIDE * IMAGE_SIDE;
-        let embeddings = embeddings.map(|e| Tensor::<2>::from_data(TensorData::new(take(e, EMBEDDING), [b, EMBEDDING]), device));
-        let images = (embeddings.is_none() && !self.images.is_empty()).then(|| {
+        let frozen_outputs = frozen.and_then(|(frozen, outputs)| {
+            let width = frozen.output_width()?;
+            Some(Tensor::<2>::from_data(TensorData::new(take(outputs, width), [b, width]), device))
+        });
+        let images = (frozen_outputs.is_none() && !self.images.is_empty()).then(|| {
             let bytes: Vec<u8> = rows.iter().flat_map(|&i| self.images[i * pixels..(i + 1) * pixels].iter().copied()).collect();
             Tensor::<4>::from_data(TensorData::new(policy::pixels_to_unit(&bytes), [b, 1, IMAGE_SIDE, IMAGE_SIDE]), device)
         });
         Minibatch {
             images,
-            embeddings,
+            frozen: frozen.map_or(Frozen::Nothing, |(f, _)| f),
+            frozen_outputs,
             observations: Tensor::<2>::from_data(TensorData::new(take(&self.observations, obs_dim), [b, obs_dim]), device),
             actions: Tensor::<2>::from_data(TensorData::new(take(&self.actions, act_dim), [b, act_dim]), device),
             old_log_probs: Tensor::<1>::from_data(TensorData::new(take(&self.old_log_probs, 1), [b]), device),
@@ -329,13 +341,14 @@ pub fn update<N: PpoNetwork>(
     // The extra terms move the policy, so they are left out while only the critic trains.
     let imitation = step.imitation.filter(|_| step.train_policy);
     let mirror = step.mirror.filter(|_| step.train_policy);
-    // A frozen encoder takes no step, so its embeddings are the same in every epoch: computed
-    // once here, they replace the images, and no gradient reaches its parameters.
-    let embeddings = if config.freeze_encoder { model.encode(batch, device) } else { None };
+    // Frozen layers take no step, so their outputs are the same in every epoch: computed once
+    // here, they replace the images, and no gradient reaches those layers' parameters.
+    let frozen_outputs = model.frozen_outputs(batch, config.frozen, device);
+    let frozen = frozen_outputs.as_deref().map(|outputs| (config.frozen, outputs));
     for _ in 0..config.n_epochs {
         indices.shuffle(rng);
         for rows in indices.chunks(config.batch_size.min(batch.len())) {
-            let minibatch = batch.minibatch(rows, embeddings.as_deref(), device);
+            let minibatch = batch.minibatch(rows, frozen, device);
             let (means, values) = model.outputs(&minibatch);
             // The mirror term reads the same observations, so it is taken before the PPO loss consumes them.
             let mirrored = mirror.and_then(|term| model.state_action_means(term.mirrored(minibatch.observations())).map(|m| (term, m)));
@@ -621,11 +634,11 @@ mod tests {
         assert!(log_std_after(0.01) > -1.0 + 0.04, "widened: {}", log_std_after(0.01));
     }
 
-    /// A frozen encoder: the minibatch of embeddings gives the same outputs as the images,
-    /// the update leaves the convolutions and the embedding layer bit for bit and trains the
-    /// actor; without the freeze the same update moves the convolutions too.
+    /// Frozen layers: a minibatch of their outputs gives the same outputs as the images, the
+    /// update leaves those layers bit for bit and trains the rest; with nothing frozen the
+    /// same update moves the convolutions too.
     #[test]
-    fn a_frozen_encoder_takes_no_step_and_its_embeddings_give_the_images_outputs() {
+    fn frozen_layers_take_no_step_and_their_outputs_give_the_images_outputs() {
         let device = Device::flex().autodiff();
         let arch = policy::Architecture { hidden: vec![16], agent: policy::Agent::Vision, ..policy::Architecture::paper() };
         let n = 24;
@@ -642,41 +655,46 @@ mod tests {
         };
         let model = VisionActorCritic::new(&arch, -0.5, 3, &device);
         let rows: Vec<usize> = (0..n).collect();
-        let embeddings = model.encode(&batch, &device).unwrap();
-        assert_eq!(embeddings.len(), n * EMBEDDING);
         let (from_images, values) = model.outputs(&batch.minibatch(&rows, None, &device));
-        let frozen = batch.minibatch(&rows, Some(&embeddings), &device);
-        assert!(frozen.images().is_none(), "embeddings replace the images");
-        let (from_embeddings, frozen_values) = model.outputs(&frozen);
         let largest_difference = |a: Tensor<2>, b: Tensor<2>| f64::from(scalar((a - b).abs().max()));
-        assert!(largest_difference(from_images, from_embeddings) < 1e-6);
-        assert!(
-            largest_difference(values.unsqueeze_dim(1), frozen_values.unsqueeze_dim(1)) == 0.0,
-            "the critic reads the state either way"
-        );
-        // Export order: three convolutions and the embedding layer (weight, bias each), then the actor.
-        let encoder_params = 2 * VisionActorCritic::CONVOLUTION_COUNT + 2;
-        let weights = |m: &VisionActorCritic| {
-            let params: Vec<Vec<f32>> = m.export().into_iter().map(|p| p.values).collect();
-            let actor = params[encoder_params].clone();
-            (params[..encoder_params].to_vec(), actor)
-        };
-        let before = weights(&model);
-        let run = |freeze_encoder: bool| {
+        assert!(model.frozen_outputs(&batch, Frozen::Nothing, &device).is_none());
+        for (frozen, width) in [(Frozen::Convolutions, policy::vision::CONV_OUTPUT), (Frozen::Encoder, policy::vision::EMBEDDING)] {
+            let outputs = model.frozen_outputs(&batch, frozen, &device).unwrap();
+            assert_eq!(outputs.len(), n * width);
+            let minibatch = batch.minibatch(&rows, Some((frozen, &outputs)), &device);
+            assert!(minibatch.images().is_none(), "{frozen:?}: the frozen layers' outputs replace the images");
+            let (means, frozen_values) = model.outputs(&minibatch);
+            assert!(largest_difference(from_images.clone(), means) < 1e-6, "{frozen:?}");
+            assert!(
+                largest_difference(values.clone().unsqueeze_dim(1), frozen_values.unsqueeze_dim(1)) == 0.0,
+                "the critic reads the state"
+            );
+        }
+        // Export order: three convolutions (weight, bias each), the embedding layer, then the actor.
+        let convolution_params = 2 * VisionActorCritic::CONVOLUTION_COUNT;
+        let params = |m: &VisionActorCritic| m.export().into_iter().map(|p| p.values).collect::<Vec<_>>();
+        let before = params(&model);
+        let after = |frozen: Frozen| {
             let model = VisionActorCritic::new(&arch, -0.5, 3, &device);
             let mut optimizer = burn::optim::AdamConfig::new().init();
-            let config = PpoConfig { batch_size: 12, n_epochs: 2, freeze_encoder, ..PpoConfig::default() };
+            let config = PpoConfig { batch_size: 12, n_epochs: 2, frozen, ..PpoConfig::default() };
             let step = UpdateStep { learning_rate: 1e-3, train_policy: true, imitation: None, mirror: None };
             let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(0);
             let (model, stats) = update(model, &mut optimizer, &batch, &config, &step, &mut rng, &device);
             assert_eq!(stats.gradient_steps, 4);
-            weights(&model)
+            params(&model)
         };
-        let (encoder, actor) = run(true);
-        assert!(encoder == before.0, "the encoder is untouched");
-        assert!(actor != before.1, "the actor trains");
-        let (encoder, _) = run(false);
-        assert!(encoder[0] != before.0[0], "unfrozen, the same update moves the first convolution");
+        let (embedding, actor) = (convolution_params, convolution_params + 2);
+        let encoder = after(Frozen::Encoder);
+        assert!(encoder[..actor] == before[..actor], "the encoder is untouched");
+        assert!(encoder[actor] != before[actor], "the actor trains");
+        let convolutions = after(Frozen::Convolutions);
+        assert!(convolutions[..embedding] == before[..embedding], "the convolutions are untouched");
+        assert!(
+            convolutions[embedding] != before[embedding] && convolutions[actor] != before[actor],
+            "the embedding layer and actor train"
+        );
+        assert!(after(Frozen::Nothing)[0] != before[0], "with nothing frozen the same update moves the first convolution");
     }
 
     #[test]
