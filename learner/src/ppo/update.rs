@@ -81,8 +81,7 @@ pub struct UpdateStats {
 /// One minibatch on the device: rows of a [`TrainingBatch`], advantages normalised over it.
 pub struct Minibatch {
     images: Option<Tensor<4>>,
-    frozen: Frozen,
-    frozen_outputs: Option<Tensor<2>>,
+    frozen_outputs: Option<(Frozen, Tensor<2>)>,
     observations: Tensor<2>,
     actions: Tensor<2>,
     old_log_probs: Tensor<1>,
@@ -105,7 +104,7 @@ impl Minibatch {
     /// Which layers are frozen, and their outputs on its images (`[b, width]`, constants of
     /// the graph), when some are.
     pub fn frozen_outputs(&self) -> Option<(Frozen, Tensor<2>)> {
-        self.frozen_outputs.clone().map(|outputs| (self.frozen, outputs))
+        self.frozen_outputs.clone()
     }
 }
 
@@ -215,7 +214,7 @@ impl TrainingBatch {
         let pixels = IMAGE_SIDE * IMAGE_SIDE;
         let frozen_outputs = frozen.and_then(|(frozen, outputs)| {
             let width = frozen.output_width()?;
-            Some(Tensor::<2>::from_data(TensorData::new(take(outputs, width), [b, width]), device))
+            Some((frozen, Tensor::<2>::from_data(TensorData::new(take(outputs, width), [b, width]), device)))
         });
         let images = (frozen_outputs.is_none() && !self.images.is_empty()).then(|| {
             let bytes: Vec<u8> = rows.iter().flat_map(|&i| self.images[i * pixels..(i + 1) * pixels].iter().copied()).collect();
@@ -223,7 +222,6 @@ impl TrainingBatch {
         });
         Minibatch {
             images,
-            frozen: frozen.map_or(Frozen::Nothing, |(f, _)| f),
             frozen_outputs,
             observations: Tensor::<2>::from_data(TensorData::new(take(&self.observations, obs_dim), [b, obs_dim]), device),
             actions: Tensor::<2>::from_data(TensorData::new(take(&self.actions, act_dim), [b, act_dim]), device),
