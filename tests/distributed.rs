@@ -172,12 +172,13 @@ struct Cluster {
 
 impl Cluster {
     fn new(dir: &Path, transport: &'static str, extra: &str) -> Self {
+        let (taskctl_port, learner_port) = two_free_ports();
         Self {
             dir: dir.to_path_buf(),
             config: write_config(dir, extra).display().to_string(),
             out: dir.join("run").display().to_string(),
-            taskctl_addr: format!("127.0.0.1:{}", free_port()),
-            learner_addr: format!("127.0.0.1:{}", free_port()),
+            taskctl_addr: format!("127.0.0.1:{taskctl_port}"),
+            learner_addr: format!("127.0.0.1:{learner_port}"),
             transport,
             shm_run: {
                 // Each cluster gets its own services, whatever earlier tests left behind.
