@@ -26,8 +26,9 @@ use runtime::distill::DistillConfig;
 use sim::VecEnv;
 use sim::camera::{IMAGE_PIXELS, TARGET_COLOUR};
 
-/// Distance bins (m) from the drone to the target gate's centre: below each bound.
-const BINS: [(f64, &str); 4] = [(1.0, "< 1 m"), (2.0, "1-2 m"), (4.0, "2-4 m"), (f64::INFINITY, "> 4 m")];
+#[path = "support/distance_bins.rs"]
+mod distance_bins;
+use distance_bins::{BINS, bin_of};
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -60,7 +61,7 @@ fn main() -> anyhow::Result<()> {
             let truth = gate_targets(e.track(), e.target_gate(), &body.position, &body.rotation());
             let guess = &predicted[i * truth.len()..(i + 1) * truth.len()];
             let distance = f64::from(truth[PER_GATE - 1]).exp();
-            let bin = BINS.iter().position(|(bound, _)| distance < *bound).unwrap_or(BINS.len() - 1);
+            let bin = bin_of(distance);
             for (t, g) in truth[..PER_GATE - 1].chunks(3).zip(guess.chunks(3)) {
                 let dot: f32 = t.iter().zip(g).map(|(a, b)| a * b).sum();
                 let norms = t.iter().map(|v| v * v).sum::<f32>().sqrt() * g.iter().map(|v| v * v).sum::<f32>().sqrt();

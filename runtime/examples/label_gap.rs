@@ -27,8 +27,9 @@ use policy::{Policy, VisionPolicy};
 use runtime::distill::DistillConfig;
 use sim::{ACTION_DIM, PREVIOUS_ACTION_RANGE, TARGET_CORNERS_RANGE, VecEnv};
 
-/// Distance bins (m) from the drone to the target gate's centre: below each bound.
-const BINS: [(f64, &str); 4] = [(1.0, "< 1 m"), (2.0, "1-2 m"), (4.0, "2-4 m"), (f64::INFINITY, "> 4 m")];
+#[path = "support/distance_bins.rs"]
+mod distance_bins;
+use distance_bins::{BINS, bin_of};
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -74,7 +75,7 @@ fn main() -> anyhow::Result<()> {
         ];
         for (i, e) in env.envs().iter().enumerate() {
             let distance = (e.body().position - e.track().gates[e.target_gate()].position).norm();
-            let bin = BINS.iter().position(|(bound, _)| distance < *bound).unwrap_or(BINS.len() - 1);
+            let bin = bin_of(distance);
             let rows = i * ACTION_DIM..(i + 1) * ACTION_DIM;
             let hidden = observations[i * dim..(i + 1) * dim][TARGET_CORNERS_RANGE].iter().all(|v| *v == 0.0);
             for (k, actions) in compared.iter().enumerate() {
