@@ -79,3 +79,36 @@ fn an_actor_that_misses_an_iteration_is_dropped_and_rejoins_with_its_next_rollou
     learner.iteration_step(&stop, Some(&tasks), &learner_only).unwrap().unwrap();
     assert!(waited.elapsed() >= Duration::from_millis(300), "a1 was waited for again");
 }
+
+#[test]
+fn an_actor_left_without_a_newer_version_resends_after_its_timeout_then_waits_twice_as_long() {
+    let config = TrainConfig {
+        profile: "cpu".into(),
+        envs: Some(2),
+        ppo: Some(PpoConfig { n_steps: 16, batch_size: 32, n_epochs: 1, ..PpoConfig::default() }),
+        ..TrainConfig::default()
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let tasks = LocalTasks::new(config.task_controller(2).unwrap(), None);
+    let stop = AtomicBool::new(false);
+    let timeout = Duration::from_millis(1000);
+    let settings =
+        ActorSettings { name: "a0".into(), envs: 2, seed: 1, env: config.env, n_steps: 16, weights_timeout: timeout, max_rollouts: None };
+    let (mut link, learner_end) = memory_link();
+    let mut actor = ActorLoop::register(&settings, &tasks, &stop).unwrap().unwrap();
+    // The learner publishes version 0 and never trains: no newer version comes.
+    let run = Run::create(config.clone(), dir.path()).unwrap();
+    let _learner =
+        LearnerProcess::start(run, None, learner_end, std::sync::Arc::new(LearnerBoard::default()), LearnerSettings::default()).unwrap();
+
+    assert_eq!(actor.pass(&mut link, &tasks, &stop).unwrap(), Pass::Sent);
+    assert_eq!(actor.pass(&mut link, &tasks, &stop).unwrap(), Pass::Waiting, "one rollout per version");
+    std::thread::sleep(timeout + Duration::from_millis(100));
+    assert_eq!(actor.pass(&mut link, &tasks, &stop).unwrap(), Pass::Sent, "overdue after the timeout: resent");
+    // The next resend waits twice the timeout (this fails only if the sleep overshoots 0.9 s).
+    std::thread::sleep(timeout + Duration::from_millis(100));
+    assert_eq!(actor.pass(&mut link, &tasks, &stop).unwrap(), Pass::Waiting, "the second resend waits 2× the timeout");
+    std::thread::sleep(timeout);
+    assert_eq!(actor.pass(&mut link, &tasks, &stop).unwrap(), Pass::Sent);
+    assert_eq!(actor.sent(), 3);
+}

@@ -28,7 +28,8 @@ pub struct ActorSettings {
     /// Policy steps per rollout.
     pub n_steps: usize,
     /// How long to wait for a newer policy before collecting again with the current one (a
-    /// lost rollout or a restarting learner must not stall the actor forever).
+    /// lost rollout or a restarting learner must not stall the actor forever); doubled after
+    /// each such resend of the same version, since a slow update is likelier than a lost one.
     pub weights_timeout: Duration,
     /// Stop after this many rollouts (for tests and benchmarks).
     pub max_rollouts: Option<u64>,
@@ -94,6 +95,8 @@ pub struct ActorLoop {
     rollout: u64,
     sent: u64,
     waiting_since: Instant,
+    /// Rollouts collected again with the version in hand because no newer one came.
+    resends: u32,
 }
 
 impl ActorLoop {
@@ -115,7 +118,7 @@ impl ActorLoop {
     }
 
     fn with_actor(settings: &ActorSettings, actor: Actor, rollout: u64) -> Self {
-        Self { settings: settings.clone(), actor, current: None, used: None, rollout, sent: 0, waiting_since: Instant::now() }
+        Self { settings: settings.clone(), actor, current: None, used: None, rollout, sent: 0, waiting_since: Instant::now(), resends: 0 }
     }
 
     /// The environments mid-episode and the noise stream, for a checkpoint.
@@ -143,10 +146,19 @@ impl ActorLoop {
         }
         let Some((epoch, version, lag)) = self.current else { return Ok(Pass::Waiting) };
         // Synchronous learners want one rollout per version: wait for the next one, unless it
-        // is overdue (then the learner lost ours or restarted; send another).
+        // is overdue (then the learner lost ours or restarted; send another). The wait doubles
+        // with each resend: a vision update with validation outlasts the timeout, and a
+        // rollout collected during it would only take the learner's cores and be dropped.
         let fresh = self.used != Some((epoch, version));
-        if lag == 0 && !fresh && self.waiting_since.elapsed() < self.settings.weights_timeout {
+        if fresh {
+            self.resends = 0;
+        }
+        let overdue_after = self.settings.weights_timeout.saturating_mul(1 << self.resends.min(6));
+        if lag == 0 && !fresh && self.waiting_since.elapsed() < overdue_after {
             return Ok(Pass::Waiting);
+        }
+        if lag == 0 && !fresh {
+            self.resends = self.resends.saturating_add(1);
         }
         let chunk = self.actor.collect(self.settings.n_steps)?;
         self.used = Some((epoch, version));
