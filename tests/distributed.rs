@@ -172,13 +172,14 @@ struct Cluster {
 
 impl Cluster {
     fn new(dir: &Path, transport: &'static str, extra: &str) -> Self {
-        let (taskctl_port, learner_port) = two_free_ports();
+        // The supervisor's own choice of ports, which holds both listeners until both are known.
+        let (taskctl_addr, learner_addr) = runtime::supervisor::two_free_ports().unwrap();
         Self {
             dir: dir.to_path_buf(),
             config: write_config(dir, extra).display().to_string(),
             out: dir.join("run").display().to_string(),
-            taskctl_addr: format!("127.0.0.1:{taskctl_port}"),
-            learner_addr: format!("127.0.0.1:{learner_port}"),
+            taskctl_addr: taskctl_addr.to_string(),
+            learner_addr: learner_addr.to_string(),
             transport,
             shm_run: {
                 // Each cluster gets its own services, whatever earlier tests left behind.

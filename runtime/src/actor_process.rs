@@ -153,11 +153,11 @@ impl ActorLoop {
         if fresh {
             self.resends = 0;
         }
-        let overdue_after = self.settings.weights_timeout.saturating_mul(1 << self.resends.min(6));
-        if lag == 0 && !fresh && self.waiting_since.elapsed() < overdue_after {
-            return Ok(Pass::Waiting);
-        }
         if lag == 0 && !fresh {
+            let overdue_after = self.settings.weights_timeout.saturating_mul(1 << self.resends.min(6));
+            if self.waiting_since.elapsed() < overdue_after {
+                return Ok(Pass::Waiting);
+            }
             self.resends = self.resends.saturating_add(1);
         }
         let chunk = self.actor.collect(self.settings.n_steps)?;

@@ -127,7 +127,7 @@ impl Supervised {
 /// Two distinct free local ports, for the task controller and the learner. Both listeners are
 /// held until both ports are known: one dropped before the next bind lets the kernel hand the
 /// same port out twice (seen in CI: the learner could not bind the task controller's port).
-fn two_free_ports() -> anyhow::Result<(SocketAddr, SocketAddr)> {
+pub fn two_free_ports() -> anyhow::Result<(SocketAddr, SocketAddr)> {
     let bind = || TcpListener::bind("127.0.0.1:0").context("finding a free local port");
     let (first, second) = (bind()?, bind()?);
     Ok((first.local_addr()?, second.local_addr()?))

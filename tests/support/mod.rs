@@ -23,14 +23,6 @@ pub fn free_port() -> u16 {
     TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
 }
 
-/// Two distinct free local TCP ports: both listeners are held until both are known, since one
-/// dropped before the next bind lets the kernel hand the same port out twice.
-pub fn two_free_ports() -> (u16, u16) {
-    let bind = || TcpListener::bind("127.0.0.1:0").unwrap();
-    let (first, second) = (bind(), bind());
-    (first.local_addr().unwrap().port(), second.local_addr().unwrap().port())
-}
-
 /// A tiny run: 8 environments, 32-step rollouts, 1 epoch, a checkpoint every iteration, a
 /// 3 s actor timeout; `extra` is appended to the TOML.
 pub fn write_config(dir: &Path, extra: &str) -> PathBuf {
