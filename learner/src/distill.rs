@@ -12,11 +12,12 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
+use burn::module::Module;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Bytes, Device, Tensor, TensorData};
 use policy::gate_head::{GATE_TARGETS, GateHead, gate_targets, shown_mask};
 use policy::vision::image_tensor;
-use policy::{Agent, Architecture, ObsNormalizer, WeightsBlob};
+use policy::{Agent, Architecture, ObsNormalizer, VisionActorCritic, WeightsBlob};
 use rand::Rng;
 use rayon::prelude::*;
 use sim::camera::IMAGE_PIXELS;
@@ -525,15 +526,7 @@ impl Student {
                         (StepLoss { imitation: imitation_value, gate: None }, Network::Vision(model))
                     }
                     Some((head, weight)) => {
-                        // The head places the gates of the current frame, each observation's first.
-                        let observation = data.frame_stack().image_len();
-                        let mask: Vec<f32> = pixels.chunks_exact(observation).flat_map(|o| shown_mask(&o[..IMAGE_PIXELS])).collect();
-                        // Mean over the numbers scored, so the weight does not depend on how
-                        // often gates are in view.
-                        let scored = mask.iter().sum::<f32>().max(1.0);
-                        let mask = Tensor::<2>::from_data(TensorData::new(mask, [n, GATE_TARGETS]), &self.device);
-                        let targets = Tensor::<2>::from_data(TensorData::new(data.gate_targets(rows), [n, GATE_TARGETS]), &self.device);
-                        let gate = ((head.forward(embedding) - targets).powi_scalar(2) * mask).sum().div_scalar(scored);
+                        let gate = gate_loss(&head, embedding, &pixels, data, rows, &self.device);
                         let gate_value = f64::from(scalar(gate.clone()));
                         let mut grads = (imitation + gate.mul_scalar(weight)).backward();
                         let model_grads = GradientsParams::from_module(&mut grads, &model);
@@ -549,6 +542,74 @@ impl Student {
         self.version += 1;
         loss
     }
+
+    /// One gradient step of the gate head's loss alone on samples `rows` — the student's
+    /// perception trained apart from imitation, its actor untouched. With `train_cnn` false
+    /// only the head learns: a probe of what the CNN already encodes. Returns the loss before
+    /// the step; errors without a vision student and a gate head.
+    #[allow(clippy::expect_used, reason = "the model is present between calls; float outputs")]
+    pub fn gate_step(&mut self, data: &DistillDataset, rows: &[usize], learning_rate: f64, train_cnn: bool) -> Result<f64, LearnerError> {
+        let Some((head, weight)) = self.gate_head.take() else {
+            return Err(LearnerError::State("a gate step needs a gate head".into()));
+        };
+        let model = match self.model.take().expect("the model is present between calls") {
+            Network::Vision(model) => model,
+            other => {
+                self.model = Some(other);
+                self.gate_head = Some((head, weight));
+                return Err(LearnerError::State("a gate step needs a vision student".into()));
+            }
+        };
+        let pixels = data.images(rows);
+        let frames = data.frame_stack().frames;
+        let embedding = match train_cnn {
+            true => model.embed(image_tensor(&pixels, frames, &self.device)),
+            // On the inner backend, as PPO's frozen layers are: a graph recorded through the
+            // CNN and then detached would be kept, never differentiated.
+            false => {
+                let inner = self.device.clone().without_autodiff();
+                Tensor::<2>::from_data(model.valid().embed(image_tensor(&pixels, frames, &inner)).into_data(), &self.device)
+            }
+        };
+        let loss = gate_loss(&head, embedding, &pixels, data, rows, &self.device);
+        let value = f64::from(scalar(loss.clone()));
+        let mut grads = loss.backward();
+        let head_grads = GradientsParams::from_module(&mut grads, &head);
+        let model = match train_cnn {
+            true => {
+                let model_grads = GradientsParams::from_module(&mut grads, &model);
+                self.optimizer.step(learning_rate, model, model_grads)
+            }
+            false => model,
+        };
+        self.gate_head = Some((self.optimizer.step(learning_rate, head, head_grads), weight));
+        self.model = Some(Network::Vision(model));
+        self.version += 1;
+        Ok(value)
+    }
+
+    /// The student's vision network and gate head as they are now, for analyses (none for a
+    /// state student or one without a head).
+    pub fn vision_with_gate_head(&self) -> Option<(VisionActorCritic, GateHead)> {
+        match (self.model(), &self.gate_head) {
+            (Network::Vision(model), Some((head, _))) => Some((model.valid(), head.valid())),
+            _ => None,
+        }
+    }
+}
+
+/// The gate head's loss on `embedding` (of `pixels`, samples `rows` of `data`): the mean squared
+/// error over the numbers scored, those of the gates each sample's current frame shows — a
+/// mean over them, so a loss weight does not depend on how often gates are in view.
+fn gate_loss(head: &GateHead, embedding: Tensor<2>, pixels: &[u8], data: &DistillDataset, rows: &[usize], device: &Device) -> Tensor<1> {
+    let n = rows.len();
+    // The head places the gates of the current frame, each observation's first.
+    let observation = data.frame_stack().image_len();
+    let mask: Vec<f32> = pixels.chunks_exact(observation).flat_map(|o| shown_mask(&o[..IMAGE_PIXELS])).collect();
+    let scored = mask.iter().sum::<f32>().max(1.0);
+    let mask = Tensor::<2>::from_data(TensorData::new(mask, [n, GATE_TARGETS]), device);
+    let targets = Tensor::<2>::from_data(TensorData::new(data.gate_targets(rows), [n, GATE_TARGETS]), device);
+    ((head.forward(embedding) - targets).powi_scalar(2) * mask).sum().div_scalar(scored)
 }
 
 #[cfg(test)]
@@ -767,6 +828,40 @@ mod tests {
             .unwrap();
         assert_eq!(restored.train_step(&data, &rows, 1e-3), student.train_step(&data, &rows, 1e-3));
         assert_eq!(restored.weights(), student.weights());
+    }
+
+    #[test]
+    fn gate_steps_train_perception_alone_and_a_probe_leaves_the_cnn_as_it_was() {
+        let arch = Architecture { hidden: vec![16, 16], agent: Agent::Vision, ..Architecture::paper() };
+        let mut data = DistillDataset::new(64, arch.observation_dim, FrameStack::default());
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let mut env = RaceEnv::new(track(), EnvConfig::default(), 1, 0);
+        for _ in 0..32 {
+            data.offer(&env, &env.observation_in(arch.observation_layout()), &[0.0; 4], &mut rng);
+            env.step(&[0.3, 0.2, -0.1, 0.2]);
+        }
+        let rows: Vec<usize> = (0..data.len()).collect();
+        let without_head = Student::new(&arch, None, None, 0.0, 2).unwrap();
+        assert!({ without_head }.gate_step(&data, &rows, 1e-3, true).is_err(), "a gate step needs a head");
+        // Values only: every network built has its own parameter ids.
+        let params =
+            |s: &Student| s.weights().vision_model(&Device::flex()).unwrap().export().into_iter().map(|p| p.values).collect::<Vec<_>>();
+        let start = Student::new(&arch, None, None, 0.0, 2).unwrap();
+        let start_params = params(&start);
+        let (start_cnn, start_actor) = (start_params[..8].to_vec(), start_params[8..14].to_vec());
+        for train_cnn in [true, false] {
+            let mut student = Student::new(&arch, None, None, 0.0, 2).unwrap().with_gate_head(1.0, None, 3).unwrap();
+            let first = student.gate_step(&data, &rows, 1e-3, train_cnn).unwrap();
+            let mut last = first;
+            for _ in 0..40 {
+                last = student.gate_step(&data, &rows, 1e-3, train_cnn).unwrap();
+            }
+            assert!(last < 0.5 * first, "train_cnn {train_cnn}: gate loss {first} → {last}");
+            let now = params(&student);
+            // The actor never moves; the CNN and embedding move only when they train.
+            assert_eq!(now[8..14], start_actor[..], "train_cnn {train_cnn}: the actor");
+            assert_eq!(now[..8] == start_cnn[..], !train_cnn, "train_cnn {train_cnn}: the CNN");
+        }
     }
 
     #[test]

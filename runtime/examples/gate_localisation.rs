@@ -1,0 +1,163 @@
+//! Can the vision agent's CNN (SPEC §5) place the gates as precisely as a policy needs? Trains
+//! it to do nothing else — the gate head's loss alone (`learner::distill::Student::gate_step`),
+//! no imitation — on images of a teacher's flights, and reports its errors on held-out tracks
+//! in the units of `perception_noise`'s table, so the answer reads against what the camera-sight
+//! teachers fly with such errors.
+//!
+//! `cargo run --release -p runtime --example gate_localisation -- DISTILL_CONFIG MODE STEPS [LR] [OUT]`
+//!
+//! The config's teacher flies 64 environments on 64 generated training tracks (4,000 steps; a
+//! reservoir of 200,000 states whose image shows the target or the next gate) and 32 on the first
+//! 32 validation tracks (1,500 steps; 30,000 states), with the config's environment settings.
+//! MODE says what learns: `probe` — a fresh linear gate head on the frozen CNN of the config's
+//! `init_from` (what its embedding already holds); `tune` — that CNN and the head together;
+//! `fresh` — a new CNN and head. STEPS gradient steps of 128 samples, learning rate LR (3e-4);
+//! every 500 the validation table: for states whose image shows the target gate, by distance to
+//! it, the RMS angle between predicted and true direction to each corner, the RMS error per
+//! axis of each corner's position (m; `perception_noise`'s floor is per axis too) and the RMS
+//! relative error of the distance. OUT, if given, receives the trained student's weights blob.
+
+#![allow(clippy::print_stdout, reason = "the table on stdout is what this analysis is for")]
+
+use std::path::Path;
+use std::sync::Arc;
+
+use anyhow::{Context, bail};
+use learner::checkpoint::read_policy;
+use learner::distill::{DistillDataset, Student};
+use policy::gate_head::{GATE_TARGETS, PER_GATE};
+use policy::{Device, Policy};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use runtime::distill::DistillConfig;
+use sim::camera::{IMAGE_PIXELS, NEXT_COLOUR, TARGET_COLOUR};
+use sim::{EnvConfig, FrameStack, Track, VecEnv};
+
+#[path = "support/distance_bins.rs"]
+mod distance_bins;
+use distance_bins::{BINS, bin_of};
+
+const MINIBATCH: usize = 128;
+const REPORT_EVERY: usize = 500;
+const SEED: u64 = 0;
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let (config, mode, steps, rest) = match args.as_slice() {
+        [config, mode, steps, rest @ ..] if rest.len() <= 2 => (config, mode.as_str(), steps.parse::<usize>().context("STEPS")?, rest),
+        _ => bail!("usage: gate_localisation DISTILL_CONFIG probe|tune|fresh STEPS [LR] [OUT]"),
+    };
+    let learning_rate: f64 = rest.first().map_or(Ok(3e-4), |s| s.parse()).context("LR")?;
+    let config = DistillConfig::read(Path::new(config))?;
+    let teacher = read_policy(&config.teacher).with_context(|| format!("teacher {}", config.teacher.display()))?;
+    let start_path = config.init_from.as_ref().context("the config names the student's start (init_from)")?;
+    let start = read_policy(start_path).with_context(|| format!("init_from {}", start_path.display()))?;
+    let train_cnn = match mode {
+        "probe" => false,
+        "tune" | "fresh" => true,
+        other => bail!("MODE {other:?}: probe, tune or fresh"),
+    };
+    let from = (mode != "fresh").then_some(&start);
+    let mut student = Student::new(&start.architecture, None, from, 0.0, SEED)?.with_gate_head(1.0, None, SEED)?;
+
+    let mut env = config.env.clone();
+    env.set_observation_layout(teacher.architecture.observation_layout());
+    let pilot = Policy::from_blob(&teacher)?;
+    let generator = racetracks::generator::TrackGenerator::default();
+    let training: Vec<Arc<Track>> =
+        (1..=64).map(|seed| Ok(Arc::new(generator.generate(seed, &format!("train-{seed}"))?.track))).collect::<anyhow::Result<_>>()?;
+    let validation: Vec<Arc<Track>> = racetracks::validation_set(32)?.into_iter().map(Arc::new).collect();
+    let train = fly(training, &env, &pilot, 4000, 200_000, 1);
+    let held_out = fly(validation, &env, &pilot, 1500, 30_000, 2);
+    println!("{mode}: {} training states ({} offered), {} validation states", train.len(), train.seen(), held_out.len());
+
+    let mut rng = ChaCha8Rng::seed_from_u64(SEED);
+    let (mut loss_sum, mut loss_count) = (0.0, 0);
+    for step in 1..=steps {
+        let rows: Vec<usize> = (0..MINIBATCH).map(|_| rng.random_range(0..train.len())).collect();
+        loss_sum += student.gate_step(&train, &rows, learning_rate, train_cnn)?;
+        loss_count += 1;
+        if step % REPORT_EVERY == 0 || step == steps {
+            println!("step {step}: training loss {:.4}", loss_sum / f64::from(loss_count));
+            (loss_sum, loss_count) = (0.0, 0);
+            report(&student, &held_out);
+        }
+    }
+    if let Some(out) = rest.get(1) {
+        std::fs::write(out, student.weights().to_bytes()).with_context(|| format!("writing {out}"))?;
+    }
+    Ok(())
+}
+
+/// A data set of the states `pilot` visits on `tracks` (one environment each, `steps` steps)
+/// whose image shows the target or the next gate; the labels are unused.
+fn fly(tracks: Vec<Arc<Track>>, env: &EnvConfig, pilot: &Policy, steps: usize, capacity: usize, seed: u64) -> DistillDataset {
+    let mut envs = VecEnv::new(tracks, env.clone(), seed).with_images();
+    let dim = envs.observation_dim();
+    let mut data = DistillDataset::new(capacity, dim, FrameStack::default());
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    for _ in 0..steps {
+        for (i, e) in envs.envs().iter().enumerate() {
+            let image = &envs.images[i * IMAGE_PIXELS..(i + 1) * IMAGE_PIXELS];
+            if image.contains(&TARGET_COLOUR) || image.contains(&NEXT_COLOUR) {
+                data.offer(e, &envs.observations[i * dim..(i + 1) * dim], &[0.0; 4], &mut rng);
+            }
+        }
+        let actions = pilot.deterministic_actions(&envs.observations);
+        envs.step(&actions);
+    }
+    data
+}
+
+/// Prints the validation table (module docs) of the student's gate head.
+fn report(student: &Student, data: &DistillDataset) {
+    let Some((model, head)) = student.vision_with_gate_head() else { return };
+    let device = Device::flex();
+    // Per bin: squared corner angles (rad²), squared corner position errors (m², 3 axes),
+    // corners, squared relative distance errors, states.
+    let mut sums = [[0f64; 5]; BINS.len()];
+    let rows: Vec<usize> = (0..data.len()).collect();
+    for chunk in rows.chunks(1024) {
+        let images = data.images(chunk);
+        let predicted = head.predict(&model, &images, &device);
+        let truths = data.gate_targets(chunk);
+        for (k, image) in images.chunks_exact(IMAGE_PIXELS).enumerate() {
+            if !image.contains(&TARGET_COLOUR) {
+                continue;
+            }
+            let (truth, guess) = (&truths[k * GATE_TARGETS..][..PER_GATE], &predicted[k * GATE_TARGETS..][..PER_GATE]);
+            let (true_distance, guessed_distance) = (f64::from(truth[PER_GATE - 1]).exp(), f64::from(guess[PER_GATE - 1]).exp());
+            let bin = &mut sums[bin_of(true_distance)];
+            for (t, g) in truth[..PER_GATE - 1].chunks(3).zip(guess.chunks(3)) {
+                let dot: f64 = t.iter().zip(g).map(|(a, b)| f64::from(a * b)).sum();
+                let norm = |v: &[f32]| v.iter().map(|x| f64::from(x * x)).sum::<f64>().sqrt();
+                bin[0] += (dot / (norm(t) * norm(g)).max(1e-9)).clamp(-1.0, 1.0).acos().powi(2);
+                // A corner is its direction times the distance it was divided by.
+                bin[1] +=
+                    t.iter().zip(g).map(|(a, b)| (f64::from(*a) * true_distance - f64::from(*b) * guessed_distance).powi(2)).sum::<f64>();
+                bin[2] += 1.0;
+            }
+            bin[3] += (guessed_distance / true_distance - 1.0).powi(2);
+            bin[4] += 1.0;
+        }
+    }
+    println!("{:>8} {:>7} {:>16} {:>18} {:>13}", "to gate", "states", "corner angle (°)", "corner per axis (m)", "distance (%)");
+    let mut total = [0f64; 5];
+    for ((_, name), s) in BINS.iter().zip(&sums) {
+        total.iter_mut().zip(s).for_each(|(t, v)| *t += v);
+        print_row(name, s);
+    }
+    print_row("all", &total);
+}
+
+/// One row of the table: states, RMS corner angle (°), RMS corner error per axis (m), RMS
+/// relative distance error (%).
+fn print_row(name: &str, s: &[f64; 5]) {
+    println!(
+        "{name:>8} {:>7} {:>16.2} {:>18.3} {:>13.1}",
+        s[4],
+        (s[0] / s[2]).sqrt().to_degrees(),
+        (s[1] / (3.0 * s[2])).sqrt(),
+        100.0 * (s[3] / s[4]).sqrt()
+    );
+}
