@@ -83,6 +83,28 @@ fn an_interrupted_distillation_resumes_bit_for_bit() {
 }
 
 #[test]
+fn a_frozen_encoder_keeps_the_starts_cnn_through_rounds_and_a_resume() {
+    let dir = tempfile::tempdir().unwrap();
+    let start = dir.path().join("start.bin");
+    std::fs::write(&start, Distiller::start(tiny_config(), &dir.path().join("first")).unwrap().student().to_bytes()).unwrap();
+    let config = || DistillConfig { frozen_encoder: true, init_from: Some(start.clone()), ..tiny_config() };
+    let run = dir.path().join("frozen");
+    let mut d = Distiller::start(config(), &run).unwrap();
+    d.round_step().unwrap();
+    d.round_step().unwrap(); // the checkpoint of round 2 is written here
+    drop(d);
+    let mut d = Distiller::resume(&run).unwrap();
+    d.round_step().unwrap();
+    // The convolutions and the embedding layer (the first 8 parameters) are the start's; the actor learned.
+    let values = |blob: &WeightsBlob| blob.params.iter().map(|p| p.values.clone()).collect::<Vec<_>>();
+    let (before, after) = (values(&WeightsBlob::from_bytes(&std::fs::read(&start).unwrap()).unwrap()), values(&d.student()));
+    assert_eq!(after[..8], before[..8]);
+    assert_ne!(after[8..14], before[8..14]);
+    let err = Distiller::start(DistillConfig { frozen_encoder: true, ..tiny_config() }, &dir.path().join("no-start")).err().unwrap();
+    assert!(format!("{err:#}").contains("frozen_encoder"), "{err:#}");
+}
+
+#[test]
 fn takeover_hands_the_steps_a_student_strays_on_back_to_the_teacher() {
     // β = 0 from round 1 on: without intervention the student flies every step.
     let share_after_round_0 = |takeover: Option<f64>| {

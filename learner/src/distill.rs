@@ -328,6 +328,9 @@ pub struct Student {
     device: Device,
     /// The training-only gate head and the weight of its loss, when the student has one.
     gate_head: Option<(GateHead, f64)>,
+    /// True when a vision student's CNN and embedding layer keep their weights
+    /// ([`Student::with_frozen_encoder`]).
+    frozen_encoder: bool,
 }
 
 /// The losses of one regression step, before it.
@@ -422,6 +425,7 @@ impl Student {
             version: 0,
             device,
             gate_head: None,
+            frozen_encoder: false,
         })
     }
 
@@ -443,6 +447,7 @@ impl Student {
             version: blob.version,
             device,
             gate_head: None,
+            frozen_encoder: false,
         })
     }
 
@@ -457,6 +462,17 @@ impl Student {
             None => GateHead::new(seed, &self.device),
         };
         self.gate_head = Some((head, weight));
+        Ok(self)
+    }
+
+    /// Keeps a vision student's CNN and embedding layer as they are: only its actor (and a
+    /// gate head) learn, on the embedding of a CNN trained apart, e.g. to place gates
+    /// ([`Student::gate_step`]). Errors for a state student.
+    pub fn with_frozen_encoder(mut self) -> Result<Self, LearnerError> {
+        if !matches!(self.model(), Network::Vision(_)) {
+            return Err(LearnerError::State("a frozen encoder needs a vision student".into()));
+        }
+        self.frozen_encoder = true;
         Ok(self)
     }
 
@@ -516,7 +532,7 @@ impl Student {
             Network::Vision(model) => {
                 assert_eq!(data.frame_stack().frames, model.frames(), "a data set of the frames the student sees");
                 let pixels = data.images(rows);
-                let embedding = model.embed(image_tensor(&pixels, data.frame_stack().frames, &self.device));
+                let embedding = self.embedding(&model, &pixels, data.frame_stack().frames, !self.frozen_encoder);
                 let imitation = squared_error(model.actor_mean_of(embedding.clone(), states));
                 let imitation_value = f64::from(scalar(imitation.clone()));
                 match self.gate_head.take() {
@@ -561,16 +577,7 @@ impl Student {
             }
         };
         let pixels = data.images(rows);
-        let frames = data.frame_stack().frames;
-        let embedding = match train_cnn {
-            true => model.embed(image_tensor(&pixels, frames, &self.device)),
-            // On the inner backend, as PPO's frozen layers are: a graph recorded through the
-            // CNN and then detached would be kept, never differentiated.
-            false => {
-                let inner = self.device.clone().without_autodiff();
-                Tensor::<2>::from_data(model.valid().embed(image_tensor(&pixels, frames, &inner)).into_data(), &self.device)
-            }
-        };
+        let embedding = self.embedding(&model, &pixels, data.frame_stack().frames, train_cnn);
         let loss = gate_loss(&head, embedding, &pixels, data, rows, &self.device);
         let value = f64::from(scalar(loss.clone()));
         let mut grads = loss.backward();
@@ -586,6 +593,17 @@ impl Student {
         self.model = Some(Network::Vision(model));
         self.version += 1;
         Ok(value)
+    }
+
+    /// `model`'s embedding of `pixels`; a constant that no gradient reaches unless `trained`.
+    fn embedding(&self, model: &VisionActorCritic, pixels: &[u8], frames: usize, trained: bool) -> Tensor<2> {
+        if trained {
+            return model.embed(image_tensor(pixels, frames, &self.device));
+        }
+        // On the inner backend, as PPO's frozen layers are: a graph recorded through the CNN
+        // and then detached would be kept by burn's autodiff, never differentiated.
+        let inner = self.device.clone().without_autodiff();
+        Tensor::<2>::from_data(model.valid().embed(image_tensor(pixels, frames, &inner)).into_data(), &self.device)
     }
 
     /// The student's vision network and gate head as they are now, for analyses (none for a
@@ -862,6 +880,36 @@ mod tests {
             assert_eq!(now[8..14], start_actor[..], "train_cnn {train_cnn}: the actor");
             assert_eq!(now[..8] == start_cnn[..], !train_cnn, "train_cnn {train_cnn}: the CNN");
         }
+    }
+
+    #[test]
+    fn a_student_with_a_frozen_encoder_fits_its_actor_and_keeps_its_cnn() {
+        let arch = Architecture { hidden: vec![16, 16], ..Architecture::paper() };
+        let mut data = DistillDataset::new(64, arch.observation_dim, FrameStack::default());
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let mut env = RaceEnv::new(track(), EnvConfig::default(), 1, 0);
+        for k in 0..32 {
+            let label = [0.5, -0.3, 0.2 * (k % 3) as f32, 0.1];
+            data.offer(&env, &env.observation_in(arch.observation_layout()), &label, &mut rng);
+            env.step(&[0.3, 0.2, -0.1, 0.2]);
+        }
+        let rows: Vec<usize> = (0..data.len()).collect();
+        assert!(Student::new(&arch, None, None, 0.0, 2).unwrap().with_frozen_encoder().is_err(), "vision only");
+        let vision_arch = Architecture { agent: Agent::Vision, ..arch };
+        let mut student = Student::new(&vision_arch, None, None, 0.0, 2).unwrap().with_frozen_encoder().unwrap();
+        let values =
+            |s: &Student| s.weights().vision_model(&Device::flex()).unwrap().export().into_iter().map(|p| p.values).collect::<Vec<_>>();
+        let start = values(&student);
+        let first = student.train_step(&data, &rows, 1e-3).imitation;
+        let mut last = first;
+        for _ in 0..60 {
+            last = student.train_step(&data, &rows, 1e-3).imitation;
+        }
+        assert!(last < 0.5 * first, "imitation loss {first} → {last}");
+        let now = values(&student);
+        // Convolutions and embedding layer (the first 8 parameters) as they were; the actor moved.
+        assert_eq!(now[..8], start[..8]);
+        assert_ne!(now[8..14], start[8..14]);
     }
 
     #[test]

@@ -6,13 +6,14 @@
 //!
 //! `cargo run --release -p runtime --example gate_localisation -- DISTILL_CONFIG MODE STEPS [LR] [OUT]`
 //!
-//! The config's teacher flies 64 environments on 64 generated training tracks (4,000 steps; a
-//! reservoir of 200,000 states whose image shows the target or the next gate) and 32 on the first
-//! 32 validation tracks (1,500 steps; 30,000 states), with the config's environment settings.
+//! The config's teacher flies 256 generated training tracks (64 environments at a time, 2,000
+//! steps; a reservoir of 400,000 states whose image shows the target or the next gate) and the
+//! first 32 validation tracks (1,500 steps; 30,000 states), with the config's environment
+//! settings.
 //! MODE says what learns: `probe` — a fresh linear gate head on the frozen CNN of the config's
 //! `init_from` (what its embedding already holds); `tune` — that CNN and the head together;
 //! `fresh` — a new CNN and head. STEPS gradient steps of 128 samples, learning rate LR (3e-4);
-//! every 500 the validation table: for states whose image shows the target gate, by distance to
+//! every 500 a table for 30,000 training and the validation states: for states whose image shows the target gate, by distance to
 //! it, the RMS angle between predicted and true direction to each corner, the RMS error per
 //! axis of each corner's position (m; `perception_noise`'s floor is per axis too) and the RMS
 //! relative error of the distance. OUT, if given, receives the trained student's weights blob.
@@ -40,6 +41,8 @@ use distance_bins::{BINS, bin_of};
 const MINIBATCH: usize = 128;
 const REPORT_EVERY: usize = 500;
 const SEED: u64 = 0;
+/// Generated training tracks (seeds 1, 2, …), flown 64 at a time.
+const TRAINING_TRACKS: u64 = 256;
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -64,12 +67,19 @@ fn main() -> anyhow::Result<()> {
     env.set_observation_layout(teacher.architecture.observation_layout());
     let pilot = Policy::from_blob(&teacher)?;
     let generator = racetracks::generator::TrackGenerator::default();
-    let training: Vec<Arc<Track>> =
-        (1..=64).map(|seed| Ok(Arc::new(generator.generate(seed, &format!("train-{seed}"))?.track))).collect::<anyhow::Result<_>>()?;
+    let mut train = DistillDataset::new(400_000, env.observation_layout().dim(), FrameStack::default());
+    for batch in 0..TRAINING_TRACKS / 64 {
+        let seeds = 1 + 64 * batch..=64 * (batch + 1);
+        let tracks = seeds.map(|seed| Ok(Arc::new(generator.generate(seed, &format!("train-{seed}"))?.track)));
+        fly(tracks.collect::<anyhow::Result<_>>()?, &env, &pilot, 2000, &mut train, batch);
+    }
     let validation: Vec<Arc<Track>> = racetracks::validation_set(32)?.into_iter().map(Arc::new).collect();
-    let train = fly(training, &env, &pilot, 4000, 200_000, 1);
-    let held_out = fly(validation, &env, &pilot, 1500, 30_000, 2);
+    let mut held_out = DistillDataset::new(30_000, env.observation_layout().dim(), FrameStack::default());
+    fly(validation, &env, &pilot, 1500, &mut held_out, 1000);
     println!("{mode}: {} training states ({} offered), {} validation states", train.len(), train.seen(), held_out.len());
+    // As many training states as validation ones, spread over the set, to tell fitting from
+    // generalising.
+    let train_rows: Vec<usize> = (0..held_out.len()).map(|k| k * train.len() / held_out.len()).collect();
 
     let mut rng = ChaCha8Rng::seed_from_u64(SEED);
     let (mut loss_sum, mut loss_count) = (0.0, 0);
@@ -80,7 +90,10 @@ fn main() -> anyhow::Result<()> {
         if step % REPORT_EVERY == 0 || step == steps {
             println!("step {step}: training loss {:.4}", loss_sum / f64::from(loss_count));
             (loss_sum, loss_count) = (0.0, 0);
-            report(&student, &held_out);
+            println!("training states:");
+            report(&student, &train, &train_rows);
+            println!("validation states:");
+            report(&student, &held_out, &(0..held_out.len()).collect::<Vec<_>>());
         }
     }
     if let Some(out) = rest.get(1) {
@@ -89,12 +102,11 @@ fn main() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// A data set of the states `pilot` visits on `tracks` (one environment each, `steps` steps)
+/// Offers `data` the states `pilot` visits on `tracks` (one environment each, `steps` steps)
 /// whose image shows the target or the next gate; the labels are unused.
-fn fly(tracks: Vec<Arc<Track>>, env: &EnvConfig, pilot: &Policy, steps: usize, capacity: usize, seed: u64) -> DistillDataset {
+fn fly(tracks: Vec<Arc<Track>>, env: &EnvConfig, pilot: &Policy, steps: usize, data: &mut DistillDataset, seed: u64) {
     let mut envs = VecEnv::new(tracks, env.clone(), seed).with_images();
     let dim = envs.observation_dim();
-    let mut data = DistillDataset::new(capacity, dim, FrameStack::default());
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     for _ in 0..steps {
         for (i, e) in envs.envs().iter().enumerate() {
@@ -106,17 +118,15 @@ fn fly(tracks: Vec<Arc<Track>>, env: &EnvConfig, pilot: &Policy, steps: usize, c
         let actions = pilot.deterministic_actions(&envs.observations);
         envs.step(&actions);
     }
-    data
 }
 
-/// Prints the validation table (module docs) of the student's gate head.
-fn report(student: &Student, data: &DistillDataset) {
+/// Prints the table (module docs) of the student's gate head on samples `rows` of `data`.
+fn report(student: &Student, data: &DistillDataset, rows: &[usize]) {
     let Some((model, head)) = student.vision_with_gate_head() else { return };
     let device = Device::flex();
     // Per bin: squared corner angles (rad²), squared corner position errors (m², 3 axes),
     // corners, squared relative distance errors, states.
     let mut sums = [[0f64; 5]; BINS.len()];
-    let rows: Vec<usize> = (0..data.len()).collect();
     for chunk in rows.chunks(1024) {
         let images = data.images(chunk);
         let predicted = head.predict(&model, &images, &device);

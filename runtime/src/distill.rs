@@ -90,6 +90,11 @@ pub struct DistillConfig {
     /// exactly what the teacher acts on, added to the imitation loss at this weight. Default 0
     /// (no head).
     pub gate_loss_weight: f64,
+    /// The vision student's CNN and embedding layer keep the weights of `init_from`; only its
+    /// actor (and a gate head) learn. For a start whose CNN was trained apart to place the
+    /// gates (`runtime/examples/gate_localisation.rs`): imitation then fits an actor to that
+    /// perception instead of reshaping it. Default false.
+    pub frozen_encoder: bool,
     /// The vision student's actor also reads its previous action (beyond SPEC §5's VB actor
     /// input). The teacher's observation holds the previous action and its labels depend on
     /// it as much as they depend on anything the image shows (BENCHMARKS.md, "The teacher's
@@ -166,6 +171,7 @@ impl Default for DistillConfig {
             dataset_from: None,
             relabel: false,
             gate_loss_weight: 0.0,
+            frozen_encoder: false,
             tracks: TrackSource::Generated,
             generator: TrackGenerator::default(),
             switching: SwitchParams { window: 5, alpha: 100.0, ..SwitchParams::default() },
@@ -242,6 +248,10 @@ impl DistillConfig {
         ensure!(
             !self.previous_action || self.student == Agent::Vision,
             "previous_action: only a vision student's actor is limited to proprioception; a state student reads the whole observation"
+        );
+        ensure!(
+            !self.frozen_encoder || (self.student == Agent::Vision && self.init_from.is_some()),
+            "frozen_encoder: needs a vision student and the start (init_from) whose CNN stays as it is"
         );
         self.frame_stack.check().map_err(anyhow::Error::msg)?;
         ensure!(
@@ -433,6 +443,9 @@ impl Distiller {
         if config.gate_loss_weight > 0.0 {
             student = student.with_gate_head(config.gate_loss_weight, None, config.seed).context("gate_loss_weight")?;
         }
+        if config.frozen_encoder {
+            student = student.with_frozen_encoder().context("frozen_encoder")?;
+        }
         let progress = Progress {
             round: 0,
             rollout: registration.next_rollout,
@@ -477,6 +490,9 @@ impl Distiller {
             student = student
                 .with_gate_head(config.gate_loss_weight, Some(section("gate_head")?), config.seed)
                 .with_context(|| format!("{}", path.display()))?;
+        }
+        if config.frozen_encoder {
+            student = student.with_frozen_encoder().context("frozen_encoder")?;
         }
         let data = DistillDataset::from_bytes(section("dataset")?).with_context(|| format!("{}", path.display()))?;
         let mut progress: Progress =
