@@ -812,18 +812,30 @@ mod tests {
         assert_eq!(restored.weights(), student.weights());
     }
 
+    /// A data set of 32 states of one flight, state `k` labelled `label(k)`.
+    fn flown_states(arch: &Architecture, label: impl Fn(usize) -> [f32; 4]) -> DistillDataset {
+        let mut data = DistillDataset::new(64, arch.observation_dim, FrameStack::default());
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let mut env = RaceEnv::new(track(), EnvConfig::default(), 1, 0);
+        for k in 0..32 {
+            data.offer(&env, &env.observation_in(arch.observation_layout()), &label(k), &mut rng);
+            env.step(&[0.3, 0.2, -0.1, 0.2]);
+        }
+        data
+    }
+
+    /// A vision student's parameter values in export order (every network built has its own
+    /// parameter ids).
+    fn parameter_values(student: &Student) -> Vec<Vec<f32>> {
+        student.weights().vision_model(&Device::flex()).unwrap().export().into_iter().map(|p| p.values).collect()
+    }
+
     #[test]
     fn a_gate_head_learns_where_the_gates_are_and_resumes_exactly() {
         let arch = Architecture { hidden: vec![16, 16], ..Architecture::paper() };
         let teacher_net = policy::ActorCritic::new(&arch, -0.5, 7, &Device::flex());
         let teacher = WeightsBlob::from_model(1, &arch, &ObsNormalizer::new(arch.observation_dim), &teacher_net);
-        let mut data = DistillDataset::new(64, arch.observation_dim, FrameStack::default());
-        let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let mut env = RaceEnv::new(track(), EnvConfig::default(), 1, 0);
-        for _ in 0..32 {
-            data.offer(&env, &env.observation_in(arch.observation_layout()), &[0.0; 4], &mut rng);
-            env.step(&[0.3, 0.2, -0.1, 0.2]);
-        }
+        let data = flown_states(&arch, |_| [0.0; 4]);
         let rows: Vec<usize> = (0..data.len()).collect();
         let vision_arch = Architecture { agent: Agent::Vision, ..arch.clone() };
         let plain = Student::new(&vision_arch, Some(&teacher), None, 0.0, 2).unwrap();
@@ -851,21 +863,12 @@ mod tests {
     #[test]
     fn gate_steps_train_perception_alone_and_a_probe_leaves_the_cnn_as_it_was() {
         let arch = Architecture { hidden: vec![16, 16], agent: Agent::Vision, ..Architecture::paper() };
-        let mut data = DistillDataset::new(64, arch.observation_dim, FrameStack::default());
-        let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let mut env = RaceEnv::new(track(), EnvConfig::default(), 1, 0);
-        for _ in 0..32 {
-            data.offer(&env, &env.observation_in(arch.observation_layout()), &[0.0; 4], &mut rng);
-            env.step(&[0.3, 0.2, -0.1, 0.2]);
-        }
+        let data = flown_states(&arch, |_| [0.0; 4]);
         let rows: Vec<usize> = (0..data.len()).collect();
         let without_head = Student::new(&arch, None, None, 0.0, 2).unwrap();
         assert!({ without_head }.gate_step(&data, &rows, 1e-3, true).is_err(), "a gate step needs a head");
-        // Values only: every network built has its own parameter ids.
-        let params =
-            |s: &Student| s.weights().vision_model(&Device::flex()).unwrap().export().into_iter().map(|p| p.values).collect::<Vec<_>>();
         let start = Student::new(&arch, None, None, 0.0, 2).unwrap();
-        let start_params = params(&start);
+        let start_params = parameter_values(&start);
         let (start_cnn, start_actor) = (start_params[..8].to_vec(), start_params[8..14].to_vec());
         for train_cnn in [true, false] {
             let mut student = Student::new(&arch, None, None, 0.0, 2).unwrap().with_gate_head(1.0, None, 3).unwrap();
@@ -875,7 +878,7 @@ mod tests {
                 last = student.gate_step(&data, &rows, 1e-3, train_cnn).unwrap();
             }
             assert!(last < 0.5 * first, "train_cnn {train_cnn}: gate loss {first} → {last}");
-            let now = params(&student);
+            let now = parameter_values(&student);
             // The actor never moves; the CNN and embedding move only when they train.
             assert_eq!(now[8..14], start_actor[..], "train_cnn {train_cnn}: the actor");
             assert_eq!(now[..8] == start_cnn[..], !train_cnn, "train_cnn {train_cnn}: the CNN");
@@ -885,28 +888,19 @@ mod tests {
     #[test]
     fn a_student_with_a_frozen_encoder_fits_its_actor_and_keeps_its_cnn() {
         let arch = Architecture { hidden: vec![16, 16], ..Architecture::paper() };
-        let mut data = DistillDataset::new(64, arch.observation_dim, FrameStack::default());
-        let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let mut env = RaceEnv::new(track(), EnvConfig::default(), 1, 0);
-        for k in 0..32 {
-            let label = [0.5, -0.3, 0.2 * (k % 3) as f32, 0.1];
-            data.offer(&env, &env.observation_in(arch.observation_layout()), &label, &mut rng);
-            env.step(&[0.3, 0.2, -0.1, 0.2]);
-        }
+        let data = flown_states(&arch, |k| [0.5, -0.3, 0.2 * (k % 3) as f32, 0.1]);
         let rows: Vec<usize> = (0..data.len()).collect();
         assert!(Student::new(&arch, None, None, 0.0, 2).unwrap().with_frozen_encoder().is_err(), "vision only");
         let vision_arch = Architecture { agent: Agent::Vision, ..arch };
         let mut student = Student::new(&vision_arch, None, None, 0.0, 2).unwrap().with_frozen_encoder().unwrap();
-        let values =
-            |s: &Student| s.weights().vision_model(&Device::flex()).unwrap().export().into_iter().map(|p| p.values).collect::<Vec<_>>();
-        let start = values(&student);
+        let start = parameter_values(&student);
         let first = student.train_step(&data, &rows, 1e-3).imitation;
         let mut last = first;
         for _ in 0..60 {
             last = student.train_step(&data, &rows, 1e-3).imitation;
         }
         assert!(last < 0.5 * first, "imitation loss {first} → {last}");
-        let now = values(&student);
+        let now = parameter_values(&student);
         // Convolutions and embedding layer (the first 8 parameters) as they were; the actor moved.
         assert_eq!(now[..8], start[..8]);
         assert_ne!(now[8..14], start[8..14]);

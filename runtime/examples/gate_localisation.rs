@@ -16,7 +16,7 @@
 //! every 500 a table for 30,000 training and the validation states: for states whose image shows the target gate, by distance to
 //! it, the RMS angle between predicted and true direction to each corner, the RMS error per
 //! axis of each corner's position (m; `perception_noise`'s floor is per axis too) and the RMS
-//! relative error of the distance. OUT, if given, receives the trained student's weights blob.
+//! relative error of the distance. OUT, if given, receives the student's weights blob at every table.
 
 #![allow(clippy::print_stdout, reason = "the table on stdout is what this analysis is for")]
 
@@ -63,7 +63,7 @@ fn main() -> anyhow::Result<()> {
     let from = (mode != "fresh").then_some(&start);
     let mut student = Student::new(&start.architecture, None, from, 0.0, SEED)?.with_gate_head(1.0, None, SEED)?;
 
-    let mut env = config.env.clone();
+    let mut env = config.env;
     env.set_observation_layout(teacher.architecture.observation_layout());
     let pilot = Policy::from_blob(&teacher)?;
     let generator = racetracks::generator::TrackGenerator::default();
@@ -71,11 +71,11 @@ fn main() -> anyhow::Result<()> {
     for batch in 0..TRAINING_TRACKS / 64 {
         let seeds = 1 + 64 * batch..=64 * (batch + 1);
         let tracks = seeds.map(|seed| Ok(Arc::new(generator.generate(seed, &format!("train-{seed}"))?.track)));
-        fly(tracks.collect::<anyhow::Result<_>>()?, &env, &pilot, 2000, &mut train, batch);
+        fly(tracks.collect::<anyhow::Result<_>>()?, env, &pilot, 2000, &mut train, batch);
     }
     let validation: Vec<Arc<Track>> = racetracks::validation_set(32)?.into_iter().map(Arc::new).collect();
     let mut held_out = DistillDataset::new(30_000, env.observation_layout().dim(), FrameStack::default());
-    fly(validation, &env, &pilot, 1500, &mut held_out, 1000);
+    fly(validation, env, &pilot, 1500, &mut held_out, 1000);
     println!("{mode}: {} training states ({} offered), {} validation states", train.len(), train.seen(), held_out.len());
     // As many training states as validation ones, spread over the set, to tell fitting from
     // generalising.
@@ -94,18 +94,18 @@ fn main() -> anyhow::Result<()> {
             report(&student, &train, &train_rows);
             println!("validation states:");
             report(&student, &held_out, &(0..held_out.len()).collect::<Vec<_>>());
+            if let Some(out) = rest.get(1) {
+                racetracks::files::write_atomic(Path::new(out), &student.weights().to_bytes()).with_context(|| format!("writing {out}"))?;
+            }
         }
-    }
-    if let Some(out) = rest.get(1) {
-        std::fs::write(out, student.weights().to_bytes()).with_context(|| format!("writing {out}"))?;
     }
     Ok(())
 }
 
 /// Offers `data` the states `pilot` visits on `tracks` (one environment each, `steps` steps)
 /// whose image shows the target or the next gate; the labels are unused.
-fn fly(tracks: Vec<Arc<Track>>, env: &EnvConfig, pilot: &Policy, steps: usize, data: &mut DistillDataset, seed: u64) {
-    let mut envs = VecEnv::new(tracks, env.clone(), seed).with_images();
+fn fly(tracks: Vec<Arc<Track>>, env: EnvConfig, pilot: &Policy, steps: usize, data: &mut DistillDataset, seed: u64) {
+    let mut envs = VecEnv::new(tracks, env, seed).with_images();
     let dim = envs.observation_dim();
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     for _ in 0..steps {
