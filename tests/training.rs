@@ -72,6 +72,21 @@ fn resuming_from_a_checkpoint_gives_the_same_next_iteration_weights() {
 }
 
 #[test]
+fn a_runs_wall_seconds_count_each_validation_once() {
+    // A validation after every iteration, long beside the tiny iterations: counted twice, the
+    // run's wall seconds would exceed the time that passed.
+    let dir = tempfile::tempdir().unwrap();
+    let eval = runtime::EvalSettings { every: 1, tracks: 4, runs: 2, steps: 1000, ..runtime::EvalSettings::default() };
+    let mut trainer = Trainer::start(TrainConfig { eval, ..tiny_config() }, dir.path()).unwrap();
+    let started = std::time::Instant::now();
+    for _ in 0..3 {
+        trainer.iteration_step().unwrap();
+    }
+    let elapsed = started.elapsed().as_secs_f64();
+    assert!(trainer.wall_seconds() > 0.0 && trainer.wall_seconds() <= elapsed, "{} s counted in {elapsed} s", trainer.wall_seconds());
+}
+
+#[test]
 fn two_identical_runs_are_identical() {
     let dir = tempfile::tempdir().unwrap();
     let (p, q) = (dir.path().join("p"), dir.path().join("q"));

@@ -403,7 +403,8 @@ struct Progress {
 /// Timing and curriculum figures of one iteration, measured by the loop that ran it.
 #[derive(Clone, Copy, Debug)]
 pub struct IterationTiming {
-    /// Wall seconds of the whole iteration.
+    /// Wall seconds from the previous iteration's publication of weights to this one's:
+    /// collection and update, and the validation that followed the previous iteration.
     pub seconds: f64,
     /// Seconds of the PPO update.
     pub update_seconds: f64,
@@ -509,7 +510,9 @@ impl Run {
         validation: Option<&Validation>,
     ) -> Result<(IterationSummary, bool), TrainError> {
         self.progress.iteration += 1;
-        self.progress.wall_seconds += timing.seconds + validation.map_or(0.0, |v| v.seconds);
+        // `timing.seconds` runs from publication to publication, so it already holds the
+        // validation that followed the previous iteration's.
+        self.progress.wall_seconds += timing.seconds;
         let episodes: Vec<&policy::EpisodeRecord> = chunks.iter().flat_map(|c| &c.episodes).collect();
         let mean = |f: &dyn Fn(&policy::EpisodeRecord) -> f64| {
             if episodes.is_empty() { f64::NAN } else { episodes.iter().map(|e| f(e)).sum::<f64>() / episodes.len() as f64 }
