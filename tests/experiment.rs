@@ -153,7 +153,8 @@ fn every_shipped_experiment_file_resolves_for_every_variant() {
     assert!(count >= 6, "found {count} experiment files");
 }
 
-/// The single-run configs of `docs/experiments/*/` (the full-scale runs BENCHMARKS.md cites).
+/// The single-run configs of `docs/experiments/*/` (the full-scale runs BENCHMARKS.md cites):
+/// training runs, and distillations (the files that name a `teacher`).
 #[test]
 fn every_documented_run_config_resolves() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/experiments");
@@ -162,6 +163,11 @@ fn every_documented_run_config_resolves() {
         for entry in std::fs::read_dir(study.unwrap().path()).unwrap() {
             let path = entry.unwrap().path();
             if path.extension().is_some_and(|e| e == "toml") {
+                let text = std::fs::read_to_string(&path).unwrap();
+                if text.lines().any(|line| line.starts_with("teacher =")) {
+                    runtime::distill::DistillConfig::read(&path).unwrap_or_else(|e| panic!("{e:#}"));
+                    continue;
+                }
                 let config = runtime::TrainConfig::read(&path).unwrap_or_else(|e| panic!("{e}"));
                 config.resolved_profile().unwrap_or_else(|e| panic!("{}: {e}", path.display()));
                 count += 1;

@@ -561,8 +561,8 @@ impl Student {
 
     /// One gradient step of the gate head's loss alone on samples `rows` — the student's
     /// perception trained apart from imitation, its actor untouched. With `train_cnn` false
-    /// only the head learns: a probe of what the CNN already encodes. Returns the loss before
-    /// the step; errors without a vision student and a gate head.
+    /// (or a frozen encoder) only the head learns: a probe of what the CNN already encodes.
+    /// Returns the loss before the step; errors without a vision student and a gate head.
     #[allow(clippy::expect_used, reason = "the model is present between calls; float outputs")]
     pub fn gate_step(&mut self, data: &DistillDataset, rows: &[usize], learning_rate: f64, train_cnn: bool) -> Result<f64, LearnerError> {
         let Some((head, weight)) = self.gate_head.take() else {
@@ -576,6 +576,7 @@ impl Student {
                 return Err(LearnerError::State("a gate step needs a vision student".into()));
             }
         };
+        let train_cnn = train_cnn && !self.frozen_encoder;
         let pixels = data.images(rows);
         let embedding = self.embedding(&model, &pixels, data.frame_stack().frames, train_cnn);
         let loss = gate_loss(&head, embedding, &pixels, data, rows, &self.device);
