@@ -13,10 +13,11 @@
 //! MODE says what learns: `probe` — a fresh linear gate head on the frozen CNN of the config's
 //! `init_from` (what its embedding already holds); `tune` — that CNN and the head together;
 //! `fresh` — a new CNN and head. STEPS gradient steps of 128 samples, learning rate LR (3e-4);
-//! every 500 a table for 30,000 training and the validation states: for states whose image shows the target gate, by distance to
-//! it, the RMS angle between predicted and true direction to each corner, the RMS error per
-//! axis of each corner's position (m; `perception_noise`'s floor is per axis too) and the RMS
-//! relative error of the distance. OUT, if given, receives the student's weights blob at every table.
+//! every 500 a table for 30,000 training states and for the validation states: over those
+//! whose image shows the target gate, by distance to it, the RMS angle between predicted and
+//! true direction to each corner, the RMS error per axis of each corner's position (m;
+//! `perception_noise`'s floor is per axis too) and the RMS relative error of the distance.
+//! OUT, if given, receives the student's weights blob at every table.
 
 #![allow(clippy::print_stdout, reason = "the table on stdout is what this analysis is for")]
 
