@@ -35,9 +35,9 @@ use runtime::distill::DistillConfig;
 use sim::camera::{IMAGE_PIXELS, NEXT_COLOUR, TARGET_COLOUR};
 use sim::{EnvConfig, FrameStack, Track, VecEnv};
 
-#[path = "support/distance_bins.rs"]
-mod distance_bins;
-use distance_bins::{BINS, bin_of};
+#[path = "support/gate_errors.rs"]
+mod gate_errors;
+use gate_errors::{BINS, angle_between, bin_of};
 
 const MINIBATCH: usize = 128;
 const REPORT_EVERY: usize = 500;
@@ -140,9 +140,7 @@ fn report(student: &Student, data: &DistillDataset, rows: &[usize]) {
             let (true_distance, guessed_distance) = (f64::from(truth[PER_GATE - 1]).exp(), f64::from(guess[PER_GATE - 1]).exp());
             let bin = &mut sums[bin_of(true_distance)];
             for (t, g) in truth[..PER_GATE - 1].chunks(3).zip(guess.chunks(3)) {
-                let dot: f64 = t.iter().zip(g).map(|(a, b)| f64::from(a * b)).sum();
-                let norm = |v: &[f32]| v.iter().map(|x| f64::from(x * x)).sum::<f64>().sqrt();
-                bin[0] += (dot / (norm(t) * norm(g)).max(1e-9)).clamp(-1.0, 1.0).acos().powi(2);
+                bin[0] += angle_between(t, g).powi(2);
                 // A corner is its direction times the distance it was divided by.
                 bin[1] +=
                     t.iter().zip(g).map(|(a, b)| (f64::from(*a) * true_distance - f64::from(*b) * guessed_distance).powi(2)).sum::<f64>();

@@ -26,9 +26,9 @@ use runtime::distill::DistillConfig;
 use sim::VecEnv;
 use sim::camera::{IMAGE_PIXELS, TARGET_COLOUR};
 
-#[path = "support/distance_bins.rs"]
-mod distance_bins;
-use distance_bins::{BINS, bin_of};
+#[path = "support/gate_errors.rs"]
+mod gate_errors;
+use gate_errors::{BINS, angle_between, bin_of};
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -63,9 +63,7 @@ fn main() -> anyhow::Result<()> {
             let distance = f64::from(truth[PER_GATE - 1]).exp();
             let bin = bin_of(distance);
             for (t, g) in truth[..PER_GATE - 1].chunks(3).zip(guess.chunks(3)) {
-                let dot: f32 = t.iter().zip(g).map(|(a, b)| a * b).sum();
-                let norms = t.iter().map(|v| v * v).sum::<f32>().sqrt() * g.iter().map(|v| v * v).sum::<f32>().sqrt();
-                sums[bin][0] += f64::from((dot / norms.max(1e-9)).clamp(-1.0, 1.0)).acos().powi(2);
+                sums[bin][0] += angle_between(t, g).powi(2);
                 sums[bin][1] += 1.0;
             }
             sums[bin][2] += (f64::from(guess[PER_GATE - 1] - truth[PER_GATE - 1]).exp() - 1.0).powi(2);

@@ -27,9 +27,9 @@ use policy::{Policy, VisionPolicy};
 use runtime::distill::DistillConfig;
 use sim::{ACTION_DIM, PREVIOUS_ACTION_RANGE, TARGET_CORNERS_RANGE, VecEnv};
 
-#[path = "support/distance_bins.rs"]
-mod distance_bins;
-use distance_bins::{BINS, bin_of};
+#[path = "support/gate_errors.rs"]
+mod gate_errors;
+use gate_errors::{BINS, bin_of};
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
