@@ -74,7 +74,7 @@ impl ObservationFrame {
     }
 
     /// The rotation that takes world vectors into this frame for a drone with attitude `body`.
-    fn rotation_from_world(self, body: &BodyState) -> Matrix3<f64> {
+    pub fn rotation_from_world(self, body: &BodyState) -> Matrix3<f64> {
         match self {
             ObservationFrame::World => Matrix3::identity(),
             ObservationFrame::Heading => heading_from_world(body),
