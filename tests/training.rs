@@ -121,9 +121,22 @@ fn fine_tuning_starts_from_the_given_policy_at_version_zero() {
     assert_eq!(to.normalizer, from.normalizer, "the normaliser travels with the weights");
     let values = |blob: &policy::WeightsBlob| blob.params.iter().map(|p| p.values.clone()).collect::<Vec<_>>();
     assert!(values(&to) == values(&from), "the network starts as the source policy");
-    // A policy of another shape is refused, naming the file.
-    let paper = TrainConfig { profile: "paper".into(), ..config };
-    let err = Trainer::start(paper, &dir.path().join("paper")).err().expect("refused").to_string();
+    // A wider run (the paper profile's 512 × 512) starts from the policy's function.
+    let paper = Trainer::start(TrainConfig { profile: "paper".into(), ..config.clone() }, &dir.path().join("paper")).unwrap();
+    let wide = paper.learner().weights();
+    assert_eq!(wide.architecture.hidden, [512, 512]);
+    let observations: Vec<f32> = (0..3 * from.architecture.observation_dim).map(|i| (i as f32 * 0.61).sin()).collect();
+    let act = |blob: &policy::WeightsBlob| policy::Policy::from_blob(blob).unwrap().deterministic_actions(&observations);
+    for (a, b) in act(&from).iter().zip(act(&wide)) {
+        assert!((a - b).abs() < 1e-5, "the widened policy acts as its source");
+    }
+    // A narrower run, or a policy of another shape, is refused, naming the file.
+    let narrow = TrainConfig { hidden: Some(vec![8, 8]), ..config.clone() };
+    let err = Trainer::start(narrow, &dir.path().join("narrow")).err().expect("refused").to_string();
+    assert!(err.contains("init_from") && err.contains("cannot widen"), "{err}");
+    let mut fewer_points = config;
+    fewer_points.env.line_points = 2;
+    let err = Trainer::start(fewer_points, &dir.path().join("fewer-points")).err().expect("refused").to_string();
     assert!(err.contains("init_from") && err.contains("architecture"), "{err}");
 }
 

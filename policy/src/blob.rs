@@ -13,6 +13,8 @@
 //! Blobs of the earlier framed layout (`DRPOLICY`, format 1) are still read.
 
 use burn::tensor::Device;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::architecture::{Agent, Architecture};
@@ -152,6 +154,53 @@ impl WeightsBlob {
         }
         last.values.fill(log_std);
         Ok(changed)
+    }
+
+    /// This policy with wider hidden layers (`hidden`: as many layers as it has, none
+    /// narrower), acting and valuing exactly as before: each new unit gets fresh random
+    /// incoming weights (He's scale √(2 / inputs), seeded) and zero outgoing ones, and no old
+    /// unit reads a new one. PPO
+    /// from it keeps the policy and gains capacity — gradients reach the new units' outgoing
+    /// weights at once, and their incoming ones as soon as those move.
+    pub fn with_hidden(&self, hidden: &[usize], seed: u64) -> Result<Self, BlobError> {
+        let old = &self.architecture.hidden;
+        if hidden.len() != old.len() || hidden.iter().zip(old).any(|(new, old)| new < old) {
+            return Err(BlobError::Malformed(format!("hidden layers {old:?} cannot widen to {hidden:?} (same depth, none narrower)")));
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut widened = self.clone();
+        widened.architecture.hidden = hidden.to_vec();
+        // The actor's and the critic's layers (weight `[in, out]`, bias) sit before the log std.
+        let layers = old.len() + 1;
+        let mlps_start = self.params.len().checked_sub(4 * layers + 1).ok_or_else(|| BlobError::Malformed("too few parameters".into()))?;
+        for mlp in 0..2 {
+            for layer in 0..layers {
+                let (weight, bias) = (mlps_start + 2 * (mlp * layers + layer), mlps_start + 2 * (mlp * layers + layer) + 1);
+                let [old_in, old_out] = self.params[weight].shape[..] else {
+                    return Err(BlobError::Malformed(format!("parameter {weight} is not a dense layer's weight")));
+                };
+                let new_in = if layer == 0 { old_in } else { hidden[layer - 1] };
+                let new_out = if layer == old.len() { old_out } else { hidden[layer] };
+                let scale = (2.0 / new_in as f64).sqrt();
+                let mut values = vec![0f32; new_in * new_out];
+                for (i, row) in values.chunks_exact_mut(new_out).enumerate() {
+                    for (j, value) in row.iter_mut().enumerate() {
+                        *value = match (i < old_in, j < old_out) {
+                            (true, true) => self.params[weight].values[i * old_out + j],
+                            // An old unit never reads a new one.
+                            (false, true) => 0.0,
+                            _ => (scale * rng.sample::<f64, _>(rand_distr::StandardNormal)) as f32,
+                        };
+                    }
+                }
+                widened.params[weight].shape = vec![new_in, new_out];
+                widened.params[weight].values = values;
+                widened.params[bias].shape = vec![new_out];
+                widened.params[bias].values.resize(new_out, 0.0);
+            }
+        }
+        crate::network::check_shapes(&Self::shapes(&widened.architecture), &widened.params).map_err(BlobError::Malformed)?;
+        Ok(widened)
     }
 
     /// This single-frame vision policy seeing the frames of `stack`

@@ -415,6 +415,38 @@ mod tests {
         ));
     }
 
+    /// A vision policy given wider hidden layers acts and values exactly as before, round-trips,
+    /// and reaches its new units once their outgoing weights move; narrower or deeper is refused.
+    #[test]
+    fn wider_hidden_layers_act_and_value_as_before_until_their_new_units_are_trained() {
+        use crate::{ObsNormalizer, VisionPolicy, WeightsBlob};
+        let arch = Architecture { hidden: vec![8, 6], ..Architecture::paper() };
+        let device = Device::flex();
+        let mut normalizer = ObsNormalizer::new(arch.observation_dim);
+        normalizer.update(&(0..arch.observation_dim * 3).map(|i| (i as f32 * 0.3).cos()).collect::<Vec<_>>());
+        let narrow = WeightsBlob::from_vision_model(4, &arch, &normalizer, &VisionActorCritic::new(&arch, -1.0, 5, &device));
+        let images: Vec<u8> = (0..2 * IMAGE_SIDE * IMAGE_SIDE).map(|i| (i * 13 % 256) as u8).collect();
+        let states: Vec<f32> = (0..2 * arch.observation_dim).map(|i| (i as f32 * 0.37).sin()).collect();
+        let run = |blob: &WeightsBlob| {
+            let policy = VisionPolicy::from_blob(blob).unwrap();
+            (policy.mean_actions(&images, &states), policy.values(&states))
+        };
+        let wide = WeightsBlob::from_bytes(&narrow.with_hidden(&[12, 9], 3).unwrap().to_bytes()).unwrap();
+        assert_eq!(wide.architecture.hidden, [12, 9]);
+        let (before, after) = (run(&narrow), run(&wide));
+        for (a, b) in before.0.iter().chain(&before.1).zip(after.0.iter().chain(&after.1)) {
+            assert!((a - b).abs() < 1e-5, "{before:?} → {after:?}");
+        }
+        // The actor's output layer: rows 6..9 are the new second-layer units' outgoing weights.
+        let mut trained = wide.clone();
+        let output = 2 * VisionActorCritic::CONVOLUTION_COUNT + 2 + 2 * arch.hidden.len();
+        assert_eq!(trained.params[output].shape, [9, arch.action_dim]);
+        trained.params[output].values[8 * arch.action_dim] = 1.0;
+        assert_ne!(run(&trained).0, after.0, "the new units feed the actor once their weights move");
+        assert!(narrow.with_hidden(&[4, 6], 3).is_err(), "narrower");
+        assert!(narrow.with_hidden(&[8, 6, 6], 3).is_err(), "deeper");
+    }
+
     /// A single-frame policy widened to stacked frames acts as before whatever the earlier
     /// frames show, until its new weights move; the controller then feeds it the frames of
     /// the steps its stack names.

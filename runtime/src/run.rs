@@ -106,7 +106,9 @@ pub struct TrainConfig {
     /// 20).
     pub eval: crate::validation::EvalSettings,
     /// Start from this trained policy (checkpoint or weights blob) instead of a fresh network:
-    /// fine-tuning. Its architecture must match the profile's.
+    /// fine-tuning. Its architecture must match the profile's, except that its hidden layers
+    /// may be narrower than `hidden` (same depth): they are widened without changing what the
+    /// policy does (`policy::WeightsBlob::with_hidden`).
     pub init_from: Option<PathBuf>,
     /// Log standard deviation the policy of `init_from` starts PPO with, in every action
     /// dimension; unset keeps the policy's own. A distilled student's is whatever its
@@ -209,6 +211,10 @@ impl TrainConfig {
                 let mut policy = learner::checkpoint::read_policy(path)?;
                 if let Some(log_std) = self.init_log_std {
                     policy = policy.with_log_std(log_std as f32).map_err(|e| config_error(&e))?;
+                }
+                // A wider run than its start: the start's function, with room to grow.
+                if policy.architecture.hidden != profile.architecture.hidden {
+                    policy = policy.with_hidden(&profile.architecture.hidden, self.seed).map_err(|e| config_error(&e))?;
                 }
                 Learner::from_policy(profile, self.total_env_steps, self.seed, &policy).map_err(|e| config_error(&e))?
             }
