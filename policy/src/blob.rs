@@ -159,9 +159,8 @@ impl WeightsBlob {
     /// This policy with wider hidden layers (`hidden`: as many layers as it has, none
     /// narrower), acting and valuing exactly as before: each new unit gets fresh random
     /// incoming weights (He's scale √(2 / inputs), seeded) and zero outgoing ones, and no old
-    /// unit reads a new one. PPO
-    /// from it keeps the policy and gains capacity — gradients reach the new units' outgoing
-    /// weights at once, and their incoming ones as soon as those move.
+    /// unit reads a new one. PPO from it keeps the policy and gains capacity: gradients reach
+    /// the new units' outgoing weights at once, and their incoming ones once those move.
     pub fn with_hidden(&self, hidden: &[usize], seed: u64) -> Result<Self, BlobError> {
         let old = &self.architecture.hidden;
         if hidden.len() != old.len() || hidden.iter().zip(old).any(|(new, old)| new < old) {

@@ -1,6 +1,6 @@
 //! The direct ceiling of a vision student on a given CNN: a state-based teacher flies the test
 //! set (SPEC §9: 40 tracks × 25 deployments) on the gates that CNN places — every step the
-//! camera image is rendered, the CNN and its gate head (`gate_localisation`'s OUT and OUT.head)
+//! camera image is rendered, the CNN and its gate head (`gate_localisation`'s OUT and its `.head`)
 //! predict the target and next gates' corners, and those replace the true corners in the
 //! teacher's observation. `perception_noise` models a camera's errors as drifting noise; this
 //! flies the errors a real CNN makes, correlated between corners and gates as they are.

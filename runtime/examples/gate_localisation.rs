@@ -22,9 +22,9 @@
 //! `perception_noise`'s floor is per axis too), the RMS relative error of the distance, and the
 //! RMS angle apart for corners on the image and off it (a corner off the image must be
 //! inferred from the bars that are on it).
-//! OUT, if given, receives the student's weights blob at every table and OUT with the extension
-//! `.head` its gate head
-//! (`policy::gate_head::GateHead::to_bytes`), which `cnn_perception` flies a teacher on.
+//! OUT, if given, receives the student's weights blob at every table, and OUT with the extension
+//! `.head` its gate head (`policy::gate_head::GateHead::to_bytes`): what `cnn_perception` flies
+//! a teacher on.
 
 #![allow(clippy::print_stdout, reason = "the table on stdout is what this analysis is for")]
 
@@ -74,7 +74,7 @@ fn main() -> anyhow::Result<()> {
     let teacher = read_policy(&config.teacher).with_context(|| format!("teacher {}", config.teacher.display()))?;
     let start_path = match (mode, out) {
         ("continue", Some(out)) => out,
-        ("continue", None) => bail!("continue needs OUT (and OUT.head) to continue from"),
+        ("continue", None) => bail!("continue needs OUT (and the .head file beside it) to continue from"),
         _ => config.init_from.as_deref().context("the config names the student's start (init_from)")?,
     };
     let start = read_policy(start_path).with_context(|| format!("student {}", start_path.display()))?;
