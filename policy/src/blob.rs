@@ -174,7 +174,8 @@ impl WeightsBlob {
         let mlps_start = self.params.len().checked_sub(4 * layers + 1).ok_or_else(|| BlobError::Malformed("too few parameters".into()))?;
         for mlp in 0..2 {
             for layer in 0..layers {
-                let (weight, bias) = (mlps_start + 2 * (mlp * layers + layer), mlps_start + 2 * (mlp * layers + layer) + 1);
+                let weight = mlps_start + 2 * (mlp * layers + layer);
+                let bias = weight + 1;
                 let [old_in, old_out] = self.params[weight].shape[..] else {
                     return Err(BlobError::Malformed(format!("parameter {weight} is not a dense layer's weight")));
                 };

@@ -68,25 +68,21 @@ fn main() -> anyhow::Result<()> {
             (start.parse::<f64>().context("LR")?, end.parse::<f64>().context("LR_END")?)
         }
     };
-    let out = rest.get(1).map(Path::new);
-    let head_path = out.map(|out| out.with_extension("head"));
-    let config = DistillConfig::read(Path::new(config))?;
-    let teacher = read_policy(&config.teacher).with_context(|| format!("teacher {}", config.teacher.display()))?;
-    let start_path = match (mode, out) {
-        ("continue", Some(out)) => out,
-        ("continue", None) => bail!("continue needs OUT (and the .head file beside it) to continue from"),
-        _ => config.init_from.as_deref().context("the config names the student's start (init_from)")?,
-    };
-    let start = read_policy(start_path).with_context(|| format!("student {}", start_path.display()))?;
-    let saved_head = match (mode, &head_path) {
-        ("continue", Some(path)) => Some(std::fs::read(path).with_context(|| format!("gate head {}", path.display()))?),
-        _ => None,
-    };
     let train_cnn = match mode {
         "probe" => false,
         "tune" | "fresh" | "continue" => true,
         other => bail!("MODE {other:?}: probe, tune, fresh or continue"),
     };
+    let out = rest.get(1).map(Path::new);
+    let head_path = out.map(|out| out.with_extension("head"));
+    let config = DistillConfig::read(Path::new(config))?;
+    let teacher = read_policy(&config.teacher).with_context(|| format!("teacher {}", config.teacher.display()))?;
+    let (start_path, saved_head) = match (mode, out, &head_path) {
+        ("continue", Some(out), Some(head)) => (out, Some(std::fs::read(head).with_context(|| format!("gate head {}", head.display()))?)),
+        ("continue", ..) => bail!("continue needs OUT (and the .head file beside it) to continue from"),
+        _ => (config.init_from.as_deref().context("the config names the student's start (init_from)")?, None),
+    };
+    let start = read_policy(start_path).with_context(|| format!("student {}", start_path.display()))?;
     let from = (mode != "fresh").then_some(&start);
     let mut student = Student::new(&start.architecture, None, from, 0.0, SEED)?.with_gate_head(1.0, saved_head.as_deref(), SEED)?;
 
