@@ -1,9 +1,11 @@
 //! Policy files and checkpoints open in Python: `docs/python/open_policy.py` loads them with the
 //! `safetensors` package, acts in numpy, and must agree with dronerace's own inference.
-//! Needs `python3` with numpy and safetensors (`.ci/run` installs them).
+//! Needs `python3` with numpy, safetensors and onnxruntime (`tests/run.sh` installs them).
 
 // Test code: a panic is how a failure is reported.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
+
+mod support;
 
 use std::path::Path;
 use std::process::Command;
@@ -11,16 +13,11 @@ use std::process::Command;
 use learner::checkpoint::Checkpoint;
 use policy::{ActorCritic, Architecture, ObsNormalizer, Policy, WeightsBlob};
 use rand::{Rng, SeedableRng};
+use support::prerequisites::{Need, available};
 
 fn python_check(policy: &Path, expected: &Path) -> String {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/python/open_policy.py");
-    let out = Command::new("python3")
-        .arg(&script)
-        .arg(policy)
-        .arg("--check")
-        .arg(expected)
-        .output()
-        .expect("python3 runs (install it, with `pip install numpy safetensors`, or run .ci/run)");
+    let out = Command::new("python3").arg(&script).arg(policy).arg("--check").arg(expected).output().expect("python3 runs");
     let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
     assert!(out.status.success(), "{} {}:\n{text}", script.display(), policy.display());
     text
@@ -28,6 +25,10 @@ fn python_check(policy: &Path, expected: &Path) -> String {
 
 #[test]
 fn a_policy_and_a_checkpoint_act_the_same_in_numpy_as_in_dronerace() {
+    let needs = [Need::Python { modules: &["numpy", "safetensors"], packages: "numpy safetensors" }];
+    if !available("a_policy_and_a_checkpoint_act_the_same_in_numpy_as_in_dronerace", &needs) {
+        return;
+    }
     let dir = tempfile::tempdir().unwrap();
     let arch = Architecture { hidden: vec![16, 8], negative_slope: 0.2, ..Architecture::cpu() };
     let model = ActorCritic::new(&arch, -0.5, 3, &policy::Device::flex());
@@ -71,16 +72,16 @@ fn a_policy_and_a_checkpoint_act_the_same_in_numpy_as_in_dronerace() {
 /// Runs `docs/python/check_onnx.py` on a model, observations and expected actions.
 fn onnx_check(model: &Path, observations: &Path, expected: &Path) -> (bool, String) {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/python/check_onnx.py");
-    let out = Command::new("python3")
-        .arg(script)
-        .args([model, observations, expected])
-        .output()
-        .expect("python3 runs (install it, with `pip install numpy onnxruntime`, or run .ci/run)");
+    let out = Command::new("python3").arg(script).args([model, observations, expected]).output().expect("python3 runs");
     (out.status.success(), format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr)))
 }
 
 #[test]
 fn an_exported_onnx_actor_acts_as_dronerace_in_onnxruntime() {
+    let needs = [Need::Python { modules: &["numpy", "onnxruntime"], packages: "numpy onnxruntime" }];
+    if !available("an_exported_onnx_actor_acts_as_dronerace_in_onnxruntime", &needs) {
+        return;
+    }
     let dir = tempfile::tempdir().unwrap();
     let arch = Architecture {
         hidden: vec![64, 32],

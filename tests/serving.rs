@@ -1,7 +1,8 @@
 //! `dronerace serve`: a policy served over gRPC acts exactly as `dronerace eval`'s controller on
 //! the same observations (unary and streamed, from Rust and from the Python client in
 //! `docs/python/pilot_client.py`), refuses wrong sizes and non-finite values, and enforces the
-//! token. Needs `python3` with grpcio and grpcio-tools (`.ci/run` installs them).
+//! token. The Python client's test needs `python3` with grpcio and grpcio-tools (`tests/run.sh`
+//! installs them); the Rust checks need nothing beyond the build.
 
 // Test code: a panic is how a failure is reported.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -16,6 +17,7 @@ use policy::{ActorCritic, Architecture, ObsNormalizer, Policy, PolicyController,
 use proto::v1::pilot_client::PilotClient;
 use proto::v1::{ActRequest, DescribeRequest};
 use sim::{Controller, EnvConfig, RaceEnv, ReferencePilot};
+use support::prerequisites::{Need, available};
 use support::{Proc, args, free_port, serial, wait_until};
 
 /// `message` with the bearer token.
@@ -57,35 +59,59 @@ fn policy_and_flight(dir: &Path) -> (std::path::PathBuf, Vec<Vec<f32>>, Vec<[f32
     (path, observations, expected)
 }
 
+/// `dronerace serve` running a policy behind a token, with the observations it will be asked
+/// about and the actions evaluation takes on them; the server is killed when dropped.
+struct Served {
+    dir: tempfile::TempDir,
+    server: Proc,
+    addr: String,
+    token: std::path::PathBuf,
+    observations: Vec<Vec<f32>>,
+    expected: Vec<[f32; 4]>,
+}
+
+impl Served {
+    fn start() -> Self {
+        let dir = tempfile::tempdir().unwrap();
+        let (policy, observations, expected) = policy_and_flight(dir.path());
+        let token = dir.path().join("token");
+        std::fs::write(&token, "pilot-s3cret\n").unwrap();
+        let config = dir.path().join("serve.toml");
+        std::fs::write(&config, format!("[network]\ntoken_file = {:?}\n", token.display().to_string())).unwrap();
+        let addr = format!("127.0.0.1:{}", free_port());
+        let server = Proc::start(
+            dir.path(),
+            "serve",
+            &args(&["serve", "--policy", policy.to_str().unwrap(), "--listen", &addr, "--config", config.to_str().unwrap()]),
+        );
+        Self { dir, server, addr, token, observations, expected }
+    }
+
+    /// A client, once the server answers.
+    fn client(&self, rt: &tokio::runtime::Runtime) -> PilotClient<tonic::transport::Channel> {
+        let channel = tonic::transport::Endpoint::from_shared(format!("http://{}", self.addr)).unwrap();
+        let mut client = None;
+        wait_until(Duration::from_secs(30), "the pilot server answers", &[&self.server], || {
+            client = rt.block_on(channel.connect()).ok().map(PilotClient::new);
+            client.is_some()
+        });
+        client.unwrap()
+    }
+}
+
 #[test]
 fn a_served_policy_acts_as_evaluation_does_and_refuses_bad_requests() {
     let _serial = serial();
-    let tmp = tempfile::tempdir().unwrap();
-    let (policy, observations, expected) = policy_and_flight(tmp.path());
-    let token = tmp.path().join("token");
-    std::fs::write(&token, "pilot-s3cret\n").unwrap();
-    let config = tmp.path().join("serve.toml");
-    std::fs::write(&config, format!("[network]\ntoken_file = {:?}\n", token.display().to_string())).unwrap();
-    let addr = format!("127.0.0.1:{}", free_port());
-    let server = Proc::start(
-        tmp.path(),
-        "serve",
-        &args(&["serve", "--policy", policy.to_str().unwrap(), "--listen", &addr, "--config", config.to_str().unwrap()]),
-    );
+    let served = Served::start();
+    let (observations, expected) = (&served.observations, &served.expected);
     let rt = tokio::runtime::Runtime::new().unwrap();
-    let channel = tonic::transport::Endpoint::from_shared(format!("http://{addr}")).unwrap();
-    let mut client = None;
-    wait_until(Duration::from_secs(30), "the pilot server answers", &[&server], || {
-        client = rt.block_on(channel.connect()).ok().map(PilotClient::new);
-        client.is_some()
-    });
-    let mut client = client.unwrap();
+    let mut client = served.client(&rt);
     rt.block_on(async {
         let info = client.describe(with_token(DescribeRequest {})).await.unwrap().into_inner();
         assert_eq!((info.observation_dim, info.action_dim, info.observation_frame.as_str(), info.policy_version), (40, 4, "heading", 7));
         assert_eq!(info.observation_layout, "raw 40-number state observation in the heading frame");
         // Unary: every action equals the evaluation controller's on the same state.
-        for (o, e) in observations.iter().zip(&expected) {
+        for (o, e) in observations.iter().zip(expected) {
             let action = client.act(with_token(ActRequest { observation: o.clone() })).await.unwrap().into_inner().action;
             assert_eq!(action, e.to_vec());
         }
@@ -110,20 +136,38 @@ fn a_served_policy_acts_as_evaluation_does_and_refuses_bad_requests() {
         let refused = client.act(tonic::Request::new(ActRequest { observation: observations[0].clone() })).await.unwrap_err();
         assert_eq!(refused.code(), tonic::Code::Unauthenticated);
     });
+}
+
+#[test]
+fn the_python_client_gets_the_actions_evaluation_takes() {
+    let needs = [Need::Python { modules: &["grpc", "grpc_tools"], packages: "grpcio grpcio-tools" }];
+    if !available("the_python_client_gets_the_actions_evaluation_takes", &needs) {
+        return;
+    }
+    let _serial = serial();
+    let served = Served::start();
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    drop(served.client(&rt));
     // The Python client from docs/ gets the same actions, unary and streamed.
-    let observations_file = tmp.path().join("observations.json");
-    std::fs::write(&observations_file, serde_json::to_string(&observations).unwrap()).unwrap();
+    let observations_file = served.dir.path().join("observations.json");
+    std::fs::write(&observations_file, serde_json::to_string(&served.observations).unwrap()).unwrap();
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/python/pilot_client.py");
     let out = std::process::Command::new("python3")
         .arg(&script)
-        .args(["--addr", &addr, "--token-file", token.to_str().unwrap(), "--observations", observations_file.to_str().unwrap()])
+        .args([
+            "--addr",
+            &served.addr,
+            "--token-file",
+            served.token.to_str().unwrap(),
+            "--observations",
+            observations_file.to_str().unwrap(),
+        ])
         .output()
-        .expect("python3 runs (install grpcio grpcio-tools, or run .ci/run)");
+        .expect("python3 runs");
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let reply: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     for key in ["act", "fly"] {
         let actions: Vec<Vec<f32>> = serde_json::from_value(reply[key].clone()).unwrap();
-        assert_eq!(actions, expected.iter().map(|e| e.to_vec()).collect::<Vec<_>>(), "python {key}");
+        assert_eq!(actions, served.expected.iter().map(|e| e.to_vec()).collect::<Vec<_>>(), "python {key}");
     }
-    drop(server);
 }

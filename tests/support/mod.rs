@@ -2,6 +2,8 @@
 
 #![allow(dead_code)]
 
+pub mod prerequisites;
+
 use std::fs::File;
 use std::net::TcpListener;
 use std::path::{Path, PathBuf};
