@@ -244,8 +244,8 @@ impl<L: LearnerLink> LearnerProcess<L> {
         self.run.save(checkpoint)
     }
 
-    /// Estimated seconds to the end of the run at the given rate.
-    pub fn eta_seconds(&self, sps: f64) -> f64 {
-        self.run.eta_seconds(self.learner.env_steps(), sps)
+    /// Estimated seconds to the end of the run.
+    pub fn eta_seconds(&self) -> f64 {
+        self.run.eta_seconds(self.learner.env_steps())
     }
 }

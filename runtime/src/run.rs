@@ -12,6 +12,7 @@ use sim::EnvConfig;
 use taskctl::{SwitchParams, TaskController};
 
 use crate::metrics::{MetricsRow, MetricsWriter};
+use crate::progress::Eta;
 use crate::validation::Validation;
 use learner::checkpoint::{Checkpoint, CheckpointDir, CheckpointError};
 use learner::config::{PpoConfig, Profile};
@@ -157,7 +158,7 @@ impl Default for TrainConfig {
 
 impl TrainConfig {
     /// The vision agent's defaults: SPEC's VB columns for PPO (§10), randomisation (§3), reward
-    /// (§6) and the switching sensitivity α = 100 (§8); the rest as the state-based defaults.
+    /// (§5) and the switching sensitivity α = 100 (§8); the rest as the state-based defaults.
     pub fn vision() -> Self {
         let mut config = Self { name: "vision".into(), agent: Agent::Vision, ppo: Some(PpoConfig::vision_based()), ..Self::default() };
         config.env.randomization = sim::RandomizationParams::vision_based();
@@ -379,10 +380,14 @@ pub struct IterationSummary {
     pub iteration: u64,
     /// Learner report.
     pub report: IterationReport,
-    /// Environment steps per second of this iteration (collection and update).
+    /// Environment steps per second of this iteration's collection and update (the validation
+    /// that ran in its interval left out).
     pub sps: f64,
     /// Seconds spent collecting the rollout (simulation and inference).
     pub collect_seconds: f64,
+    /// Seconds of the previous iteration's validation, which ran in this iteration's interval
+    /// (0 when there was none).
+    pub validation_seconds: f64,
     /// Seconds spent in the PPO update.
     pub update_seconds: f64,
     /// Mean return of the episodes that ended.
@@ -429,6 +434,10 @@ pub struct Run {
     checkpoints: CheckpointDir,
     metrics: MetricsWriter,
     progress: Progress,
+    /// Seconds of the validation recorded with the last iteration: it runs in the next
+    /// iteration's interval, which must not count it as training time.
+    pending_validation_seconds: f64,
+    eta: Eta,
 }
 
 impl Run {
@@ -449,7 +458,7 @@ impl Run {
             .map_err(|source| TrainError::Io { file: dir.join("config.toml"), source })?;
         let metrics = MetricsWriter::open(dir).map_err(|source| TrainError::Io { file: dir.to_path_buf(), source })?;
         let progress = Progress { iteration: 0, wall_seconds: 0.0, best_return: None, best_validation: None };
-        Ok(Self { config, dir: dir.to_path_buf(), checkpoints, metrics, progress })
+        Ok(Self { config, dir: dir.to_path_buf(), checkpoints, metrics, progress, pending_validation_seconds: 0.0, eta: Eta::default() })
     }
 
     /// Opens the run in `dir` with its newest checkpoint.
@@ -461,7 +470,10 @@ impl Run {
         let progress: Progress = serde_json::from_slice(ckpt.get("progress")?)
             .map_err(|e| TrainError::Encoding { what: format!("{}: progress", path.display()), reason: e.to_string() })?;
         let metrics = MetricsWriter::open(dir).map_err(|source| TrainError::Io { file: dir.to_path_buf(), source })?;
-        Ok((Self { config, dir: dir.to_path_buf(), checkpoints, metrics, progress }, ckpt))
+        Ok((
+            Self { config, dir: dir.to_path_buf(), checkpoints, metrics, progress, pending_validation_seconds: 0.0, eta: Eta::default() },
+            ckpt,
+        ))
     }
 
     /// Opens the run in `dir` if it has a checkpoint, else starts it with `config`.
@@ -525,10 +537,13 @@ impl Run {
         };
         let fastest = episodes.iter().filter_map(|e| e.fastest_lap).fold(f64::NAN, f64::min);
         let transitions: usize = chunks.iter().map(RolloutChunk::transitions).sum();
+        let validation_seconds = std::mem::take(&mut self.pending_validation_seconds).min(timing.seconds);
+        let training_seconds = timing.seconds - validation_seconds;
         let summary = IterationSummary {
             iteration: self.progress.iteration,
-            sps: transitions as f64 / timing.seconds,
-            collect_seconds: timing.seconds - timing.update_seconds,
+            sps: transitions as f64 / training_seconds.max(1e-9),
+            collect_seconds: training_seconds - timing.update_seconds,
+            validation_seconds,
             update_seconds: timing.update_seconds,
             mean_return: mean(&|e| e.episode_return),
             laps_per_episode: mean(&|e| f64::from(e.laps)),
@@ -536,6 +551,11 @@ impl Run {
             validation: validation.map(|v| (v.report.s_pw, v.report.success_rate)),
             report,
         };
+        if let Some(v) = validation {
+            self.pending_validation_seconds = v.seconds;
+            self.eta.validation_seconds = Some(v.seconds);
+        }
+        self.eta.observe(summary.sps);
         let eval = validation.map(|v| &v.report);
         let eval_value = |f: &dyn Fn(&sim::eval::EvalReport) -> f64| eval.map_or(f64::NAN, f);
         let s = &summary.report.stats;
@@ -613,9 +633,19 @@ impl Run {
         Ok(ckpt.write(&self.checkpoints.best())?)
     }
 
-    /// Estimated seconds to the end of the run at the given rate.
-    pub fn eta_seconds(&self, env_steps: u64, sps: f64) -> f64 {
-        self.config.total_env_steps.saturating_sub(env_steps) as f64 / sps.max(1e-9)
+    /// Estimated seconds to the end of the run after `env_steps`, from the smoothed training
+    /// rate and the validations still due.
+    pub fn eta_seconds(&self, env_steps: u64) -> f64 {
+        let steps_left = self.config.total_env_steps.saturating_sub(env_steps);
+        let every = self.config.eval.every;
+        let validations_left = if every == 0 || env_steps == 0 {
+            0
+        } else {
+            // Iterations left, at this run's steps per iteration so far.
+            let iterations_left = steps_left.div_ceil(env_steps.div_ceil(self.progress.iteration.max(1)));
+            (self.progress.iteration + iterations_left) / every - self.progress.iteration / every
+        };
+        self.eta.seconds_left(steps_left, validations_left)
     }
 }
 

@@ -141,9 +141,9 @@ impl Trainer {
         self.learner.checkpoint(&|c| Self::add_sections(&self.actor, &self.tasks, c))
     }
 
-    /// Estimated seconds to the end of the run at the given rate.
-    pub fn eta_seconds(&self, sps: f64) -> f64 {
-        self.learner.eta_seconds(sps)
+    /// Estimated seconds to the end of the run.
+    pub fn eta_seconds(&self) -> f64 {
+        self.learner.eta_seconds()
     }
 
     /// The run directory.
