@@ -15,7 +15,7 @@ use rand_distr::StandardNormal;
 
 use crate::config::Profile;
 use crate::learner::adam;
-use crate::ppo::update::{PpoNetwork, TrainingBatch, clip_grad_norm, clip_groups, minibatch_loss};
+use crate::ppo::update::{PpoNetwork, TrainingBatch, clip_grad_norm, clip_groups, flat_gradients, minibatch_loss};
 
 /// Median times of the three stages (seconds) and the implied rate.
 #[derive(Clone, Copy, Debug)]
@@ -140,4 +140,26 @@ pub fn time_vision_gradient_step(profile: &Profile, samples: usize, repeats: usi
     let (forward, backward, optimizer) = time_steps(profile, model, (&ids, &groups), repeats, loss, force);
     let flops = 2.0 * 3.0 * (VisionActorCritic::macs_per_sample(arch) * samples) as f64;
     StepTiming { forward, backward, optimizer, gflops: flops / (forward + backward) / 1e9 }
+}
+
+/// The gradient of one minibatch loss on `samples` random samples — the MLP agent's, or with
+/// `vision` the CNN agent's on random images — every parameter's values in order: what the
+/// matrix kernels this CPU runs compute, for comparing them with another CPU's (tests/kernels.rs).
+pub fn gradient(profile: &Profile, samples: usize, vision: bool, device: &Device) -> Vec<f32> {
+    let arch = &profile.architecture;
+    let config = &profile.ppo;
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let mut batch = gaussian_batch(samples, arch.observation_dim, arch.action_dim, &mut rng);
+    let rows: Vec<usize> = (0..samples).collect();
+    if vision {
+        let levels = [0, 0, 0, 0, 55, 155, 255];
+        batch.images = (0..samples * IMAGE_SIDE * IMAGE_SIDE).map(|_| levels[rng.random_range(0..levels.len())]).collect();
+        let model = VisionActorCritic::new(arch, config.initial_log_std, 0, device);
+        let grads = minibatch_loss(&model, batch.minibatch(&rows, None, device), config).0.backward();
+        flat_gradients(&GradientsParams::from_grads(grads, &model), &model.param_ids())
+    } else {
+        let model = ActorCritic::new(arch, config.initial_log_std, 0, device);
+        let grads = minibatch_loss(&model, batch.minibatch(&rows, None, device), config).0.backward();
+        flat_gradients(&GradientsParams::from_grads(grads, &model), &model.param_ids())
+    }
 }

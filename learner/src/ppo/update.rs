@@ -446,6 +446,19 @@ pub fn clip_grad_norm(grads: &mut GradientsParams, ids: &[(ParamId, usize)], gro
     squares
 }
 
+/// Every gradient's values in `ids` order, flattened (a parameter without a gradient adds
+/// nothing): a step's result, to compare two kernels' steps value by value.
+#[allow(clippy::expect_used, reason = "gradients of float parameters are f32")]
+pub fn flat_gradients(grads: &GradientsParams, ids: &[(ParamId, usize)]) -> Vec<f32> {
+    let mut out = Vec::new();
+    for &(id, rank) in ids {
+        with_rank!(rank, D => if let Some(g) = grads.get::<D>(id) {
+            out.extend(g.into_data().try_into_vec::<f32>().expect("float gradients"));
+        });
+    }
+    out
+}
+
 /// Removes the gradients of `params` (id and rank), so the optimiser leaves them as they are.
 fn drop_gradients(grads: &mut GradientsParams, params: impl Iterator<Item = (ParamId, usize)>) {
     for (id, rank) in params {
