@@ -18,7 +18,7 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Inspect, draw and validate track files.
+    /// Draw, generate and fit tracks; make the held-out test set; time generation and switching.
     #[command(subcommand)]
     Tracks(commands::tracks::TracksCommand),
     /// Evaluate a controller on a set of tracks (S_pw, success, lap times).

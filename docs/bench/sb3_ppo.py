@@ -1,4 +1,4 @@
-"""Stable-Baselines3 PPO with the paper profile (SPEC §10) on this machine (issue 13).
+"""Stable-Baselines3 PPO with the paper profile (SPEC §10) on this machine.
 
 What a user would run instead of `dronerace train --profile paper --in-process`: 96
 environments × 250 steps per iteration, whole-rollout minibatch, 10 epochs, separate 512×512

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Whole-iteration training throughput of one or more dronerace binaries, alternated, with the
-# resident size of every dronerace process sampled every 0.5 s (BENCHMARKS.md, issue 13).
+# resident size of every dronerace process sampled every 0.5 s (docs/notebook/throughput.md).
 #
 #   docs/bench/throughput.sh OUT_DIR BINARY [BINARY ...]
 #

@@ -133,7 +133,8 @@ impl Architecture {
     }
 
     /// Two hidden layers of 256: the `cpu` profile, about 4× fewer multiply-adds than the
-    /// paper's. Chosen on the validation set over 128×128 (BENCHMARKS.md, issue 10).
+    /// paper's. Chosen on the validation set over 128×128
+    /// (docs/notebook/generalist.md, "Network size, and the 2-hour generalist at 256×256").
     pub fn cpu() -> Self {
         Self { hidden: vec![256, 256], ..Self::paper() }
     }

@@ -1,8 +1,9 @@
-//! A dense layer — matrix product, bias and optional LeakyReLU — as one autodiff node on the
-//! flex backend. Through burn's ops the same layer is a matrix product plus five element-wise
-//! ops forward and as many backward, each a full pass over a `batch × width` activation; here it
-//! is one product and one pass forward, and two products and one pass backward (issue 13).
-//! Other devices take burn's ops, which compute the same function.
+//! A dense layer — matrix product, bias and optional LeakyReLU — as one autodiff node on the flex
+//! backend. Through burn's ops the same layer is a matrix product plus five element-wise ops
+//! forward and as many backward, each a full pass over a `batch × width` activation; here it is one
+//! product and one pass forward, and two products and one pass backward
+//! (docs/notebook/throughput.md, "The fused dense layer"). Other devices take burn's ops, which
+//! compute the same function.
 
 use std::mem::MaybeUninit;
 

@@ -1,10 +1,11 @@
 //! Several state-based policies flying as one: the mean of their mean actions.
 //!
-//! Policies of different seeds fail on different tracks (issue 10: nine proxy policies each fly
-//! 34–63 of 100 validation tracks, together 93), which is what averaging the decisions of several
-//! models — bagging — is for; measured, an ensemble flies about what a majority of its members
-//! fly, not their union (BENCHMARKS.md). Each member reads the observation in its own frame and
-//! through its own normaliser, so members need not share anything but the action space.
+//! Policies of different seeds fail on different tracks (nine proxy policies each fly 34–63 of 100
+//! validation tracks, together 93), which is what averaging the decisions of several models —
+//! bagging — is for; measured, an ensemble flies about what a majority of its members fly, not
+//! their union (docs/notebook/generalist-rejected.md, "Ensembles of seeds"). Each member reads the
+//! observation in its own frame and through its own normaliser, so members need not share anything
+//! but the action space.
 
 use std::sync::Arc;
 

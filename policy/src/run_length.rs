@@ -1,7 +1,7 @@
 //! Run-length coding of camera images for the wire. The renderer draws flat grey gate frames
 //! on a black background, so an 84×84 image is a few hundred runs: each run is its byte value
 //! and its length (u16, little-endian), 3 bytes for up to 65,535 equal bytes. Measured on
-//! training flights, a 7,056-byte image takes ~0.4 kB (BENCHMARKS.md, vision training).
+//! training flights, a 7,056-byte image takes ~0.4 kB (docs/notebook/vision.md, "Images on the wire").
 
 /// Appends the run-length code of `bytes` to `out`.
 pub fn encode(bytes: &[u8], out: &mut Vec<u8>) {

@@ -73,7 +73,7 @@ pub struct DistillConfig {
     pub takeover: Option<f64>,
     /// Drop the labelled states of the last `crash_margin` steps before a crash: from there
     /// even the teacher cannot recover, and its extreme labels would fill the data set of a
-    /// student that crashes often (BENCHMARKS.md, "Own flights without their crashes"). The
+    /// student that crashes often (docs/notebook/vision.md, "Own flights without their crashes"). The
     /// states of a round's last steps are kept, since the round cannot tell yet. Default 0.
     pub crash_margin: usize,
     /// Samples the data set keeps (reservoir sampling beyond). Default 1,000,000 (~250 MB).
@@ -97,13 +97,13 @@ pub struct DistillConfig {
     pub frozen_encoder: bool,
     /// The vision student's actor also reads its previous action (beyond SPEC §5's VB actor
     /// input). The teacher's observation holds the previous action and its labels depend on
-    /// it as much as they depend on anything the image shows (BENCHMARKS.md, "The teacher's
-    /// previous action"), so a student without it cannot copy them. A start (`init_from`)
+    /// it as much as they depend on anything the image shows (docs/notebook/vision.md, "The
+    /// teacher's previous action"), so a student without it cannot copy them. A start (`init_from`)
     /// without it is widened with zero weights. Default false.
     pub previous_action: bool,
     /// The camera frames the vision student sees: the current one and `frames − 1` earlier
     /// ones, `stride` steps apart (beyond SPEC §5's one: a memory of gates that left the image;
-    /// BENCHMARKS.md, "Stacked camera frames"). A single-frame start (`init_from`) is widened
+    /// docs/notebook/vision.md, "Stacked camera frames"). A single-frame start (`init_from`) is widened
     /// as `frame_widening` says. Default one frame.
     pub frame_stack: FrameStack,
     /// How a single-frame start (`init_from`) is widened to `frame_stack`: `zero` kernels for
@@ -189,7 +189,7 @@ impl Default for DistillConfig {
 
 impl DistillConfig {
     /// The defaults of a `student`: a vision student's as [`Default`]; a state-based
-    /// student's take SPEC's SB columns of randomisation (§3), reward (§6) and α = 1000 (§8),
+    /// student's take SPEC's SB columns of randomisation (§3), reward (§5) and α = 1000 (§8),
     /// and the log std −2 that PPO from an imitation starts with (`warm_start`).
     pub fn defaults_for(student: Agent) -> Self {
         match student {

@@ -139,14 +139,15 @@ impl Default for TrainConfig {
             generator: TrackGenerator::default(),
             switching: SwitchParams::default(),
             // Four points of the pilot's racing line in the observation (12 numbers after
-            // SPEC §5's 40): chosen on 100 validation tracks over proxy seeds (issue 10).
+            // SPEC §5's 40): chosen on 100 validation tracks over proxy seeds
+            // (docs/notebook/generalist.md, the racing line in the observation).
             env: EnvConfig { line_points: 4, ..EnvConfig::default() },
             checkpoint_every: 10,
             keep_checkpoints: 3,
             learner: Default::default(),
             network: Default::default(),
             // 100 validation tracks: 20 cannot rank checkpoints a few points apart, and
-            // best.bin is the policy a run ships (BENCHMARKS.md, issue 10).
+            // best.bin is the policy a run ships (docs/notebook/generalist.md).
             eval: crate::validation::EvalSettings { tracks: 100, ..Default::default() },
             init_from: None,
             init_log_std: None,

@@ -47,7 +47,8 @@ pub struct WarmStart {
     pub switch_window: usize,
     /// Log standard deviation the student (and so PPO's exploration) starts with. Default −2
     /// (σ = 0.14): SPEC's −0.5 (σ = 0.61) shakes the imitation off every track — its first
-    /// rollouts average 0 laps and a return of ~0 against 0.8 laps and ~60 at −2 (BENCHMARKS).
+    /// rollouts average 0 laps and a return of ~0 against 0.8 laps and ~60 at −2
+    /// (docs/notebook/generalist-rejected.md, "Starting from the reference pilot").
     pub initial_log_std: f64,
     /// Weight of the imitation term in PPO's loss at the start of the run — the squared error
     /// between the policy's means and the teacher's labels on the warm start's data set,

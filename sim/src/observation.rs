@@ -105,7 +105,8 @@ pub enum ObstacleOrder {
 ///
 /// SPEC §5 shows both wherever they are. A vision policy sees a gate only while it is in the
 /// camera's view, so a state-based teacher that knows more acts on what its student cannot
-/// see, and the student can only average those actions (BENCHMARKS.md, "Distillation").
+/// see, and the student can only average those actions (docs/notebook/vision.md, "A teacher
+/// that sees only what the camera sees").
 /// `Camera` writes a gate's 12 numbers only while the camera could see it
 /// ([`crate::camera::gate_in_view`]) and zeros otherwise: δp1 when the target is in view, δp2
 /// (the next gate's corners from the target's) when both are. A teacher trained so knows what
@@ -130,9 +131,10 @@ pub enum GateSight {
 ///
 /// SPEC §5 shows the policy two gates only, so a gate of the same track that stands in the way
 /// between them is invisible to it: on the test set a third of the default generalist's
-/// gate-frame crashes were on such gates, on tracks the pilot flies (BENCHMARKS.md, "Blind to
-/// the other gates"). The obstacle gates are an option beyond the thesis; 0 is SPEC §5 and the
-/// default, because in proxy runs both orders did worse, on those very crashes too.
+/// gate-frame crashes were on such gates, on tracks the pilot flies
+/// (docs/notebook/generalist-rejected.md, "Blind to the other gates"). The obstacle gates are an
+/// option beyond the thesis; 0 is SPEC §5 and the default, because in proxy runs both orders did
+/// worse, on those very crashes too.
 ///
 /// Proximity readings are the compact alternative: 4 numbers per gate, all zero unless a frame
 /// is within `proximity_range`, so they stay silent on the stretches where SPEC §5's 40 numbers

@@ -53,7 +53,8 @@ pub enum StartGate {
     /// sample of the reference pilot's racing line, moving along it at 0.5–1.5× the pilot's
     /// planned speed there, towards the gate it leads to. A training choice beyond the thesis,
     /// so that the last gates of a lap are reached at racing speed as often as the first; it
-    /// did not help at the proxy recipe (BENCHMARKS.md, "Training episodes that start in flight").
+    /// did not help at the proxy recipe (docs/notebook/generalist-rejected.md, "Training episodes
+    /// that start in flight").
     Flying,
 }
 
@@ -73,7 +74,7 @@ pub struct EnvConfig {
     /// What the low-level controller believes under randomisation. Default nominal.
     pub controller_model: ControllerModel,
     /// Frame of the observation's vectors. Default heading: on the test set it beat SPEC §5's
-    /// world frame fourfold (BENCHMARKS.md, "Generalisation").
+    /// world frame fourfold (docs/notebook/generalist.md, "Observation frame").
     pub observation_frame: ObservationFrame,
     /// How many of the nearest other gates the observation shows after SPEC §5's 40 numbers
     /// ([`ObservationLayout`]). Default 0 (SPEC §5).
@@ -120,7 +121,8 @@ impl Default for EnvConfig {
             start_gate: StartGate::First,
             randomization: RandomizationParams::default(),
             race: RaceParams::default(),
-            // Chosen on 100 validation tracks over four proxy seeds (issue 10, BENCHMARKS.md).
+            // Chosen on 100 validation tracks over four proxy seeds (docs/notebook/generalist.md,
+            // "Progress measured round a gate that faces the drone").
             reward: RewardParams { progress_distance: ProgressDistance::Approach, ..RewardParams::state_based() },
         }
     }

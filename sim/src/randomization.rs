@@ -37,13 +37,14 @@ pub struct RandomizationParams {
     /// corner moves by `gate_perception · distance` times a slowly drifting standard normal
     /// (AR(1), ρ = 0.9 a step). One pixel of SPEC §5's camera is 0.019 of the distance
     /// sideways. Trains a teacher whose vision student sees less exactly than it does; beyond
-    /// SPEC §3, 0 in every profile (BENCHMARKS.md, "A teacher that expects to misjudge gates").
+    /// SPEC §3, 0 in every profile (docs/notebook/vision.md, "Own flights without their crashes,
+    /// and a teacher that expects to misjudge gates").
     pub gate_perception: f64,
     /// Least misjudgement of a seen gate's corners (m per axis), however near: combined with
     /// `gate_perception · distance` as independent errors (root of the sum of squares). Close
     /// to a gate the camera shows only part of its frame, and a student's judgement of where
-    /// the corners are stops improving with nearness (BENCHMARKS.md, "What the student's
-    /// embedding knows of the gates"). 0 in every profile.
+    /// the corners are stops improving with nearness (docs/notebook/vision.md, "What the
+    /// student's embedding knows of the gates"). 0 in every profile.
     pub gate_perception_floor: f64,
 }
 
