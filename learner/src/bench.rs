@@ -59,6 +59,13 @@ fn gaussian_batch(samples: usize, observation_dim: usize, action_dim: usize, rng
     }
 }
 
+/// `samples` random 84×84 images as the renderer makes them: mostly background, gate pixels in
+/// three grey levels.
+fn rendered_like_images(samples: usize, rng: &mut ChaCha8Rng) -> Vec<u8> {
+    let levels = [0, 0, 0, 0, 55, 155, 255];
+    (0..samples * IMAGE_SIDE * IMAGE_SIDE).map(|_| levels[rng.random_range(0..levels.len())]).collect()
+}
+
 /// Runs one warm-up and `repeats` timed gradient steps of `model`: `loss` is the forward pass
 /// and the loss, then backward, gradient-norm clipping over `ids` in clipping `groups`, Adam
 /// with the profile's settings, and `force`, which reads a parameter so that the lazy update
@@ -129,9 +136,7 @@ pub fn time_vision_gradient_step(profile: &Profile, samples: usize, repeats: usi
     let model = VisionActorCritic::new(arch, config.initial_log_std, 0, device);
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     let mut batch = gaussian_batch(samples, arch.observation_dim, arch.action_dim, &mut rng);
-    // Images as the renderer makes them: mostly background, gate pixels in three grey levels.
-    let levels = [0, 0, 0, 0, 55, 155, 255];
-    batch.images = (0..samples * IMAGE_SIDE * IMAGE_SIDE).map(|_| levels[rng.random_range(0..levels.len())]).collect();
+    batch.images = rendered_like_images(samples, &mut rng);
     let rows: Vec<usize> = (0..samples).collect();
     let ids = model.param_ids();
     let (groups, _) = clip_groups(ids.len(), PpoNetwork::critic_param_count(&model), config);
@@ -152,8 +157,7 @@ pub fn gradient(profile: &Profile, samples: usize, vision: bool, device: &Device
     let mut batch = gaussian_batch(samples, arch.observation_dim, arch.action_dim, &mut rng);
     let rows: Vec<usize> = (0..samples).collect();
     if vision {
-        let levels = [0, 0, 0, 0, 55, 155, 255];
-        batch.images = (0..samples * IMAGE_SIDE * IMAGE_SIDE).map(|_| levels[rng.random_range(0..levels.len())]).collect();
+        batch.images = rendered_like_images(samples, &mut rng);
         let model = VisionActorCritic::new(arch, config.initial_log_std, 0, device);
         let grads = minibatch_loss(&model, batch.minibatch(&rows, None, device), config).0.backward();
         flat_gradients(&GradientsParams::from_grads(grads, &model), &model.param_ids())
