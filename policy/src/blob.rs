@@ -432,6 +432,21 @@ fn check_observation_lengths(architecture: &Architecture, normalizer: &ObsNormal
     if normalizer.mean.len() != architecture.observation_dim || normalizer.var.len() != architecture.observation_dim {
         return Err(BlobError::Malformed("normaliser length differs from the observation length".into()));
     }
+    // Values that would make normalising panic (a negative clip in `f64::clamp`) or return
+    // non-finite observations.
+    let scalars = [("clip", normalizer.clip, false), ("count", normalizer.count, false), ("epsilon", normalizer.epsilon, true)];
+    for (name, value, zero_allowed) in scalars {
+        if !(value.is_finite() && (value > 0.0 || (zero_allowed && value == 0.0))) {
+            let bound = if zero_allowed { "≥ 0" } else { "positive" };
+            return Err(BlobError::Malformed(format!("normalizer.{name} is {value}; it must be finite and {bound}")));
+        }
+    }
+    if let Some(i) = normalizer.mean.iter().position(|m| !m.is_finite()) {
+        return Err(BlobError::Malformed(format!("normalizer.mean[{i}] is not finite")));
+    }
+    if let Some(i) = normalizer.var.iter().position(|v| !(v.is_finite() && *v >= 0.0)) {
+        return Err(BlobError::Malformed(format!("normalizer.var[{i}] is {}; it must be finite and ≥ 0", normalizer.var[i])));
+    }
     Ok(())
 }
 
@@ -521,6 +536,26 @@ mod tests {
     /// A policy with obstacle gates, proximity readings and racing-line points round-trips
     /// with its wider observation, their order, range and spacing; a blob whose observation length disagrees with its
     /// layout is refused, naming both.
+    #[test]
+    fn a_normaliser_that_would_panic_or_emit_non_finite_values_is_refused_by_field() {
+        let refused = |edit: &dyn Fn(&mut WeightsBlob)| {
+            let mut b = blob();
+            edit(&mut b);
+            match WeightsBlob::from_bytes(&b.to_bytes()) {
+                Err(BlobError::Malformed(m)) => m,
+                other => panic!("accepted: {other:?}"),
+            }
+        };
+        assert!(refused(&|b| b.normalizer.clip = -1.0).contains("normalizer.clip is -1"));
+        assert!(refused(&|b| b.normalizer.count = 0.0).contains("normalizer.count"));
+        assert!(refused(&|b| b.normalizer.epsilon = -1e-8).contains("normalizer.epsilon"));
+        assert!(refused(&|b| b.normalizer.mean[3] = f64::INFINITY).contains("normalizer.mean[3]"));
+        assert!(refused(&|b| b.normalizer.var[2] = -0.5).contains("normalizer.var[2]"));
+        let mut fine = blob();
+        fine.normalizer.epsilon = 0.0;
+        assert!(WeightsBlob::from_bytes(&fine.to_bytes()).is_ok(), "epsilon 0 is a valid normaliser");
+    }
+
     #[test]
     fn the_observation_layout_travels_with_the_blob_and_must_match_its_length() {
         let arch = Architecture {

@@ -242,6 +242,10 @@ impl TrainConfig {
             }
             profile.architecture.hidden = hidden.clone();
         }
+        let timeout = self.learner.actor_timeout_seconds;
+        if !(timeout.is_finite() && timeout > 0.0) {
+            return Err(TrainError::Config(format!("learner.actor_timeout_seconds: {timeout} must be a positive number of seconds")));
+        }
         // The network reads the observations the environments write.
         let range = self.env.proximity_range;
         if self.env.proximity_gates > 0 && !(range.is_finite() && range > 0.0) {
@@ -653,6 +657,16 @@ impl Run {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_actor_timeout_that_is_not_a_positive_duration_is_refused_by_name() {
+        for value in ["inf", "nan", "0.0", "-3.0"] {
+            let config = TrainConfig::from_toml(&format!("[learner]\nactor_timeout_seconds = {value}\n")).unwrap();
+            let error = config.resolved_profile().unwrap_err().to_string();
+            assert!(error.contains("learner.actor_timeout_seconds"), "{value}: {error}");
+        }
+        assert!(TrainConfig::from_toml("[learner]\nactor_timeout_seconds = 0.5\n").unwrap().resolved_profile().is_ok());
+    }
 
     #[test]
     fn a_privileged_critic_needs_extra_inputs_and_a_state_based_agent() {
