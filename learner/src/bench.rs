@@ -13,7 +13,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
-use crate::config::Profile;
+use crate::config::{PpoConfig, Profile};
 use crate::learner::adam;
 use crate::ppo::update::{PpoNetwork, TrainingBatch, clip_grad_norm, clip_groups, flat_gradients, minibatch_loss};
 
@@ -156,14 +156,14 @@ pub fn gradient(profile: &Profile, samples: usize, vision: bool, device: &Device
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     let mut batch = gaussian_batch(samples, arch.observation_dim, arch.action_dim, &mut rng);
     let rows: Vec<usize> = (0..samples).collect();
+    fn of<N: PpoNetwork + Module>(model: &N, batch: &TrainingBatch, rows: &[usize], config: &PpoConfig, device: &Device) -> Vec<f32> {
+        let grads = minibatch_loss(model, batch.minibatch(rows, None, device), config).0.backward();
+        flat_gradients(&GradientsParams::from_grads(grads, model), &model.param_ids())
+    }
     if vision {
         batch.images = rendered_like_images(samples, &mut rng);
-        let model = VisionActorCritic::new(arch, config.initial_log_std, 0, device);
-        let grads = minibatch_loss(&model, batch.minibatch(&rows, None, device), config).0.backward();
-        flat_gradients(&GradientsParams::from_grads(grads, &model), &model.param_ids())
+        of(&VisionActorCritic::new(arch, config.initial_log_std, 0, device), &batch, &rows, config, device)
     } else {
-        let model = ActorCritic::new(arch, config.initial_log_std, 0, device);
-        let grads = minibatch_loss(&model, batch.minibatch(&rows, None, device), config).0.backward();
-        flat_gradients(&GradientsParams::from_grads(grads, &model), &model.param_ids())
+        of(&ActorCritic::new(arch, config.initial_log_std, 0, device), &batch, &rows, config, device)
     }
 }
