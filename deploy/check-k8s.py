@@ -6,7 +6,8 @@
 Schema: every resource, strictly (unknown fields refused), for the given Kubernetes version.
 Rules: every pod runs as non-root; every container has CPU and memory requests and limits; a
 container that serves gRPC (declares a containerPort) has native gRPC readiness and liveness
-probes; the learner's run directory and the task controller's snapshot are on
+probes, each naming its service and asking the plaintext port given to --health-listen (native
+probes cannot speak TLS, which the servers speak beyond loopback); the learner's run directory and the task controller's snapshot are on
 PersistentVolumeClaims; the token and certificates come from a Secret; actors spread across
 nodes. Exits non-zero naming every failure.
 """
@@ -38,9 +39,18 @@ def rules(doc):
                 if what not in resources.get(part, {}):
                     failures.append(f"{at}: no resources.{part}.{what}")
         if c.get("ports"):
+            # Native gRPC probes speak plaintext only; the servers speak TLS beyond loopback, so a
+            # probe must ask the plaintext health port given to --health-listen.
+            args = [str(a) for a in c.get("args", [])]
+            health = {int(args[i + 1].rsplit(":", 1)[1]) for i, a in enumerate(args[:-1]) if a == "--health-listen"}
             for probe in ("readinessProbe", "livenessProbe"):
-                if "grpc" not in c.get(probe, {}):
+                grpc = c.get(probe, {}).get("grpc")
+                if grpc is None:
                     failures.append(f"{at}: serves gRPC but has no native gRPC {probe}")
+                elif grpc.get("port") not in health:
+                    failures.append(f"{c['name']}: {probe} asks port {grpc.get('port')}, not the plaintext --health-listen port {sorted(health)}")
+                elif not grpc.get("service"):
+                    failures.append(f"{at}: {probe} names no service (it would pass whatever the server serves)")
         for mount in c.get("volumeMounts", []):
             if mount["mountPath"] in ("/runs", "/state") and "persistentVolumeClaim" not in volumes[mount["name"]]:
                 failures.append(f"{at}: {mount['mountPath']} is not on a PersistentVolumeClaim")

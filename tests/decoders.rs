@@ -1,12 +1,13 @@
 //! Bad bytes never panic. Every decoder of bytes that cross a process or a disk is fed
 //! [`CASES`] mutated and truncated copies of a valid input:
-//! - the checksummed formats (weights blob, rollout chunk, checkpoint, task-controller snapshot)
-//!   must refuse every one with an error;
+//! - the checksummed formats (weights blob, rollout chunk with and without camera images,
+//!   checkpoint, task-controller snapshot, distillation data set) must refuse every one with an
+//!   error;
 //! - the same formats with the checksum recomputed after mutating (so the parser behind it is
 //!   reached; for the safetensors files, blob and checkpoint, their metadata values, tensor
 //!   shapes and data are mutated and the file re-sealed), and the formats without one (track
-//!   files, gRPC messages), may accept a mutation that still means something, but must never
-//!   panic.
+//!   files, run configs, gRPC messages: rollout parts, reports, `ActRequest`s to a served
+//!   policy), may accept a mutation that still means something, but must never panic.
 //!
 //! `cargo test --test decoders -- --nocapture` prints the counts (BENCHMARKS.md).
 
@@ -224,14 +225,83 @@ fn every_mutated_weights_blob_is_refused_and_none_panics_the_parser() {
     fuzz("weights blob, checksum recomputed", 2, &valid, reseal, decode);
 }
 
+/// What the learner of the fuzzed rollouts admits: 8 environments of 3-step rollouts.
+const LIMITS: policy::ChunkLimits =
+    policy::ChunkLimits { observation_dim: sim::STATE_OBS_DIM, action_dim: sim::ACTION_DIM, max_envs: 8, max_steps: 3, images: false };
+
 #[test]
 fn every_mutated_rollout_chunk_is_refused_and_none_panics_the_parser() {
     let valid = chunk().to_bytes();
-    let decode = |b: &[u8]| RolloutChunk::from_bytes(b).is_ok_and(|c| c.check(sim::STATE_OBS_DIM, sim::ACTION_DIM, false).is_ok());
+    let decode = |b: &[u8]| RolloutChunk::from_bytes(b, &LIMITS).is_ok_and(|c| c.check(sim::STATE_OBS_DIM, sim::ACTION_DIM, false).is_ok());
     let raw = fuzz("rollout chunk", 3, &valid, |b| b, decode);
     assert_eq!(raw.accepted, 0);
     assert!(decode(&reframe(valid.clone())), "the rewritten frame matches the format");
     fuzz("rollout chunk, checksum recomputed", 4, &valid, reframe, decode);
+}
+
+#[test]
+fn every_mutated_rollout_with_camera_images_is_refused_and_none_panics_the_parser() {
+    // A vision rollout: its images carry a gate bar each, so the image code has many runs.
+    let mut c = chunk();
+    c.images = vec![0; c.transitions() * sim::camera::IMAGE_PIXELS];
+    for (i, image) in c.images.chunks_mut(sim::camera::IMAGE_PIXELS).enumerate() {
+        image[300 + 7 * i..380 + 7 * i].fill(155);
+    }
+    let vision = policy::ChunkLimits { images: true, ..LIMITS };
+    let valid = c.to_bytes();
+    let decode = |b: &[u8]| RolloutChunk::from_bytes(b, &vision).is_ok_and(|c| c.check(sim::STATE_OBS_DIM, sim::ACTION_DIM, true).is_ok());
+    let raw = fuzz("rollout chunk with images", 12, &valid, |b| b, decode);
+    assert_eq!(raw.accepted, 0);
+    fuzz("rollout chunk with images, checksum recomputed", 13, &valid, reframe, decode);
+}
+
+#[test]
+fn every_mutated_distillation_data_set_is_refused_and_none_panics_the_parser() {
+    use learner::distill::DistillDataset;
+    let track = std::sync::Arc::new(racetracks::library_track("Figure8").unwrap().unwrap());
+    let mut env = sim::RaceEnv::new(track, sim::EnvConfig::default(), 1, 0);
+    let mut data = DistillDataset::new(8, sim::STATE_OBS_DIM, sim::FrameStack::default());
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    for i in 0..8 {
+        env.step(&[0.3, 0.0, 0.1, 0.0]);
+        data.offer(&env, &[i as f32 * 0.1; sim::STATE_OBS_DIM], &[0.1, 0.2, 0.3, 0.4], &mut rng);
+    }
+    let valid = data.to_bytes();
+    let decode = |b: &[u8]| DistillDataset::from_bytes(b).is_ok();
+    let raw = fuzz("distillation data set", 14, &valid, |b| b, decode);
+    assert_eq!(raw.accepted, 0);
+    fuzz("distillation data set, checksum recomputed", 15, &valid, reframe, decode);
+}
+
+#[test]
+fn no_mutated_run_config_panics_its_checks() {
+    let text = "name = \"generalist\"\nprofile = \"cpu\"\nseed = 3\nenvs = 96\nhidden = [256, 256]\n\n[ppo]\ngamma = 0.998\nlearning_rate_start = 3e-4\nn_steps = 250\n\n[switching]\nwindow = 600\nalpha = 1000.0\n\n[learner]\nactor_timeout_seconds = 30.0\nrollout_memory_mib = 512\n";
+    fuzz(
+        "run config",
+        16,
+        text.as_bytes(),
+        |b| b,
+        |b| std::str::from_utf8(b).ok().and_then(|t| TrainConfig::from_toml(t).ok()).is_some_and(|c| c.resolved_profile().is_ok()),
+    );
+}
+
+#[test]
+fn no_mutated_act_request_panics_the_served_policy() {
+    use proto::v1::pilot_server::Pilot;
+    let blob = tiny_learner().weights();
+    let service = runtime::pilot::PilotService::new(std::sync::Arc::new(policy::Policy::from_blob(&blob).unwrap()));
+    let rt = tokio::runtime::Builder::new_current_thread().build().unwrap();
+    let valid = proto::v1::ActRequest { observation: vec![0.25; blob.architecture.observation_dim] }.encode_to_vec();
+    fuzz(
+        "gRPC ActRequest",
+        17,
+        &valid,
+        |b| b,
+        |b| {
+            let Ok(request) = proto::v1::ActRequest::decode(b) else { return false };
+            rt.block_on(service.act(tonic::Request::new(request))).is_ok_and(|r| r.get_ref().action.iter().all(|a| a.is_finite()))
+        },
+    );
 }
 
 #[test]
@@ -279,6 +349,7 @@ fn no_mutated_grpc_message_panics_its_decoders() {
         action_dim: sim::ACTION_DIM,
         images: false,
         total_envs: 8,
+        rollout_steps: 3,
     };
     let part = v1::RolloutPart {
         actor: "actor-0".into(),
@@ -297,7 +368,7 @@ fn no_mutated_grpc_message_panics_its_decoders() {
         |b| {
             let Ok(p) = v1::RolloutPart::decode(b) else { return false };
             let Ok(Some(payload)) = proto::chunking::Reassembler::default().push(p.part, p.parts, &p.data) else { return false };
-            RolloutChunk::from_bytes(&payload).is_ok_and(|c| admission.check(&p.actor, p.learner_epoch, &c).is_ok())
+            RolloutChunk::from_bytes(&payload, &admission.limits()).is_ok_and(|c| admission.check(&p.actor, p.learner_epoch, &c).is_ok())
         },
     );
     let report = v1::ReportRequest { actor: "actor-0".into(), rollout: 9, cumulative_rewards: vec![1.5, -2.0, 0.25] };

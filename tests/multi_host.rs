@@ -7,7 +7,6 @@
 
 mod support;
 
-use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
@@ -59,63 +58,6 @@ impl Drop for Namespaces {
     }
 }
 
-/// A CA and a server certificate for the hub's two addresses, made with openssl.
-fn certificates(dir: &Path) {
-    let run = |args: &[&str]| {
-        let out = Command::new("openssl").args(args).current_dir(dir).output().expect("running openssl");
-        assert!(out.status.success(), "openssl {}: {}", args.join(" "), String::from_utf8_lossy(&out.stderr));
-    };
-    std::fs::write(dir.join("san.ext"), "subjectAltName=IP:10.77.1.1,IP:10.77.2.1,IP:127.0.0.1\nbasicConstraints=CA:FALSE\n").unwrap();
-    run(&[
-        "req",
-        "-x509",
-        "-newkey",
-        "ec",
-        "-pkeyopt",
-        "ec_paramgen_curve:prime256v1",
-        "-nodes",
-        "-subj",
-        "/CN=dronerace test CA",
-        "-days",
-        "2",
-        "-keyout",
-        "ca.key",
-        "-out",
-        "ca.pem",
-    ]);
-    run(&[
-        "req",
-        "-newkey",
-        "ec",
-        "-pkeyopt",
-        "ec_paramgen_curve:prime256v1",
-        "-nodes",
-        "-subj",
-        "/CN=dronerace hub",
-        "-keyout",
-        "server.key",
-        "-out",
-        "server.csr",
-    ]);
-    run(&[
-        "x509",
-        "-req",
-        "-in",
-        "server.csr",
-        "-CA",
-        "ca.pem",
-        "-CAkey",
-        "ca.key",
-        "-CAcreateserial",
-        "-days",
-        "2",
-        "-extfile",
-        "san.ext",
-        "-out",
-        "server.pem",
-    ]);
-}
-
 #[test]
 fn actors_in_two_namespaces_train_with_a_learner_in_a_third_over_tls() {
     let needs = [
@@ -129,7 +71,7 @@ fn actors_in_two_namespaces_train_with_a_learner_in_a_third_over_tls() {
     let _serial = serial();
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
-    certificates(dir);
+    support::certificates::make(dir, "IP:10.77.1.1,IP:10.77.2.1,IP:127.0.0.1");
     std::fs::write(dir.join("token"), "multi-host-token\n").unwrap();
     let p = |f: &str| dir.join(f).display().to_string();
     let network = format!(

@@ -72,6 +72,57 @@ fn resuming_from_a_checkpoint_gives_the_same_next_iteration_weights() {
 }
 
 #[test]
+fn a_corrupt_newest_checkpoint_resumes_from_the_one_before_and_cut_off_writes_are_removed() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let config = || TrainConfig { checkpoint_every: 1, ..tiny_config() };
+    let mut t = Trainer::start(config(), &run).unwrap();
+    for _ in 0..3 {
+        t.iteration_step().unwrap();
+    }
+    drop(t);
+    let checkpoints = run.join("checkpoints");
+    // The newest cut short (a disk fault), and what a kill in the middle of a write leaves.
+    let newest = checkpoints.join("ckpt-000000003.bin");
+    let bytes = std::fs::read(&newest).unwrap();
+    std::fs::write(&newest, &bytes[..bytes.len() / 2]).unwrap();
+    let stale = checkpoints.join("ckpt-000000004.bin.tmp");
+    std::fs::write(&stale, b"half a checkpoint").unwrap();
+    let resumed = Trainer::resume(&run).unwrap();
+    assert_eq!(resumed.iteration(), 2, "the checkpoint before the corrupt one");
+    assert!(!stale.exists(), "the cut-off write is removed at start");
+    drop(resumed);
+    // Nothing readable at all: the error names every checkpoint tried.
+    for entry in std::fs::read_dir(&checkpoints).unwrap() {
+        let path = entry.unwrap().path();
+        if path.file_name().unwrap().to_str().unwrap().starts_with("ckpt-") {
+            std::fs::write(&path, b"garbage").unwrap();
+        }
+    }
+    let error = Trainer::resume(&run).err().unwrap().to_string();
+    assert!(error.contains("no checkpoint") && error.contains("ckpt-000000001.bin") && error.contains("ckpt-000000003.bin"), "{error}");
+}
+
+#[test]
+fn checkpoints_that_keep_failing_stop_the_run_with_a_fatal_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let mut t = Trainer::start(TrainConfig { checkpoint_every: 1, ..tiny_config() }, &run).unwrap();
+    t.iteration_step().unwrap();
+    // A directory where a write's temporary file goes makes that write fail, as a full disk
+    // would (root ignores permissions, so a read-only directory would not).
+    let checkpoints = run.join("checkpoints");
+    for name in ["best.bin.tmp", "ckpt-000000002.bin.tmp", "ckpt-000000003.bin.tmp", "ckpt-000000004.bin.tmp"] {
+        std::fs::create_dir(checkpoints.join(name)).unwrap();
+    }
+    let error = (0..3).find_map(|_| t.iteration_step().err()).expect("the run stops within three failing iterations");
+    assert!(error.is_fatal(), "{error}");
+    let text = error.to_string();
+    assert!(text.contains("checkpoints in a row could not be written") && text.contains(".bin"), "{text}");
+    assert!(t.iteration() >= 2, "one failed write did not stop it: iteration {}", t.iteration());
+}
+
+#[test]
 fn a_runs_wall_seconds_count_each_validation_once() {
     // A validation after every iteration, long beside the tiny iterations: counted twice, the
     // run's wall seconds would exceed the time that passed.
@@ -293,7 +344,7 @@ fn train_resume_and_evaluate_from_the_command_line() {
     };
     let from_checkpoint = table(&out.join("eval.json"));
     let blob = dir.path().join("policy.bin");
-    let o = dronerace(&["export-policy", run.join("checkpoints/ckpt-000000003.bin").to_str().unwrap(), "--out", blob.to_str().unwrap()]);
+    let o = dronerace(&["export", run.join("checkpoints/ckpt-000000003.bin").to_str().unwrap(), "--out", blob.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let o = eval_on_figure8(&blob, 2, 100, &out);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -320,7 +371,7 @@ fn a_few_seconds_of_training_measurably_improve_the_mean_return() {
         seed: 1,
         envs: Some(32),
         ppo: Some(PpoConfig { n_steps: 64, batch_size: 512, n_epochs: 5, learning_rate_start: 1e-3, ..PpoConfig::default() }),
-        tracks: runtime::TrackSource::Library { names: vec!["Figure8".into()] },
+        tracks: runtime::TrackSource::Chosen { names: vec!["Figure8".into()], files: Vec::new() },
         checkpoint_every: 1000,
         ..TrainConfig::default()
     };

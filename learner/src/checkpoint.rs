@@ -193,6 +193,11 @@ impl CheckpointDir {
         Ok(Self { dir, keep: keep.max(1) })
     }
 
+    /// The directory.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
     /// Periodic checkpoints, oldest first.
     pub fn periodic(&self) -> Vec<PathBuf> {
         let mut files: Vec<PathBuf> =

@@ -121,6 +121,35 @@ impl Default for PpoConfig {
 }
 
 impl PpoConfig {
+    /// Every number in its range, or the first that is not, named as in a run config
+    /// (`ppo.gamma`, …): a value outside would panic or make every update non-finite.
+    pub fn check(&self) -> Result<(), String> {
+        let ranges: [(&str, f64, f64, f64); 11] = [
+            ("gamma", self.gamma, 0.0, 1.0),
+            ("gae_lambda", self.gae_lambda, 0.0, 1.0),
+            ("clip_range", self.clip_range, 1e-6, 1.0),
+            ("vf_coef", self.vf_coef, 0.0, 1e6),
+            ("ent_coef", self.ent_coef, 0.0, 1e6),
+            ("max_grad_norm", self.max_grad_norm, 1e-9, 1e9),
+            ("learning_rate_start", self.learning_rate_start, 0.0, 1.0),
+            ("learning_rate_end", self.learning_rate_end, 0.0, 1.0),
+            ("weight_decay", self.weight_decay, 0.0, 1.0),
+            ("adam_epsilon", self.adam_epsilon, 1e-12, 1.0),
+            ("initial_log_std", self.initial_log_std, -20.0, 5.0),
+        ];
+        for (name, value, low, high) in ranges {
+            if !(value.is_finite() && (low..=high).contains(&value)) {
+                return Err(format!("ppo.{name}: {value} is outside {low}..={high}"));
+            }
+        }
+        for (name, value) in [("n_steps", self.n_steps), ("batch_size", self.batch_size), ("n_epochs", self.n_epochs)] {
+            if value == 0 {
+                return Err(format!("ppo.{name}: must be ≥ 1"));
+            }
+        }
+        Ok(())
+    }
+
     /// The vision-based column of SPEC §10: initial log std 0, learning rate 2e-4 → 1e-5,
     /// minibatch 24,000, 4 epochs; the rest as the state-based column.
     pub fn vision_based() -> Self {

@@ -281,12 +281,18 @@ impl DistillDataset {
         let tracks: Vec<Arc<Track>> = tracks.into_iter().map(Arc::new).collect();
         let count = r.u64().map_err(short)? as usize;
         let frame_bytes = 4 + 7 * 8;
-        let mut samples = Vec::with_capacity(r.capacity_for(count, 4 + frame_stack.frames * frame_bytes + (state_dim + ACTION_DIM) * 4));
-        let mut states = Vec::with_capacity(samples.capacity() * state_dim);
+        // Sizes come from the file: every capacity is bounded by the bytes that are really there.
+        let per_sample = frame_stack
+            .frames
+            .saturating_mul(frame_bytes)
+            .saturating_add(state_dim.saturating_add(ACTION_DIM).saturating_mul(4))
+            .saturating_add(4);
+        let mut samples = Vec::with_capacity(r.capacity_for(count, per_sample));
+        let mut states = Vec::with_capacity(samples.capacity().saturating_mul(state_dim));
         for i in 0..count {
             let track = r.u32().map_err(short)?;
             let gates = tracks.get(track as usize).map(|t| t.gates.len()).ok_or_else(|| bad(format!("sample {i}: no track {track}")))?;
-            let mut frames = Vec::with_capacity(frame_stack.frames);
+            let mut frames = Vec::with_capacity(r.capacity_for(frame_stack.frames, frame_bytes));
             for _ in 0..frame_stack.frames {
                 let target = r.u32().map_err(short)?;
                 if target as usize >= gates {

@@ -40,6 +40,10 @@ pub struct IterationReport {
     pub learning_rate: f64,
     /// Losses and diagnostics.
     pub stats: UpdateStats,
+    /// Why the update was refused and rolled back (non-finite or exploding), if it was: the
+    /// weights of this version are the previous version's, and the batch was not learned from.
+    #[serde(default)]
+    pub refused_update: Option<String>,
 }
 
 /// Counters and random state saved with a checkpoint.
@@ -54,6 +58,8 @@ struct Counters {
 }
 
 /// The network being trained, whichever agent (by PPO here, by regression in `distill`).
+/// Cloning is cheap: burn's tensors are reference-counted and copied on write.
+#[derive(Clone)]
 pub(crate) enum Network {
     State(ActorCritic),
     Vision(VisionActorCritic),
@@ -231,6 +237,9 @@ impl Learner {
             }),
             mirror: mirror.as_ref(),
         };
+        // What a refused update rolls back to (cheap: the update copies what it writes instead
+        // of writing in place while these are held).
+        let kept = (self.model.clone(), optimizer.clone(), c.rng.clone());
         let (model, stats) = match self.model.take().expect("the model is present between calls") {
             Network::State(m) => {
                 let (m, stats) = update(m, optimizer, &batch, &ppo, &step, &mut c.rng, device);
@@ -242,12 +251,35 @@ impl Learner {
             }
         };
         self.model = Some(model);
+        if let Some(reason) = self.divergence(&stats) {
+            (self.model, self.optimizer, self.counters.rng) = kept;
+            // The same weights under the next version: synchronous actors collect again at once.
+            let c = &mut self.counters;
+            c.version += 1;
+            return Ok(IterationReport { version: c.version, env_steps: c.env_steps, learning_rate, stats, refused_update: Some(reason) });
+        }
+        let c = &mut self.counters;
         for chunk in chunks {
             c.normalizer.update(&chunk.observations);
         }
         c.env_steps += transitions as u64;
         c.version += 1;
-        Ok(IterationReport { version: c.version, env_steps: c.env_steps, learning_rate, stats })
+        Ok(IterationReport { version: c.version, env_steps: c.env_steps, learning_rate, stats, refused_update: None })
+    }
+
+    /// Why an update's result must not be used: a non-finite loss or gradient, or weights that
+    /// are not finite or beyond [`policy::blob::MAX_WEIGHT`].
+    fn divergence(&self, stats: &UpdateStats) -> Option<String> {
+        let losses = [
+            ("policy_loss", stats.policy_loss),
+            ("value_loss", stats.value_loss),
+            ("approx_kl", stats.approx_kl),
+            ("grad_norm", stats.grad_norm),
+        ];
+        if let Some((name, value)) = losses.iter().find(|(_, v)| !v.is_finite()) {
+            return Some(format!("{name} is {value}"));
+        }
+        self.weights().check_parameters().err().map(|e| e.to_string())
     }
 
     fn check(&self, chunk: &RolloutChunk) -> Result<(), LearnerError> {
@@ -357,5 +389,36 @@ mod tests {
             &ActorCritic::new(&Architecture::cpu(), -0.5, 1, &Device::flex()),
         );
         assert!(state_blob.with_log_std(-2.0).unwrap().params.last().unwrap().values == vec![-2.0; 4]);
+    }
+
+    /// A rollout whose log-probabilities make the importance ratios overflow poisons the update
+    /// with non-finite losses: the update is refused, the weights, optimiser and normaliser stay
+    /// the last good ones (under the next version), and training goes on from them.
+    #[test]
+    fn a_poisoned_update_is_rolled_back_and_training_continues_from_the_last_good_weights() {
+        let profile = Profile { architecture: Architecture { hidden: vec![16, 16], ..Architecture::cpu() }, ..Profile::cpu() };
+        let (obs, act) = (profile.architecture.observation_dim, profile.architecture.action_dim);
+        let mut learner = Learner::new(profile, 100_000, 3);
+        let chunk = |log_prob: f32| {
+            let mut c = RolloutChunk::zeroed(0, 0, 4, 32, obs, act);
+            c.observations.iter_mut().enumerate().for_each(|(i, x)| *x = ((i * 37) % 11) as f32 * 0.1 - 0.5);
+            c.actions.iter_mut().enumerate().for_each(|(i, x)| *x = ((i * 13) % 7) as f32 * 0.2 - 0.6);
+            c.rewards.iter_mut().enumerate().for_each(|(i, x)| *x = if i % 3 == 0 { 1.0 } else { -0.5 });
+            c.log_probs.fill(log_prob);
+            c
+        };
+        let good = learner.weights();
+        let report = learner.train(&[chunk(-1.0e9)]).unwrap();
+        let reason = report.refused_update.expect("the poisoned update is refused");
+        assert!(reason.contains("not") || reason.contains("NaN") || reason.contains("inf"), "{reason}");
+        let kept = learner.weights();
+        assert_eq!(kept.params, good.params, "the weights are the last good ones");
+        assert_eq!(kept.normalizer, good.normalizer, "the poisoned batch did not move the normaliser");
+        assert_eq!((report.version, report.env_steps), (1, 0), "the next version, no steps learned");
+        let report = learner.train(&[chunk(-3.0)]).unwrap();
+        assert_eq!(report.refused_update, None);
+        assert_eq!((report.version, report.env_steps), (2, 128));
+        assert_ne!(learner.weights().params, good.params, "training went on from them");
+        assert!(learner.weights().check_parameters().is_ok());
     }
 }

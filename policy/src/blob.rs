@@ -74,6 +74,10 @@ pub enum BlobError {
     Malformed(String),
 }
 
+/// Largest magnitude a weight may have: initialised weights are O(1) and a healthy PPO update
+/// moves them by ~1e-3; a weight this large means the training diverged.
+pub const MAX_WEIGHT: f32 = 1.0e6;
+
 /// Weights, normaliser and version of one policy.
 #[derive(Clone, Debug, PartialEq)]
 pub struct WeightsBlob {
@@ -368,7 +372,23 @@ impl WeightsBlob {
             let TensorData::F32(values) = &tensor.data else { return Err(malformed(format!("{name} is not F32"))) };
             params.push(ExportedParam { id, shape: tensor.shape.clone(), values: values.clone() });
         }
-        Ok(Self { version, architecture, normalizer, params })
+        let blob = Self { version, architecture, normalizer, params };
+        blob.check_parameters()?;
+        Ok(blob)
+    }
+
+    /// Every parameter finite and within ±[`MAX_WEIGHT`]: a policy that fails this would act
+    /// with NaN or saturated actions, and a learner that produced it has diverged.
+    pub fn check_parameters(&self) -> Result<(), BlobError> {
+        for (k, p) in self.params.iter().enumerate() {
+            if let Some(i) = p.values.iter().position(|w| !(w.is_finite() && w.abs() <= MAX_WEIGHT)) {
+                return Err(BlobError::Malformed(format!(
+                    "parameter {k} (id {}) holds {} at {i}: not a finite weight within ±{MAX_WEIGHT:e}",
+                    p.id, p.values[i]
+                )));
+            }
+        }
+        Ok(())
     }
 
     /// Decodes the earlier framed layout: `DRPOLICY`, format u32, version u64, architecture
@@ -412,7 +432,9 @@ impl WeightsBlob {
             return Err(BlobError::Malformed(format!("{} bytes after the parameters", r.remaining())));
         }
         check_observation_lengths(&architecture, &normalizer)?;
-        Ok(Self { version, architecture, normalizer, params })
+        let blob = Self { version, architecture, normalizer, params };
+        blob.check_parameters()?;
+        Ok(blob)
     }
 }
 

@@ -41,6 +41,37 @@ impl From<Truncated> for RolloutWireError {
     }
 }
 
+/// What a receiver accepts, checked against a chunk's header before any of its arrays is
+/// allocated: a rollout's decoded size is then bounded by what the run itself produces
+/// (`max_envs × max_steps` transitions), whatever its header or image code claims.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ChunkLimits {
+    /// Observation length of the policy being trained.
+    pub observation_dim: usize,
+    /// Action length of the policy being trained.
+    pub action_dim: usize,
+    /// Most environments one chunk may hold (the run's).
+    pub max_envs: usize,
+    /// Most steps per environment (the run's rollout length).
+    pub max_steps: usize,
+    /// Camera images are expected (a vision agent); otherwise a chunk carrying them is refused.
+    pub images: bool,
+}
+
+impl ChunkLimits {
+    /// Bytes the decoded arrays of a chunk of `transitions` take at most (what a receiver must
+    /// budget for before decoding it).
+    pub fn decoded_bytes(&self, transitions: usize) -> usize {
+        let per = 4 * (self.observation_dim + self.action_dim + 5) + 2 + if self.images { IMAGE_PIXELS } else { 0 };
+        transitions.saturating_mul(per)
+    }
+}
+
+/// Largest magnitude any number in a rollout may have. Rewards are O(1) per step and values
+/// O(100) (SPEC §3, §6); a billion is far beyond anything a healthy run sends, yet small enough
+/// that f32 advantage sums over a whole rollout cannot overflow.
+pub const MAX_MAGNITUDE: f32 = 1.0e9;
+
 /// One finished episode, for metrics.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EpisodeRecord {
@@ -136,7 +167,8 @@ impl RolloutChunk {
 
     /// Checks every array's length against `envs × steps` and the given dimensions, that the
     /// camera images are there exactly when the agent acts on them (`images`: a vision agent),
-    /// and that all numbers are finite; the message names the offending field.
+    /// and that all numbers are finite and at most [`MAX_MAGNITUDE`] in size; the message names
+    /// the offending field.
     pub fn check(&self, observation_dim: usize, action_dim: usize, images: bool) -> Result<(), String> {
         let t = self.transitions();
         let expect = [
@@ -174,12 +206,57 @@ impl RolloutChunk {
             if let Some(i) = values.iter().position(|x| !x.is_finite()) {
                 return Err(format!("{name}[{i}] is {}, not a finite number", values[i]));
             }
+            if let Some(i) = values.iter().position(|x| x.abs() > MAX_MAGNITUDE) {
+                return Err(format!("{name}[{i}] is {}, beyond the ±{MAX_MAGNITUDE:e} any rollout number may have", values[i]));
+            }
         }
         Ok(())
     }
 }
 
+/// A chunk's header: who made it and its shape.
+struct Header {
+    policy_version: u64,
+    first_env: usize,
+    envs: usize,
+    steps: usize,
+}
+
+impl Header {
+    /// Reads the header and checks its shape against `limits`.
+    fn read(r: &mut Reader, limits: &ChunkLimits) -> Result<Self, RolloutWireError> {
+        let malformed = RolloutWireError::Malformed;
+        let policy_version = r.u64()?;
+        let first_env = usize::try_from(r.u64()?).map_err(|_| malformed("first_env overflows".into()))?;
+        let (envs, steps, obs_dim, act_dim) = (r.u32()? as usize, r.u32()? as usize, r.u32()? as usize, r.u32()? as usize);
+        if envs == 0 || steps == 0 {
+            return Err(malformed(format!("{envs} environments × {steps} steps holds no transitions")));
+        }
+        if (obs_dim, act_dim) != (limits.observation_dim, limits.action_dim) {
+            return Err(malformed(format!(
+                "observations of {obs_dim} and actions of {act_dim} values, where the policy has {} and {}",
+                limits.observation_dim, limits.action_dim
+            )));
+        }
+        if envs > limits.max_envs || steps > limits.max_steps {
+            return Err(malformed(format!(
+                "{envs} environments × {steps} steps, more than the run's {} × {}",
+                limits.max_envs, limits.max_steps
+            )));
+        }
+        Ok(Self { policy_version, first_env, envs, steps })
+    }
+}
+
 impl RolloutChunk {
+    /// The transitions (environments × steps) a chunk's header announces, checked against
+    /// `limits` and the frame's checksum, without decoding anything else: what a receiver
+    /// budgets for before [`RolloutChunk::from_bytes`].
+    pub fn announced_transitions(bytes: &[u8], limits: &ChunkLimits) -> Result<usize, RolloutWireError> {
+        let header = Header::read(&mut Reader::new(FRAME.decode(bytes)?, 0), limits)?;
+        Ok(header.envs * header.steps)
+    }
+
     /// Encodes the chunk in the wire layout.
     pub fn to_bytes(&self) -> Vec<u8> {
         let t = self.transitions().max(1);
@@ -213,16 +290,16 @@ impl RolloutChunk {
         FRAME.encode(&out)
     }
 
-    /// Decodes and verifies a chunk: checksum, every array's length against the header, no
-    /// trailing bytes. Lengths are checked against the input before anything is allocated.
-    pub fn from_bytes(bytes: &[u8]) -> Result<Self, RolloutWireError> {
+    /// Decodes and verifies a chunk: checksum, the header's shape against `limits`, every
+    /// array's length against the header, no trailing bytes. Everything is checked against the
+    /// limits and the input before anything is allocated, so a decode never allocates more than
+    /// `limits.decoded_bytes(limits.max_envs * limits.max_steps)` (plus the episodes, which the
+    /// input's length bounds).
+    pub fn from_bytes(bytes: &[u8], limits: &ChunkLimits) -> Result<Self, RolloutWireError> {
+        let malformed = RolloutWireError::Malformed;
         let mut r = Reader::new(FRAME.decode(bytes)?, 0);
-        let policy_version = r.u64()?;
-        let first_env = usize::try_from(r.u64()?).map_err(|_| RolloutWireError::Malformed("first_env overflows".into()))?;
-        let (envs, steps, obs_dim, act_dim) = (r.u32()? as usize, r.u32()? as usize, r.u32()? as usize, r.u32()? as usize);
-        if envs == 0 || steps == 0 {
-            return Err(RolloutWireError::Malformed(format!("{envs} environments × {steps} steps holds no transitions")));
-        }
+        let Header { policy_version, first_env, envs, steps } = Header::read(&mut r, limits)?;
+        let (obs_dim, act_dim) = (limits.observation_dim, limits.action_dim);
         // Per transition: obs + act + 5 more f32 and 2 flag bytes; refuse before allocating.
         let t = envs * steps;
         let per = obs_dim.checked_add(act_dim).and_then(|d| d.checked_add(4)).and_then(|d| d.checked_mul(4)).map(|b| b + 2);
@@ -265,10 +342,12 @@ impl RolloutChunk {
                 crashed,
             });
         }
-        let code_len = usize::try_from(r.u64()?).map_err(|_| RolloutWireError::Malformed("image code length overflows".into()))?;
+        let code_len = usize::try_from(r.u64()?).map_err(|_| malformed("image code length overflows".into()))?;
         let code = r.take(code_len)?;
         let images = match code_len {
             0 => Vec::new(),
+            _ if !limits.images => return Err(malformed("images: camera images in a state-based agent's rollout".into())),
+            // t is within the limits here, so this allocates at most what the run's images take.
             _ => crate::run_length::decode(code, t * IMAGE_PIXELS).ok_or_else(|| {
                 RolloutWireError::Malformed(format!("the image code does not decode to {t} images of {IMAGE_PIXELS} bytes"))
             })?,
@@ -300,6 +379,10 @@ impl RolloutChunk {
 mod tests {
     use super::*;
 
+    /// What the test chunks fit exactly.
+    const LIMITS: ChunkLimits = ChunkLimits { observation_dim: 5, action_dim: 2, max_envs: 3, max_steps: 4, images: false };
+    const VISION: ChunkLimits = ChunkLimits { images: true, ..LIMITS };
+
     fn chunk() -> RolloutChunk {
         let (envs, steps, obs, act) = (3, 4, 5, 2);
         let t = envs * steps;
@@ -329,7 +412,7 @@ mod tests {
     #[test]
     fn wire_format_round_trips_exactly() {
         let c = chunk();
-        assert_eq!(RolloutChunk::from_bytes(&c.to_bytes()).unwrap(), c);
+        assert_eq!(RolloutChunk::from_bytes(&c.to_bytes(), &LIMITS).unwrap(), c);
         // With a vision agent's images: a bar of gate pixels in every image.
         let mut v = chunk();
         v.images = vec![0; v.transitions() * IMAGE_PIXELS];
@@ -341,7 +424,8 @@ mod tests {
         assert!(c.check(5, 2, true).unwrap_err().contains("without its camera images"));
         let bytes = v.to_bytes();
         assert!(bytes.len() < c.to_bytes().len() + v.transitions() * 20, "images are run-length coded");
-        assert_eq!(RolloutChunk::from_bytes(&bytes).unwrap(), v);
+        assert_eq!(RolloutChunk::from_bytes(&bytes, &VISION).unwrap(), v);
+        assert!(matches!(RolloutChunk::from_bytes(&bytes, &LIMITS), Err(RolloutWireError::Malformed(m)) if m.contains("state-based")));
         v.images.pop();
         assert!(v.check(5, 2, true).unwrap_err().contains("images"));
     }
@@ -349,7 +433,7 @@ mod tests {
     #[test]
     fn truncated_altered_foreign_and_lying_chunks_are_refused() {
         let bytes = chunk().to_bytes();
-        let frame_error = |b: &[u8]| match RolloutChunk::from_bytes(b) {
+        let frame_error = |b: &[u8]| match RolloutChunk::from_bytes(b, &LIMITS) {
             Err(RolloutWireError::Frame(e)) => Some(e),
             _ => None,
         };
@@ -364,6 +448,56 @@ mod tests {
         lying[envs_at..envs_at + 4].copy_from_slice(&u32::MAX.to_le_bytes());
         let crc = crc32fast::hash(&lying);
         lying.extend_from_slice(&crc.to_le_bytes());
-        assert!(matches!(RolloutChunk::from_bytes(&lying), Err(RolloutWireError::Malformed(m)) if m.contains("more than")));
+        let unlimited = ChunkLimits { max_envs: usize::MAX, max_steps: usize::MAX, ..LIMITS };
+        assert!(matches!(RolloutChunk::from_bytes(&lying, &unlimited), Err(RolloutWireError::Malformed(m)) if m.contains("more than")));
+    }
+
+    /// The amplifying rollout: 18 bytes per transition on the wire (no observations, no
+    /// actions; the images one zero run per 65,535 bytes) that would decode to 7,056 image
+    /// bytes each. Built without ever holding the images.
+    fn amplifying(envs: usize, steps: usize) -> Vec<u8> {
+        let c = RolloutChunk::zeroed(1, 0, envs, steps, 0, 0);
+        let mut body = FRAME.decode(&c.to_bytes()).unwrap().to_vec();
+        body.truncate(body.len() - 8); // the empty image code's length
+        let mut code = Vec::new();
+        let mut left = c.transitions() * IMAGE_PIXELS;
+        while left > 0 {
+            let run = left.min(u16::MAX as usize);
+            code.push(0);
+            code.extend_from_slice(&(run as u16).to_le_bytes());
+            left -= run;
+        }
+        body.extend_from_slice(&(code.len() as u64).to_le_bytes());
+        body.extend_from_slice(&code);
+        FRAME.encode(&body)
+    }
+
+    #[test]
+    fn a_header_beyond_the_limits_is_refused_before_its_arrays_are_allocated() {
+        // Within what a vision run of 8 × 16 produces: decoded as announced.
+        let small = amplifying(8, 16);
+        let fits = ChunkLimits { observation_dim: 0, action_dim: 0, max_envs: 8, max_steps: 16, images: true };
+        assert_eq!(RolloutChunk::from_bytes(&small, &fits).unwrap().images.len(), 8 * 16 * IMAGE_PIXELS);
+        // 64 × 4,096 transitions in under 5 MB would be 1.85 GB of images: refused by its header.
+        let big = amplifying(64, 4096);
+        assert!(big.len() < 5 << 20, "{} bytes on the wire", big.len());
+        let error = RolloutChunk::from_bytes(&big, &fits).unwrap_err().to_string();
+        assert!(error.contains("more than the run's 8 × 16"), "{error}");
+        // The wrong observation length, and images a state agent does not take, also by name.
+        let state = ChunkLimits { observation_dim: 52, ..fits };
+        assert!(RolloutChunk::from_bytes(&small, &state).unwrap_err().to_string().contains("observations of 0"));
+        let no_images = ChunkLimits { images: false, ..fits };
+        assert!(RolloutChunk::from_bytes(&small, &no_images).unwrap_err().to_string().contains("state-based"));
+        assert_eq!(fits.decoded_bytes(8 * 16), 8 * 16 * (4 * 5 + 2 + IMAGE_PIXELS));
+    }
+
+    #[test]
+    fn numbers_beyond_any_healthy_run_are_refused_by_field() {
+        let mut c = chunk();
+        c.rewards[3] = 2.0e9;
+        assert!(c.check(5, 2, false).unwrap_err().contains("rewards[3]"));
+        let mut c = chunk();
+        c.last_values[1] = -1.0e10;
+        assert!(c.check(5, 2, false).unwrap_err().contains("last_values[1]"));
     }
 }

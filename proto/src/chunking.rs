@@ -50,6 +50,11 @@ impl Reassembler {
         Ok(None)
     }
 
+    /// Bytes of the payload collected so far.
+    pub fn buffered(&self) -> usize {
+        self.buffer.len()
+    }
+
     /// True when a payload has begun but not ended.
     pub fn is_partial(&self) -> bool {
         self.expected.is_some()

@@ -22,6 +22,7 @@ use tonic::transport::Channel;
 use tonic::{Request, Response, Status, Streaming};
 
 use crate::board::LearnerBoard;
+use crate::budget::{ByteBudget, OverBudget, Reservation};
 use crate::chunking::{Reassembler, split};
 use crate::security::{AddToken, MAX_MESSAGE_BYTES, Security, SecurityError};
 use crate::transport::{ActorLink, Admission, Delivery, LearnerLink, LinkError, Received, Refusal, WeightsUpdate};
@@ -152,26 +153,36 @@ fn check_on_arrival(board: &LearnerBoard, actor: &str, epoch: u64, chunk: &Rollo
 /// cost no N copies of the blob).
 type WeightsWatch = Arc<watch::Sender<Option<Arc<Vec<v1::WeightsPart>>>>>;
 
+/// A decoded rollout on its way to the training loop, with the budget it holds until taken.
+type Queued = (Delivery, Reservation);
+
 /// The `Learner` service adapter.
 pub struct LearnerService {
     board: Arc<LearnerBoard>,
     weights: WeightsWatch,
-    deliveries: Option<SyncSender<Delivery>>,
+    deliveries: Option<SyncSender<Queued>>,
+    budget: Arc<ByteBudget>,
 }
 
 impl LearnerService {
     /// A service taking rollouts over gRPC, and the link the training loop reads them from;
-    /// both read and write `board`.
-    pub fn with_rollouts(board: Arc<LearnerBoard>) -> (Self, GrpcLearnerLink) {
+    /// both read and write `board`. Rollouts between arrival and training hold at most
+    /// `budget_bytes` (the rollout queue's length is the budget's business, not a count).
+    pub fn with_rollouts(board: Arc<LearnerBoard>, budget_bytes: usize) -> (Self, GrpcLearnerLink) {
         let weights: WeightsWatch = Arc::new(watch::channel(None).0);
-        let (tx, rx) = std::sync::mpsc::sync_channel(256);
+        let (tx, rx) = std::sync::mpsc::sync_channel(4096);
         let link = GrpcLearnerLink { board: board.clone(), weights: weights.clone(), deliveries: rx };
-        (Self { board, weights, deliveries: Some(tx) }, link)
+        (Self { board, weights, deliveries: Some(tx), budget: ByteBudget::new(budget_bytes) }, link)
     }
 
     /// A service answering `Status` only, from `board`: rollouts and weights go over iceoryx2.
     pub fn status_only(board: Arc<LearnerBoard>) -> Self {
-        Self { board, weights: Arc::new(watch::channel(None).0), deliveries: None }
+        Self { board, weights: Arc::new(watch::channel(None).0), deliveries: None, budget: ByteBudget::new(0) }
+    }
+
+    /// The budget its rollouts hold.
+    pub fn budget(&self) -> Arc<ByteBudget> {
+        self.budget.clone()
     }
 
     /// The tonic server with message limits.
@@ -184,7 +195,7 @@ impl LearnerService {
 pub struct GrpcLearnerLink {
     board: Arc<LearnerBoard>,
     weights: WeightsWatch,
-    deliveries: Receiver<Delivery>,
+    deliveries: Receiver<Queued>,
 }
 
 impl LearnerLink for GrpcLearnerLink {
@@ -196,7 +207,8 @@ impl LearnerLink for GrpcLearnerLink {
         match self.deliveries.recv_timeout(timeout) {
             // The service refused what was wrong on arrival, answering the actor at once; the
             // version may have moved on while the rollout was queued, so it is checked again.
-            Ok(d) => Ok(Some(Admission::receive(self.board.admission().as_ref(), d))),
+            // Taken off the queue: the training loop's batch holds it now, not the budget.
+            Ok((d, _released)) => Ok(Some(Admission::receive(self.board.admission().as_ref(), d))),
             Err(RecvTimeoutError::Timeout) => Ok(None),
             Err(RecvTimeoutError::Disconnected) => Err(LinkError("the gRPC server stopped".into())),
         }
@@ -230,24 +242,44 @@ type PartStream = Pin<Box<dyn Stream<Item = Result<v1::WeightsPart, Status>> + S
 impl Learner for LearnerService {
     async fn push_rollouts(&self, request: Request<Streaming<v1::RolloutPart>>) -> Result<Response<v1::PushSummary>, Status> {
         let Some(deliveries) = &self.deliveries else { return Err(shm_only()) };
+        let over_budget = |e: OverBudget| Status::resource_exhausted(e.to_string());
         let mut stream = request.into_inner();
         let mut parts = Reassembler::default();
+        let mut held = Reservation::new(&self.budget);
         let mut accepted = 0;
         while let Some(part) = stream.message().await? {
+            // Reserved before the reassembler copies the part in.
+            held.resize(parts.buffered() + part.data.len()).map_err(over_budget)?;
             let Some(bytes) = parts.push(part.part, part.parts, &part.data).map_err(Status::invalid_argument)? else {
                 continue;
             };
-            let chunk = RolloutChunk::from_bytes(&bytes).map_err(|e| {
+            // Nothing is decoded without an admission: its limits bound the header, and what the
+            // header announces is reserved before decoding starts.
+            let Some(admission) = self.board.admission() else { return Err(Status::unavailable(Refusal::Starting.to_string())) };
+            let limits = admission.limits();
+            let transitions = RolloutChunk::announced_transitions(&bytes, &limits).map_err(|e| {
                 self.board.count_refused();
                 Status::invalid_argument(e.to_string())
             })?;
+            held.resize(bytes.len() + limits.decoded_bytes(transitions)).map_err(over_budget)?;
+            // Decoding a large rollout takes milliseconds of CPU: not on the async workers, which
+            // also answer Status and stream weights.
+            let decoded = tokio::task::spawn_blocking(move || RolloutChunk::from_bytes(&bytes, &limits))
+                .await
+                .map_err(|e| Status::internal(format!("decoding a rollout: {e}")))?;
+            let chunk = decoded.map_err(|e| {
+                self.board.count_refused();
+                Status::invalid_argument(e.to_string())
+            })?;
+            held.resize(limits.decoded_bytes(chunk.transitions())).map_err(over_budget)?;
             if chunk.policy_version != part.policy_version {
                 self.board.count_refused();
                 return Err(Status::invalid_argument("policy_version differs from the chunk's own"));
             }
             check_on_arrival(&self.board, &part.actor, part.learner_epoch, &chunk)?;
             let delivery = Delivery { actor: part.actor, learner_epoch: part.learner_epoch, chunk };
-            match deliveries.try_send(delivery) {
+            let queued = std::mem::replace(&mut held, Reservation::new(&self.budget));
+            match deliveries.try_send((delivery, queued)) {
                 Ok(()) => accepted += 1,
                 Err(TrySendError::Full(_)) => return Err(Status::resource_exhausted("the learner's rollout queue is full")),
                 Err(TrySendError::Disconnected(_)) => return Err(Status::unavailable("the learner is stopping")),
@@ -301,7 +333,128 @@ impl Learner for LearnerService {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::security::Security;
     use crate::transport::LearnerStatus;
+    use std::alloc::{GlobalAlloc, Layout, System};
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    /// Counts the bytes this test binary holds, and the most it held since the last reset.
+    struct Counting;
+    static HELD: AtomicUsize = AtomicUsize::new(0);
+    static PEAK: AtomicUsize = AtomicUsize::new(0);
+
+    // SAFETY: forwards to the system allocator unchanged; only counts.
+    unsafe impl GlobalAlloc for Counting {
+        unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+            let held = HELD.fetch_add(layout.size(), Ordering::SeqCst) + layout.size();
+            PEAK.fetch_max(held, Ordering::SeqCst);
+            // SAFETY: the caller's contract is System's.
+            unsafe { System.alloc(layout) }
+        }
+        unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+            HELD.fetch_sub(layout.size(), Ordering::SeqCst);
+            // SAFETY: the caller's contract is System's.
+            unsafe { System.dealloc(ptr, layout) }
+        }
+    }
+
+    #[global_allocator]
+    static ALLOCATOR: Counting = Counting;
+
+    /// The tests that measure allocations run one at a time.
+    static MEASURING: Mutex<()> = Mutex::new(());
+
+    /// A learner service on a local port for a run of 8 environments × 16 steps.
+    fn learner(rt: &tokio::runtime::Runtime, images: bool, budget: usize) -> (String, Arc<ByteBudget>) {
+        let board = Arc::new(LearnerBoard::default());
+        board.set_admission(Admission {
+            learner_epoch: 1,
+            version: 0,
+            max_policy_lag: 0,
+            observation_dim: 3,
+            action_dim: 2,
+            images,
+            total_envs: 8,
+            rollout_steps: 16,
+        });
+        let (service, link) = LearnerService::with_rollouts(board, budget);
+        let held = service.budget();
+        std::mem::forget(link); // keeps the queue open for the test's lifetime
+        let listener = rt.block_on(tokio::net::TcpListener::bind("127.0.0.1:0")).unwrap();
+        let url = format!("http://{}", listener.local_addr().unwrap());
+        let server = Security::default().server().unwrap().add_service(service.into_server());
+        rt.spawn(server.serve_with_incoming(crate::security::incoming(listener)));
+        (url, held)
+    }
+
+    /// Pushes pre-encoded rollout bytes as one payload; the status, and the most bytes this
+    /// process held above what it held before the push.
+    fn push(rt: &tokio::runtime::Runtime, url: &str, bytes: Bytes) -> (Result<u64, Status>, usize) {
+        let messages: Vec<v1::RolloutPart> = split(bytes)
+            .into_iter()
+            .map(|(part, parts, data)| v1::RolloutPart { actor: "a".into(), learner_epoch: 1, policy_version: 0, part, parts, data })
+            .collect();
+        let _guard = rt.enter();
+        let mut client = learner_client(url, &Security::default()).unwrap();
+        let before = HELD.load(Ordering::SeqCst);
+        PEAK.store(before, Ordering::SeqCst);
+        let answer = rt.block_on(client.push_rollouts(tokio_stream::iter(messages))).map(|r| r.into_inner().accepted);
+        (answer, PEAK.load(Ordering::SeqCst).saturating_sub(before))
+    }
+
+    /// 64 environments × 1,024 steps of zero images: ~2.5 MB on the wire, 462 MB of images decoded.
+    fn amplifying() -> Bytes {
+        let mut chunk = RolloutChunk::zeroed(0, 0, 64, 1024, 3, 2);
+        chunk.images = vec![0; chunk.transitions() * sim::camera::IMAGE_PIXELS];
+        Bytes::from(chunk.to_bytes())
+    }
+
+    #[test]
+    #[allow(clippy::print_stderr, reason = "the figure BENCHMARKS.md quotes")]
+    fn the_amplifying_rollout_is_refused_without_the_learner_allocating_it() {
+        let _one_at_a_time = MEASURING.lock();
+        let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
+        let bytes = amplifying();
+        assert!(bytes.len() < 3 << 20, "{} bytes on the wire", bytes.len());
+        for images in [false, true] {
+            let (url, budget) = learner(&rt, images, 64 << 20);
+            let (answer, peak) = push(&rt, &url, bytes.clone());
+            let status = answer.unwrap_err();
+            assert_eq!(status.code(), tonic::Code::InvalidArgument, "{status:?}");
+            let expected = if images { "more than the run's 8 × 16" } else { "more than the run's" };
+            assert!(status.message().contains(expected), "{}", status.message());
+            assert!(peak < 16 << 20, "the learner side held {peak} more bytes (images: {images})");
+            eprintln!("amplifying rollout of {} bytes (images: {images}): refused, {peak} bytes held at most", bytes.len());
+            assert_eq!(budget.used(), 0, "everything reserved was given back");
+        }
+    }
+
+    #[test]
+    fn rollouts_beyond_the_byte_budget_are_refused_and_within_it_accepted() {
+        let _one_at_a_time = MEASURING.lock();
+        let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
+        let chunk = RolloutChunk::zeroed(0, 0, 8, 16, 3, 2);
+        let limits = Admission {
+            learner_epoch: 1,
+            version: 0,
+            max_policy_lag: 0,
+            observation_dim: 3,
+            action_dim: 2,
+            images: false,
+            total_envs: 8,
+            rollout_steps: 16,
+        }
+        .limits();
+        let needed = chunk.to_bytes().len() + limits.decoded_bytes(8 * 16);
+        // (the chunk is as large as the run allows, so its header announces the run's maximum)
+        let (url, budget) = learner(&rt, false, needed);
+        assert_eq!(push(&rt, &url, Bytes::from(chunk.to_bytes())).0.unwrap(), 1);
+        assert_eq!(budget.used(), limits.decoded_bytes(8 * 16), "the queued chunk holds its decoded size until taken");
+        let (answer, _) = push(&rt, &url, Bytes::from(chunk.to_bytes()));
+        let status = answer.unwrap_err();
+        assert_eq!(status.code(), tonic::Code::ResourceExhausted, "{status:?}");
+        assert!(status.message().contains("budget"), "{}", status.message());
+    }
 
     #[test]
     fn status_answers_from_the_board() {

@@ -3,6 +3,7 @@
 //! transports (iceoryx2 on one machine, gRPC across machines, memory within one process), message limits, TLS and tokens.
 
 pub mod board;
+pub mod budget;
 pub mod chunking;
 pub mod convert;
 pub mod grpc_link;
@@ -52,6 +53,26 @@ pub async fn with_discovery(mut server: tonic::transport::Server, serving: &[&st
     let v1 = builder().build_v1().expect("the compiled-in descriptor sets are valid");
     let v1alpha = builder().build_v1alpha().expect("the compiled-in descriptor sets are valid");
     server.add_service(health).add_service(v1).add_service(v1alpha)
+}
+
+/// Serves gRPC health alone, in plaintext, on `listener` (each of `serving` SERVING) until
+/// `shutdown`: for probes that cannot speak TLS — Kubernetes' native gRPC probes — beside a
+/// server that only speaks TLS. It tells whoever asks that the process is up, nothing more.
+pub async fn serve_health(
+    listener: tokio::net::TcpListener,
+    serving: &[&str],
+    shutdown: impl std::future::Future<Output = ()>,
+) -> Result<(), tonic::transport::Error> {
+    let (reporter, health) = tonic_health::server::health_reporter();
+    for name in serving {
+        reporter.set_service_status(*name, tonic_health::ServingStatus::Serving).await;
+    }
+    tonic::transport::Server::builder()
+        .timeout(security::REQUEST_TIMEOUT)
+        .max_concurrent_streams(security::STREAMS_PER_CONNECTION)
+        .add_service(health)
+        .serve_with_incoming_shutdown(security::incoming(listener), shutdown)
+        .await
 }
 
 #[cfg(test)]

@@ -101,6 +101,7 @@ mod tests {
             action_dim: 4,
             images: false,
             total_envs: 4,
+            rollout_steps: 1,
         });
         for (version, first_env) in [(2, 0), (2, 2), (1, 0)] {
             actor.send_rollout("a", 7, &RolloutChunk::zeroed(version, first_env, 2, 1, 3, 4)).unwrap();

@@ -18,6 +18,13 @@ pub const MAX_MESSAGE_BYTES: usize = 4 * PART_BYTES;
 pub const PART_BYTES: usize = 1 << 20;
 /// Largest reassembled rollout chunk or weights blob (a 96-env × 1024-step paper rollout is ~20 MiB).
 pub const MAX_PAYLOAD_BYTES: usize = 256 << 20;
+/// Longest a request handler may run: a whole rollout upload (a 30 MiB vision rollout takes 3 s
+/// at 10 MB/s). Streams the server answers (weights, Fly) are not cut by it: their handlers
+/// return at once and the stream goes on.
+pub const REQUEST_TIMEOUT: Duration = Duration::from_secs(60);
+/// Requests one connection may have open at once, and HTTP/2 streams: an actor uses two or three,
+/// a client of `Fly` one; the bound keeps one connection from taking every handler.
+pub const STREAMS_PER_CONNECTION: u32 = 16;
 /// HTTP/2 flow-control windows: several MiB, so streaming 1 MiB parts does not stall.
 const WINDOW_BYTES: u32 = 8 << 20;
 
@@ -109,12 +116,17 @@ impl Security {
         Ok(())
     }
 
-    /// A server builder with TLS (when configured) and large flow-control windows.
+    /// A server builder with TLS (when configured), large flow-control windows, a request
+    /// timeout and a bound on each connection's concurrent streams.
     pub fn server(&self) -> Result<Server, SecurityError> {
         let mut server = Server::builder()
             .initial_stream_window_size(WINDOW_BYTES)
             .initial_connection_window_size(WINDOW_BYTES)
-            .http2_keepalive_interval(Some(Duration::from_secs(10)));
+            .http2_keepalive_interval(Some(Duration::from_secs(10)))
+            .http2_keepalive_timeout(Some(Duration::from_secs(20)))
+            .timeout(REQUEST_TIMEOUT)
+            .max_concurrent_streams(STREAMS_PER_CONNECTION)
+            .concurrency_limit_per_connection(STREAMS_PER_CONNECTION as usize);
         if let Some((cert, key)) = &self.server_identity {
             server = server.tls_config(ServerTlsConfig::new().identity(Identity::from_pem(cert, key)))?;
         }
@@ -126,10 +138,18 @@ impl Security {
         TokenCheck { token: self.token.clone() }
     }
 
-    /// A lazily connecting channel to `url` (`http://` or, with `tls_ca`, `https://`).
+    /// A lazily connecting channel to `url` (`http://` or, with `tls_ca`, `https://`). A token
+    /// without `tls_ca` goes to loopback addresses only: anywhere else it would cross the
+    /// network in plaintext.
     pub fn channel(&self, url: &str) -> Result<Channel, SecurityError> {
-        let mut endpoint = Endpoint::from_shared(url.to_string())
-            .map_err(|e| SecurityError::Invalid(format!("address {url:?}: {e}")))?
+        let endpoint = Endpoint::from_shared(url.to_string()).map_err(|e| SecurityError::Invalid(format!("address {url:?}: {e}")))?;
+        if self.token.is_some() && self.client_ca.is_none() && !is_loopback(endpoint.uri()) {
+            return Err(SecurityError::Invalid(format!(
+                "network.token_file is set without network.tls_ca: the token would travel in plaintext to {url}; \
+                 give network.tls_ca (the CA that signed the server's certificate) or connect over loopback"
+            )));
+        }
+        let mut endpoint = endpoint
             .connect_timeout(Duration::from_secs(5))
             .initial_stream_window_size(WINDOW_BYTES)
             .initial_connection_window_size(WINDOW_BYTES)
@@ -150,6 +170,31 @@ impl Security {
     pub fn token_header(&self) -> AddToken {
         AddToken { header: self.token.as_ref().map(|t| format!("Bearer {t}").parse().expect("printable ASCII token")) }
     }
+}
+
+/// The URI names this machine: `localhost` or a loopback IP.
+fn is_loopback(uri: &tonic::codegen::http::Uri) -> bool {
+    match uri.host() {
+        Some(host) => {
+            let host = host.trim_start_matches('[').trim_end_matches(']');
+            host.eq_ignore_ascii_case("localhost") || host.parse::<std::net::IpAddr>().is_ok_and(|ip| ip.is_loopback())
+        }
+        None => false,
+    }
+}
+
+/// Whether `given` is `token`, in time that depends on `given`'s length only: neither where the
+/// two differ nor the token's length shows in it.
+fn same_token(given: &[u8], token: &[u8]) -> bool {
+    if token.is_empty() {
+        return false;
+    }
+    let mut diff = usize::from(given.len() != token.len());
+    for (i, &g) in given.iter().enumerate() {
+        // Cycling through the token keeps every comparison the same work whatever its length.
+        diff |= usize::from(g ^ token[i % token.len()]);
+    }
+    std::hint::black_box(diff) == 0
 }
 
 /// Connections accepted on a bound listener, with Nagle's algorithm off (tonic applies its own
@@ -177,9 +222,7 @@ impl Interceptor for TokenCheck {
         let Some(given) = given.and_then(|v| v.strip_prefix("Bearer ")) else {
             return Err(Status::unauthenticated("missing bearer token (authorization: Bearer <token>)"));
         };
-        // Compare in time independent of where the strings differ.
-        let same = given.len() == token.len() && given.bytes().zip(token.bytes()).fold(0u8, |d, (a, b)| d | (a ^ b)) == 0;
-        if same { Ok(request) } else { Err(Status::unauthenticated("wrong bearer token")) }
+        if same_token(given.as_bytes(), token.as_bytes()) { Ok(request) } else { Err(Status::unauthenticated("wrong bearer token")) }
     }
 }
 
@@ -214,11 +257,36 @@ mod tests {
     fn token_check_refuses_missing_and_wrong_tokens() {
         let mut check = TokenCheck { token: Some(Arc::from("s3cret")) };
         assert!(check.call(with_token(Some("Bearer s3cret"))).is_ok());
-        for bad in [None, Some("Bearer s3creT"), Some("s3cret"), Some("Bearer s3cret2")] {
+        // Wrong, missing, without the scheme, longer, shorter, and a repetition of the token (the
+        // comparison cycles through the token, so it must still see the length differ).
+        for bad in [
+            None,
+            Some("Bearer s3creT"),
+            Some("s3cret"),
+            Some("Bearer s3cret2"),
+            Some("Bearer s3cre"),
+            Some("Bearer s3crets3cret"),
+            Some("Bearer "),
+        ] {
             assert_eq!(check.call(with_token(bad)).unwrap_err().code(), tonic::Code::Unauthenticated, "{bad:?}");
         }
         let mut open = TokenCheck { token: None };
         assert!(open.call(with_token(None)).is_ok());
+    }
+
+    #[test]
+    fn a_token_without_a_ca_goes_to_loopback_only() {
+        let token_only = Security { token: Some(Arc::from("s3cret")), ..Security::default() };
+        let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+        let _guard = rt.enter();
+        for local in ["http://127.0.0.1:50051", "http://localhost:50051", "http://[::1]:50051"] {
+            assert!(token_only.channel(local).is_ok(), "{local}");
+        }
+        for remote in ["http://learner:50052", "http://10.0.0.7:50052", "https://learner.example:50052"] {
+            let e = token_only.channel(remote).unwrap_err().to_string();
+            assert!(e.contains("plaintext") && e.contains("network.tls_ca"), "{remote}: {e}");
+        }
+        assert!(Security::default().channel("http://learner:50052").is_ok(), "no token, nothing to leak");
     }
 
     #[test]

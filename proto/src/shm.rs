@@ -199,8 +199,13 @@ impl LearnerLink for ShmLearnerLink {
                 let h = sample.user_header();
                 let name = &h.name[..(h.name_len as usize).min(NAME_BYTES)];
                 let actor = String::from_utf8_lossy(name).into_owned();
-                return Ok(Some(match RolloutChunk::from_bytes(sample.payload()) {
-                    Ok(chunk) => Admission::receive(self.admission.as_ref(), Delivery { actor, learner_epoch: h.learner_epoch, chunk }),
+                // Nothing is decoded before there is an admission to decode against: its limits
+                // bound what the bytes may make the learner allocate.
+                let Some(admission) = &self.admission else {
+                    return Ok(Some(Received::Refused { actor, refusal: Refusal::Starting }));
+                };
+                return Ok(Some(match RolloutChunk::from_bytes(sample.payload(), &admission.limits()) {
+                    Ok(chunk) => Admission::receive(Some(admission), Delivery { actor, learner_epoch: h.learner_epoch, chunk }),
                     Err(e) => Received::Refused { actor, refusal: Refusal::Malformed(e.to_string()) },
                 }));
             }

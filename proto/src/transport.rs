@@ -4,7 +4,7 @@
 
 use std::time::Duration;
 
-use policy::RolloutChunk;
+use policy::{ChunkLimits, RolloutChunk};
 
 /// Weights as they travel to actors.
 #[derive(Clone, Debug, PartialEq)]
@@ -113,6 +113,8 @@ pub struct Admission {
     pub images: bool,
     /// Environments in the whole run (global indices must fall below it).
     pub total_envs: usize,
+    /// Steps per environment in one rollout (PPO's `n_steps`): no chunk holds more.
+    pub rollout_steps: usize,
 }
 
 /// Why a rollout is refused.
@@ -158,6 +160,17 @@ impl Refusal {
 }
 
 impl Admission {
+    /// The shape a rollout's bytes may announce: what a link checks before decoding them.
+    pub fn limits(&self) -> ChunkLimits {
+        ChunkLimits {
+            observation_dim: self.observation_dim,
+            action_dim: self.action_dim,
+            max_envs: self.total_envs,
+            max_steps: self.rollout_steps,
+            images: self.images,
+        }
+    }
+
     /// What the link hands over for `delivery` under the current admission.
     pub fn receive(admission: Option<&Admission>, delivery: Delivery) -> Received {
         match Self::check_current(admission, &delivery.actor, delivery.learner_epoch, &delivery.chunk) {
@@ -176,6 +189,9 @@ impl Admission {
     pub fn check(&self, actor: &str, learner_epoch: u64, chunk: &RolloutChunk) -> Result<(), Refusal> {
         check_actor_name(actor).map_err(Refusal::Malformed)?;
         chunk.check(self.observation_dim, self.action_dim, self.images).map_err(Refusal::Malformed)?;
+        if chunk.steps > self.rollout_steps {
+            return Err(Refusal::Malformed(format!("{} steps per environment, more than the run's {}", chunk.steps, self.rollout_steps)));
+        }
         if chunk.first_env.checked_add(chunk.envs).is_none_or(|end| end > self.total_envs) {
             return Err(Refusal::Malformed(format!(
                 "environments {}..{} are not all known (the run has {})",
@@ -214,8 +230,16 @@ mod tests {
 
     #[test]
     fn admission_takes_versions_within_the_lag_of_this_epoch_only() {
-        let sync =
-            Admission { learner_epoch: 7, version: 10, max_policy_lag: 0, observation_dim: 3, action_dim: 2, images: false, total_envs: 4 };
+        let sync = Admission {
+            learner_epoch: 7,
+            version: 10,
+            max_policy_lag: 0,
+            observation_dim: 3,
+            action_dim: 2,
+            images: false,
+            total_envs: 4,
+            rollout_steps: 1,
+        };
         assert_eq!(sync.check("a", 7, &chunk(10, 2)), Ok(()));
         assert_eq!(sync.check("a", 7, &chunk(9, 2)).map_err(|r| r.kind()), Err("too_old"));
         assert_eq!(sync.check("a", 7, &chunk(11, 2)).map_err(|r| r.kind()), Err("future_version"));
@@ -231,5 +255,7 @@ mod tests {
         // A vision learner refuses a rollout without camera images at the link, before training.
         let vision = Admission { images: true, ..sync };
         assert!(matches!(vision.check("a", 7, &chunk(10, 2)), Err(Refusal::Malformed(m)) if m.contains("camera images")));
+        let long = RolloutChunk::zeroed(10, 0, 2, 2, 3, 2);
+        assert!(matches!(sync.check("a", 7, &long), Err(Refusal::Malformed(m)) if m.contains("more than the run's 1")));
     }
 }

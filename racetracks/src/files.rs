@@ -1,20 +1,65 @@
 //! Crash-safe file writing shared by every file dronerace produces.
 
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-/// Writes `bytes` to `path` so that a crash leaves either the old file or the new one, never a
-/// torn one: a temporary sibling, fsync, rename.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+/// The temporary sibling `write_atomic` writes `path` through.
+fn temporary(path: &Path) -> PathBuf {
     let mut tmp = path.as_os_str().to_owned();
     tmp.push(".tmp");
-    let tmp = std::path::PathBuf::from(tmp);
-    {
+    PathBuf::from(tmp)
+}
+
+/// Writes `bytes` to `path` so that a crash leaves either the old file or the new one, never a
+/// torn one: a temporary sibling, fsync, rename, then fsync of the directory (without it, the
+/// rename itself may not survive a power cut). A failed write removes its temporary file.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let tmp = temporary(path);
+    let written = (|| {
         let mut file = std::fs::File::create(&tmp)?;
         file.write_all(bytes)?;
         file.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if written.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+        return written;
     }
-    std::fs::rename(&tmp, path)
+    sync_directory(path)
+}
+
+/// fsyncs the directory holding `path`, making a rename into it durable.
+fn sync_directory(path: &Path) -> std::io::Result<()> {
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    std::fs::File::open(dir)?.sync_all()
+}
+
+/// Removes the temporary file a write of `path` cut off by a kill left behind, if any; returns
+/// its path. Call it only where no other process is writing `path`.
+pub fn remove_stale_temporary(path: &Path) -> std::io::Result<Option<PathBuf>> {
+    let tmp = temporary(path);
+    match std::fs::remove_file(&tmp) {
+        Ok(()) => Ok(Some(tmp)),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(e) => Err(e),
+    }
+}
+
+/// Removes every temporary file of `write_atomic` in `dir` (`*.tmp`); returns their paths.
+/// Call it only where no other process writes into `dir`.
+pub fn remove_stale_temporaries(dir: &Path) -> std::io::Result<Vec<PathBuf>> {
+    let mut removed = Vec::new();
+    for entry in std::fs::read_dir(dir)? {
+        let path = entry?.path();
+        if path.extension().is_some_and(|e| e == "tmp") && path.is_file() {
+            std::fs::remove_file(&path)?;
+            removed.push(path);
+        }
+    }
+    Ok(removed)
 }
 
 #[cfg(test)]
@@ -29,5 +74,24 @@ mod tests {
         write_atomic(&path, b"two").unwrap();
         assert_eq!(std::fs::read(&path).unwrap(), b"two");
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn a_failed_write_and_a_killed_one_leave_no_temporary_behind() {
+        let dir = tempfile::tempdir().unwrap();
+        // Renaming onto a directory fails after the temporary file was written.
+        let blocked = dir.path().join("taken");
+        std::fs::create_dir(&blocked).unwrap();
+        std::fs::write(blocked.join("x"), b"").unwrap();
+        assert!(write_atomic(&blocked, b"data").is_err());
+        assert!(!temporary(&blocked).exists(), "the failed write removed its temporary file");
+        // What a kill between create and rename leaves: removed by the next start.
+        let path = dir.path().join("b.bin");
+        std::fs::write(temporary(&path), b"half").unwrap();
+        std::fs::write(dir.path().join("c.bin.tmp"), b"half").unwrap();
+        assert_eq!(remove_stale_temporary(&path).unwrap(), Some(temporary(&path)));
+        assert_eq!(remove_stale_temporary(&path).unwrap(), None);
+        assert_eq!(remove_stale_temporaries(dir.path()).unwrap(), vec![dir.path().join("c.bin.tmp")]);
+        assert!(dir.path().join("taken").is_dir(), "only temporaries go");
     }
 }

@@ -44,6 +44,15 @@ pub enum ActorProcessError {
     /// The actor refused weights or a track.
     #[error(transparent)]
     Actor(#[from] ActorError),
+    /// The task controller gave this actor's name another range after it fell silent beyond
+    /// the actor timeout; the process restarts to take it up.
+    #[error("this actor's environments moved from {from} to {to} while it was silent; restarting on the new range")]
+    RangeMoved {
+        /// First environment it held.
+        from: usize,
+        /// First environment it holds now.
+        to: usize,
+    },
 }
 
 /// Calls `f` until it succeeds, a permanent error comes back, or `stop` is raised.
@@ -182,6 +191,10 @@ impl ActorLoop {
                 tracing::warn!("actor {name}: report {}: {e}; resyncing with the task controller", self.rollout);
                 let Some(r) = retry("register", stop, || tasks.register(name, self.settings.envs)) else { return Ok(Pass::Stopped) };
                 let registration = r.map_err(ActorProcessError::Registration)?;
+                if registration.first_env != self.actor.first_env() {
+                    // Our range went to another actor while we were silent: start afresh.
+                    return Err(ActorProcessError::RangeMoved { from: self.actor.first_env(), to: registration.first_env });
+                }
                 for (i, track) in registration.tracks.iter().enumerate() {
                     self.actor.set_track_if_changed(registration.first_env + i, track.clone())?;
                 }

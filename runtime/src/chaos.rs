@@ -76,6 +76,9 @@ pub struct ChaosReport {
     pub clean_exit: bool,
     /// /dev/shm entries created during the run and left after it.
     pub shm_left: Vec<String>,
+    /// Temporary files of writes cut off by a kill, still in the run directory or its
+    /// checkpoints after the stop (every restarted process removes its own).
+    pub temporaries_left: Vec<String>,
 }
 
 /// A process of the run: its pid and role name (`taskctl`, `learner`, `actor-0`, …).
@@ -238,6 +241,13 @@ pub fn run(args: ChaosArgs) -> anyhow::Result<()> {
         }
     }
     let shm_left = shm_entries().into_iter().filter(|e| !shm_before.contains(e)).collect();
+    let temporaries_left = [args.out.clone(), args.out.join("checkpoints")]
+        .iter()
+        .flat_map(|dir| std::fs::read_dir(dir).into_iter().flatten().flatten())
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|e| e == "tmp"))
+        .map(|p| p.display().to_string())
+        .collect();
     let report = ChaosReport {
         seconds,
         faults,
@@ -252,6 +262,7 @@ pub fn run(args: ChaosArgs) -> anyhow::Result<()> {
         rss_end_mib,
         clean_exit: status.is_some_and(|s| s.success()),
         shm_left,
+        temporaries_left,
     };
     let json = serde_json::to_string_pretty(&report)?;
     let report_path = args.out.join("chaos.json");
@@ -261,6 +272,7 @@ pub fn run(args: ChaosArgs) -> anyhow::Result<()> {
     anyhow::ensure!(report.checkpoints_readable == report.checkpoints, "unreadable checkpoints in {}", args.out.display());
     anyhow::ensure!(report.clean_exit, "the run did not stop cleanly after the faults; see {}", log_path.display());
     anyhow::ensure!(report.shm_left.is_empty(), "shared memory left behind: {:?}", report.shm_left);
+    anyhow::ensure!(report.temporaries_left.is_empty(), "temporary files left behind: {:?}", report.temporaries_left);
     Ok(())
 }
 

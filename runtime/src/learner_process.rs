@@ -27,6 +27,13 @@ use learner::learner::Learner;
 /// process adds the actor and the curriculum (so it resumes exactly); processes keep their own.
 pub type CheckpointSections<'a> = &'a dyn Fn(&mut Checkpoint);
 
+/// Updates refused in a row before the run stops: one diverged batch is bad luck, three mean the
+/// training itself diverges.
+const MAX_REFUSED_UPDATES: u32 = 3;
+
+/// Checkpoint writes failed in a row before the run stops.
+const MAX_FAILED_CHECKPOINTS: u32 = 3;
+
 /// No sections beside the learner's.
 pub fn learner_only(_: &mut Checkpoint) {}
 
@@ -41,6 +48,10 @@ pub struct LearnerProcess<L: LearnerLink> {
     total_envs: usize,
     members: BTreeSet<String>,
     iterations_here: u64,
+    /// Updates refused (and rolled back) in a row, and the last reason.
+    refused_updates: u32,
+    /// Checkpoint writes that failed in a row.
+    failed_checkpoints: u32,
     validator: Option<Validator>,
     /// When the previous iteration published its weights: an iteration's wall time runs from
     /// there, so it covers the collection whether actors run beside the learner or before it.
@@ -79,6 +90,8 @@ impl<L: LearnerLink> LearnerProcess<L> {
             total_envs: profile.envs,
             members: BTreeSet::new(),
             iterations_here: 0,
+            refused_updates: 0,
+            failed_checkpoints: 0,
             validator,
             previous_publish: Instant::now(),
         };
@@ -108,6 +121,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
             action_dim: arch.action_dim,
             images: arch.agent == policy::Agent::Vision,
             total_envs: self.total_envs,
+            rollout_steps: self.learner.profile().ppo.n_steps,
         }
     }
 
@@ -165,7 +179,10 @@ impl<L: LearnerLink> LearnerProcess<L> {
         let version = self.learner.version();
         let mut batch: Vec<Delivery> = Vec::new();
         let mut first_arrival: Option<Instant> = None;
-        let mut waiting_logged = Instant::now();
+        // Runs from the start of the wait: rollouts that are all refused (or none at all) do
+        // not start the timeout above, and must not leave the wait silent forever.
+        let mut watchdog = Instant::now();
+        let mut refused_before = self.board.refused();
         loop {
             if stop.load(Ordering::SeqCst) {
                 return Ok(None);
@@ -194,9 +211,15 @@ impl<L: LearnerLink> LearnerProcess<L> {
                 }
                 return Ok(Some(batch));
             }
-            if batch.is_empty() && waiting_logged.elapsed() > Duration::from_secs(30) {
-                tracing::info!("waiting for rollouts of version {version}");
-                waiting_logged = Instant::now();
+            // Says so, with what was refused meanwhile, rather than wait silently; the actors
+            // stay members (a slow collection is not a gone actor).
+            if batch.is_empty() && watchdog.elapsed() >= timeout.max(Duration::from_secs(30)) {
+                let refused = self.board.refused() - refused_before;
+                tracing::warn!(
+                    "no rollout of version {version} admitted for {:?} ({refused} refused meanwhile); still waiting",
+                    watchdog.elapsed()
+                );
+                (watchdog, refused_before) = (Instant::now(), self.board.refused());
             }
         }
     }
@@ -216,6 +239,20 @@ impl<L: LearnerLink> LearnerProcess<L> {
         let updating = Instant::now();
         let report = self.learner.train(&chunks)?;
         let update_seconds = updating.elapsed().as_secs_f64();
+        match &report.refused_update {
+            Some(reason) => {
+                self.refused_updates += 1;
+                tracing::error!(
+                    iteration = report.version,
+                    in_a_row = self.refused_updates,
+                    "update refused and rolled back to the last good weights: {reason}"
+                );
+                if self.refused_updates >= MAX_REFUSED_UPDATES {
+                    return Err(TrainError::Diverged { count: self.refused_updates, last: reason.clone() });
+                }
+            }
+            None => self.refused_updates = 0,
+        }
         self.publish()?;
         let seconds = std::mem::replace(&mut self.previous_publish, Instant::now()).elapsed().as_secs_f64();
         // Two numbers, not every environment's track: a summary is a small message.
@@ -226,15 +263,34 @@ impl<L: LearnerLink> LearnerProcess<L> {
         let validation = Validator::evaluate_if_due(self.validator.as_ref(), self.run.next_iteration(), || self.learner.weights())?;
         let (summary, best) = self.run.record(&chunks, report, timing, validation.as_ref())?;
         if best {
-            self.run.save_best(self.learner.checkpoint())?;
+            let saved = self.run.save_best(self.learner.checkpoint());
+            self.count_checkpoint(saved)?;
         }
         if self.run.checkpoint_due() {
-            self.checkpoint(sections)?;
+            let saved = self.checkpoint(sections).map(drop);
+            self.count_checkpoint(saved)?;
         }
         self.iterations_here += 1;
         self.set_status(summary.sps, version_lag);
         tracing::debug!(iteration = summary.iteration, chunks = chunks.len(), "update done");
         Ok(Some(summary))
+    }
+
+    /// A failed checkpoint write is logged and training goes on (the next may succeed: a disk
+    /// filled for a moment), up to [`MAX_FAILED_CHECKPOINTS`] in a row; then the run stops
+    /// rather than train what no checkpoint keeps (or restart into the same full disk).
+    fn count_checkpoint(&mut self, saved: Result<(), TrainError>) -> Result<(), TrainError> {
+        match saved {
+            Ok(()) => self.failed_checkpoints = 0,
+            Err(e) => {
+                self.failed_checkpoints += 1;
+                tracing::error!(in_a_row = self.failed_checkpoints, "checkpoint not written: {e}");
+                if self.failed_checkpoints >= MAX_FAILED_CHECKPOINTS {
+                    return Err(TrainError::CheckpointsFailing { count: self.failed_checkpoints, last: e.to_string() });
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Writes a periodic checkpoint (learner state, run bookkeeping and `sections`).

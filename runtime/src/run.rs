@@ -24,10 +24,19 @@ use learner::learner::{IterationReport, Learner, LearnerError};
 pub enum TrackSource {
     /// Every environment gets a generated track; switching replaces them.
     Generated,
-    /// Environments share these library tracks round robin (e.g. `["Figure8"]`).
-    Library {
+    /// Environments share these tracks round robin: library tracks by name (e.g.
+    /// `["Figure8"]`) and a user's track files or directories of them (`files`); switching then
+    /// replaces them with generated tracks as usual. `kind = "chosen"` (or, as earlier files
+    /// say, `"library"`).
+    #[serde(alias = "library")]
+    Chosen {
         /// Library track names.
+        #[serde(default)]
         names: Vec<String>,
+        /// Track files, or directories of `*.toml` track files (relative paths are read from
+        /// the working directory of the process that builds the task controller).
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        files: Vec<PathBuf>,
     },
 }
 
@@ -43,18 +52,14 @@ impl TrackSource {
     ) -> Result<TaskController, TrainError> {
         Ok(match self {
             TrackSource::Generated => TaskController::new(envs, generator, switching, seed)?,
-            TrackSource::Library { names } => {
-                let library = racetracks::library().map_err(|e| TrainError::Config(e.to_string()))?;
-                let mut chosen = Vec::new();
-                for name in names {
-                    let track = library
-                        .iter()
-                        .find(|t| t.name.eq_ignore_ascii_case(name))
-                        .ok_or_else(|| TrainError::Config(format!("tracks.names: no library track {name:?}")))?;
-                    chosen.push(Arc::new(track.clone()));
-                }
+            TrackSource::Chosen { names, files } => {
+                let chosen: Vec<Arc<sim::Track>> = racetracks::chosen_tracks("tracks", names, files)
+                    .map_err(|e| TrainError::Config(e.to_string()))?
+                    .into_iter()
+                    .map(Arc::new)
+                    .collect();
                 if chosen.is_empty() {
-                    return Err(TrainError::Config("tracks.names: name at least one library track".into()));
+                    return Err(TrainError::Config("tracks: name at least one library track (names) or track file (files)".into()));
                 }
                 let tracks = (0..envs).map(|i| chosen[i % chosen.len()].clone()).collect();
                 TaskController::with_tracks(tracks, generator, switching, seed)?
@@ -246,6 +251,10 @@ impl TrainConfig {
         if !(timeout.is_finite() && timeout > 0.0) {
             return Err(TrainError::Config(format!("learner.actor_timeout_seconds: {timeout} must be a positive number of seconds")));
         }
+        let memory = self.learner.rollout_memory_mib;
+        if memory == 0 || memory > 1 << 20 {
+            return Err(TrainError::Config(format!("learner.rollout_memory_mib: {memory} must be 1 to 1048576 (1 TiB)")));
+        }
         // The network reads the observations the environments write.
         let range = self.env.proximity_range;
         if self.env.proximity_gates > 0 && !(range.is_finite() && range > 0.0) {
@@ -287,8 +296,28 @@ impl TrainConfig {
         {
             return Err(TrainError::Config(format!("init_log_std: {log_std} needs init_from and a finite value")));
         }
-        if profile.envs == 0 || profile.ppo.n_steps == 0 || profile.ppo.batch_size == 0 || profile.ppo.n_epochs == 0 {
-            return Err(TrainError::Config("envs, ppo.n_steps, ppo.batch_size and ppo.n_epochs must be ≥ 1".into()));
+        if profile.envs == 0 {
+            return Err(TrainError::Config("envs must be ≥ 1".into()));
+        }
+        profile.ppo.check().map_err(TrainError::Config)?;
+        self.switching.check().map_err(TrainError::Config)?;
+        // A gRPC learner must be able to hold at least one rollout of every environment, as
+        // sent and as decoded.
+        let arch = &profile.architecture;
+        let limits = policy::ChunkLimits {
+            observation_dim: arch.observation_dim,
+            action_dim: arch.action_dim,
+            max_envs: profile.envs,
+            max_steps: profile.ppo.n_steps,
+            images: self.agent == Agent::Vision,
+        };
+        let whole_run = 2 * limits.decoded_bytes(profile.envs * profile.ppo.n_steps);
+        if memory.saturating_mul(1 << 20) < whole_run {
+            return Err(TrainError::Config(format!(
+                "learner.rollout_memory_mib: {memory} MiB cannot hold one rollout of all {} environments ({} MiB as sent and decoded)",
+                profile.envs,
+                whole_run.div_ceil(1 << 20)
+            )));
         }
         Ok(profile)
     }
@@ -306,11 +335,15 @@ pub struct LearnerSettings {
     /// Actors the first iteration of a learner waits for (up to the timeout), so it does not
     /// train on whichever actor happened to be first.
     pub expected_actors: usize,
+    /// MiB of rollouts a gRPC learner holds between arrival and training (parts being
+    /// reassembled, chunks being decoded, chunks queued), across every stream; beyond it an
+    /// actor's push is refused and sent again later.
+    pub rollout_memory_mib: usize,
 }
 
 impl Default for LearnerSettings {
     fn default() -> Self {
-        Self { max_policy_lag: 0, actor_timeout_seconds: 30.0, expected_actors: 1 }
+        Self { max_policy_lag: 0, actor_timeout_seconds: 30.0, expected_actors: 1, rollout_memory_mib: 512 }
     }
 }
 
@@ -353,6 +386,25 @@ pub enum TrainError {
     /// A weights blob could not be used.
     #[error(transparent)]
     Blob(#[from] policy::BlobError),
+    /// Updates kept diverging: each was refused and rolled back, and the next one diverged too.
+    #[error(
+        "{count} updates in a row were refused (non-finite or exploding) and rolled back; the last: {last}. The run stops at its last good weights: lower the learning rate or check the rollouts"
+    )]
+    Diverged {
+        /// Refused updates in a row.
+        count: u32,
+        /// Why the last was refused.
+        last: String,
+    },
+    /// Checkpoints kept failing to be written (a full or failing disk): going on would train
+    /// what no checkpoint keeps.
+    #[error("{count} checkpoints in a row could not be written; the last: {last}. Free space in the run directory, then resume")]
+    CheckpointsFailing {
+        /// Failed writes in a row.
+        count: u32,
+        /// The last error.
+        last: String,
+    },
     /// A file or directory of the run could not be read or written.
     #[error("{}: {source}", file.display())]
     Io {
@@ -376,6 +428,20 @@ pub enum TrainError {
     /// The task-controller snapshot inside a checkpoint is unusable.
     #[error(transparent)]
     Snapshot(#[from] taskctl::SnapshotError),
+}
+
+impl TrainError {
+    /// A failure that restarting the process from its checkpoint would only repeat: the
+    /// supervisor stops the run instead (see [`crate::supervisor::EXIT_FATAL`]).
+    pub fn is_fatal(&self) -> bool {
+        match self {
+            Self::Diverged { .. } | Self::CheckpointsFailing { .. } => true,
+            // A full disk stays full across a restart (which would lose the iterations since
+            // the last checkpoint each time).
+            Self::Io { source, .. } => matches!(source.kind(), std::io::ErrorKind::StorageFull | std::io::ErrorKind::QuotaExceeded),
+            _ => false,
+        }
+    }
 }
 
 /// What one iteration produced, for the progress line.
@@ -466,14 +532,49 @@ impl Run {
         Ok(Self { config, dir: dir.to_path_buf(), checkpoints, metrics, progress, pending_validation_seconds: 0.0, eta: Eta::default() })
     }
 
-    /// Opens the run in `dir` with its newest checkpoint.
+    /// Opens the run in `dir` with its newest readable checkpoint: one that is cut off or
+    /// corrupt (a disk fault, a copy gone wrong) is skipped with a warning naming it, and the
+    /// one before it is used. Removes the temporary files of checkpoint writes cut off by a
+    /// kill (the caller is the run's one writer).
     pub fn open(dir: &Path) -> Result<(Self, Checkpoint), TrainError> {
         let config = TrainConfig::read(&dir.join("config.toml"))?;
         let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
-        let path = checkpoints.latest().ok_or_else(|| TrainError::Config(format!("{} has no checkpoint to resume from", dir.display())))?;
-        let ckpt = Checkpoint::read(&path)?;
-        let progress: Progress = serde_json::from_slice(ckpt.get("progress")?)
-            .map_err(|e| TrainError::Encoding { what: format!("{}: progress", path.display()), reason: e.to_string() })?;
+        for stale in racetracks::files::remove_stale_temporaries(checkpoints.dir())
+            .map_err(|source| TrainError::Io { file: checkpoints.dir().to_path_buf(), source })?
+        {
+            tracing::warn!("removed {}, left by a checkpoint write that was cut off", stale.display());
+        }
+        let candidates = checkpoints.periodic();
+        if candidates.is_empty() {
+            return Err(TrainError::Config(format!("{} has no checkpoint to resume from", dir.display())));
+        }
+        let readable = |path: &Path| -> Result<(Checkpoint, Progress), TrainError> {
+            let ckpt = Checkpoint::read(path)?;
+            let progress: Progress = serde_json::from_slice(ckpt.get("progress")?)
+                .map_err(|e| TrainError::Encoding { what: format!("{}: progress", path.display()), reason: e.to_string() })?;
+            learner::Learner::from_checkpoint(&ckpt)?;
+            Ok((ckpt, progress))
+        };
+        let mut skipped = Vec::new();
+        let mut found = None;
+        for path in candidates.iter().rev() {
+            match readable(path) {
+                Ok(ok) => {
+                    found = Some(ok);
+                    break;
+                }
+                Err(e) => {
+                    tracing::warn!("cannot resume from {}: {e}; trying the checkpoint before it", path.display());
+                    skipped.push(format!("{}: {e}", path.display()));
+                }
+            }
+        }
+        let Some((ckpt, progress)) = found else {
+            return Err(TrainError::Config(format!("no checkpoint of {} is readable: {}", dir.display(), skipped.join("; "))));
+        };
+        if !skipped.is_empty() {
+            tracing::warn!("resuming from iteration {} after skipping {} unreadable checkpoint(s)", progress.iteration, skipped.len());
+        }
         let metrics = MetricsWriter::open(dir).map_err(|source| TrainError::Io { file: dir.to_path_buf(), source })?;
         Ok((
             Self { config, dir: dir.to_path_buf(), checkpoints, metrics, progress, pending_validation_seconds: 0.0, eta: Eta::default() },
@@ -666,6 +767,27 @@ mod tests {
             assert!(error.contains("learner.actor_timeout_seconds"), "{value}: {error}");
         }
         assert!(TrainConfig::from_toml("[learner]\nactor_timeout_seconds = 0.5\n").unwrap().resolved_profile().is_ok());
+    }
+
+    #[test]
+    fn numbers_out_of_range_are_refused_naming_their_field() {
+        let cases = [
+            ("[ppo]\ngamma = 1.5\n", "ppo.gamma"),
+            ("[ppo]\nlearning_rate_start = -1e-3\n", "ppo.learning_rate_start"),
+            ("[ppo]\nclip_range = 0.0\n", "ppo.clip_range"),
+            ("[ppo]\nmax_grad_norm = inf\n", "ppo.max_grad_norm"),
+            ("[ppo]\nadam_epsilon = nan\n", "ppo.adam_epsilon"),
+            ("[ppo]\nn_epochs = 0\n", "ppo.n_epochs"),
+            ("[switching]\nalpha = -1.0\n", "switching.alpha"),
+            ("[switching]\nrandom_probability = 2.0\n", "switching.random_probability"),
+            ("[switching]\nwindow = 1\n", "switching.window"),
+            ("[learner]\nrollout_memory_mib = 0\n", "learner.rollout_memory_mib"),
+        ];
+        for (text, field) in cases {
+            let error = TrainConfig::from_toml(text).unwrap().resolved_profile().unwrap_err().to_string();
+            assert!(error.contains(field), "{text:?}: {error}");
+        }
+        assert!(TrainConfig::default().resolved_profile().is_ok());
     }
 
     #[test]

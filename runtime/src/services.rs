@@ -60,6 +60,25 @@ pub(crate) fn async_runtime(threads: usize) -> anyhow::Result<tokio::runtime::Ru
     tokio::runtime::Builder::new_multi_thread().worker_threads(threads).enable_all().build().context("starting the async runtime")
 }
 
+/// Starts the plaintext health server for probes on `addr` (`--health-listen`), if given,
+/// reporting `serving` SERVING until `stop`.
+pub(crate) fn spawn_health(
+    rt: &tokio::runtime::Runtime,
+    addr: Option<SocketAddr>,
+    serving: &'static [&'static str],
+    stop: Arc<AtomicBool>,
+) -> anyhow::Result<()> {
+    let Some(addr) = addr else { return Ok(()) };
+    let listener = rt.block_on(tokio::net::TcpListener::bind(addr)).with_context(|| format!("health: binding {addr}"))?;
+    eprintln!("health (plaintext, for probes): serving on {addr}");
+    rt.spawn(async move {
+        if let Err(e) = proto::serve_health(listener, serving, until(stop)).await {
+            tracing::error!("health server on {addr}: {e}");
+        }
+    });
+    Ok(())
+}
+
 /// Resolves once `stop` is set (polled every 100 ms).
 pub(crate) async fn until(stop: Arc<AtomicBool>) {
     while !stop.load(Ordering::SeqCst) {
@@ -79,26 +98,38 @@ pub struct TaskctlArgs {
     /// Snapshot file: restored at start when present, rewritten after every change.
     #[arg(long)]
     snapshot: PathBuf,
+    /// Also serve gRPC health alone, in plaintext, here: for probes that cannot speak TLS.
+    #[arg(long)]
+    health_listen: Option<SocketAddr>,
 }
 
 /// Serves the task controller until SIGINT/SIGTERM.
 pub fn taskctl(args: TaskctlArgs) -> anyhow::Result<()> {
     let config = read_config(&args.config)?;
     let security = Security::load(&config.network)?;
+    let envs = config.resolved_profile()?.envs; // also checks the config's values, the timeout among them
+    // A write cut off by a kill leaves its temporary file; the snapshot itself is whole.
+    if let Some(stale) = racetracks::files::remove_stale_temporary(&args.snapshot)? {
+        eprintln!("taskctl: removed {}, left by a write that was cut off", stale.display());
+    }
     let controller = if args.snapshot.exists() {
         let c = taskctl::TaskController::restore(&args.snapshot)?;
         eprintln!("taskctl: restored {} environments and {} switches from {}", c.len(), c.history().len(), args.snapshot.display());
         c
     } else {
-        let c = config.task_controller(config.resolved_profile()?.envs)?;
+        let c = config.task_controller(envs)?;
         c.snapshot(&args.snapshot)?;
         c
     };
     let stop = stop_flag()?;
-    let service = taskctl::grpc::TaskControllerService::new(Arc::new(taskctl::LocalTasks::new(controller, Some(args.snapshot.clone()))));
+    let service = taskctl::grpc::TaskControllerService::new(Arc::new(
+        taskctl::LocalTasks::new(controller, Some(args.snapshot.clone()))
+            .release_after(Duration::from_secs_f64(config.learner.actor_timeout_seconds)),
+    ));
     eprintln!("taskctl: serving on {}", args.listen);
-    async_runtime(1)?
-        .block_on(taskctl::grpc::serve(args.listen, &security, service, until(stop)))
+    let rt = async_runtime(1)?;
+    spawn_health(&rt, args.health_listen, &["dronerace.v1.TaskController"], stop.clone())?;
+    rt.block_on(taskctl::grpc::serve(args.listen, &security, service, until(stop)))
         .map_err(|e| anyhow::anyhow!("taskctl on {}: {e}", args.listen))
 }
 
@@ -114,6 +145,10 @@ pub struct LearnerArgs {
     /// Address to serve gRPC on (status, weights, and rollouts with `--transport grpc`).
     #[arg(long, default_value = "127.0.0.1:50052")]
     listen: SocketAddr,
+    /// Also serve gRPC health alone, in plaintext, here (once the checkpoint is restored): for
+    /// probes that cannot speak TLS.
+    #[arg(long)]
+    health_listen: Option<SocketAddr>,
     /// How rollouts arrive.
     #[arg(long, value_enum, default_value_t = Transport::Shm)]
     transport: Transport,
@@ -149,9 +184,9 @@ pub fn learner(args: LearnerArgs) -> anyhow::Result<()> {
     match args.transport {
         Transport::Grpc => {
             let shared = Arc::new(LearnerBoard::default());
-            let (service, link) = LearnerService::with_rollouts(shared.clone());
+            let (service, link) = LearnerService::with_rollouts(shared.clone(), settings.rollout_memory_mib << 20);
             let process = LearnerProcess::start(run, checkpoint.as_ref(), link, shared, settings)?;
-            let server = serve_learner(&rt, args.listen, &security, service, stop.clone())?;
+            let server = serve_learner(&rt, args.listen, args.health_listen, &security, service, stop.clone())?;
             drive(process, resumed, &args, &stop, tasks.as_ref())?;
             finish_server(&rt, server, &stop);
         }
@@ -161,7 +196,7 @@ pub fn learner(args: LearnerArgs) -> anyhow::Result<()> {
             let shared = Arc::new(LearnerBoard::default());
             let service = LearnerService::status_only(shared.clone());
             let process = LearnerProcess::start(run, checkpoint.as_ref(), link, shared, settings)?;
-            let server = serve_learner(&rt, args.listen, &security, service, stop.clone())?;
+            let server = serve_learner(&rt, args.listen, args.health_listen, &security, service, stop.clone())?;
             drive(process, resumed, &args, &stop, tasks.as_ref())?;
             finish_server(&rt, server, &stop);
         }
@@ -176,6 +211,7 @@ type ServerTask = tokio::task::JoinHandle<Result<(), tonic::transport::Error>>;
 fn serve_learner(
     rt: &tokio::runtime::Runtime,
     addr: SocketAddr,
+    health: Option<SocketAddr>,
     security: &Security,
     service: LearnerService,
     stop: Arc<AtomicBool>,
@@ -186,6 +222,7 @@ fn serve_learner(
         .block_on(proto::with_discovery(security.server()?, &["dronerace.v1.Learner"]))
         .add_service(tonic::service::interceptor::InterceptedService::new(service.into_server(), security.token_check()));
     let incoming = proto::security::incoming(listener);
+    spawn_health(rt, health, &["dronerace.v1.Learner"], stop.clone())?;
     eprintln!("learner: serving on {addr}");
     Ok(rt.spawn(router.serve_with_incoming_shutdown(incoming, until(stop))))
 }

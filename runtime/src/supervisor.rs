@@ -43,6 +43,11 @@ struct Supervised {
     started: Instant,
 }
 
+/// Exit code of a process that stopped for a reason its restart would only repeat (a
+/// diverging run, a disk that takes no checkpoints: [`crate::run::TrainError::is_fatal`]): the
+/// supervisor stops the run instead of restarting it.
+pub const EXIT_FATAL: u8 = 3;
+
 /// A process that dies sooner than this after starting is failing at start (a bad config, a
 /// taken port), not being killed at work.
 const QUICK_FAILURE: Duration = Duration::from_secs(10);
@@ -246,6 +251,11 @@ pub fn run(plan: ClusterPlan) -> anyhow::Result<()> {
         }
         if let Some(status) = learner.exited() {
             if status.success() {
+                break;
+            }
+            if status.code() == Some(i32::from(EXIT_FATAL)) {
+                outcome =
+                    Err(anyhow::anyhow!("the learner stopped for a reason a restart would repeat (its message is above); the run stops"));
                 break;
             }
             eprintln!("train: the learner exited ({status}); restarting it from its checkpoint");

@@ -156,6 +156,7 @@ fn measure<L: LearnerLink>(
         action_dim,
         images: false,
         total_envs: args.envs,
+        rollout_steps: args.steps,
     });
     let mut received = 0;
     let mut started = None;
@@ -210,7 +211,8 @@ pub fn run(args: TransportBenchArgs) -> anyhow::Result<()> {
             let addr = listener.local_addr()?;
             listener.set_nonblocking(true)?;
             let board = Arc::new(proto::board::LearnerBoard::default());
-            let (service, link) = LearnerService::with_rollouts(board.clone());
+            let (service, link) =
+                LearnerService::with_rollouts(board.clone(), crate::run::LearnerSettings::default().rollout_memory_mib << 20);
             board.set_admission(proto::Admission {
                 learner_epoch: 0,
                 version: 0,
@@ -219,6 +221,7 @@ pub fn run(args: TransportBenchArgs) -> anyhow::Result<()> {
                 action_dim: sim::ACTION_DIM,
                 images: false,
                 total_envs: args.envs,
+                rollout_steps: args.steps,
             });
             let security = Security::default();
             let router = security.server()?.add_service(service.into_server());

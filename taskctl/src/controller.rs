@@ -276,17 +276,35 @@ impl TaskController {
             return Ok(known.clone());
         }
         let total = self.state.slots.len();
-        let first_env = self.state.actors.iter().map(|a| a.first_env + a.envs).max().unwrap_or(0);
-        let free = total - first_env;
-        if envs == 0 || envs > free {
-            return Err(TaskError::NoRoom { actor: actor.into(), envs, free, total });
+        // The first gap that holds `envs`: ranges given back by actors that are gone are reused.
+        let mut taken: Vec<(usize, usize)> = self.state.actors.iter().map(|a| (a.first_env, a.first_env + a.envs)).collect();
+        taken.sort_unstable();
+        let free = total - taken.iter().map(|(start, end)| end - start).sum::<usize>();
+        let mut gap_start = 0;
+        let mut first_env = None;
+        for &(start, end) in taken.iter().chain([(total, total)].iter()) {
+            if start >= gap_start && start - gap_start >= envs {
+                first_env = Some(gap_start);
+                break;
+            }
+            gap_start = gap_start.max(end);
         }
+        let Some(first_env) = first_env.filter(|_| envs > 0) else {
+            return Err(TaskError::NoRoom { actor: actor.into(), envs, free, total });
+        };
         // Environments keep their rollout history: an actor taking over a range continues after it.
         let next_rollout =
             self.state.slots[first_env..first_env + envs].iter().filter_map(|s| s.last_iteration).max().map_or(0, |last| last + 1);
         let range = ActorRange { actor: actor.into(), first_env, envs, next_rollout };
         self.state.actors.push(range.clone());
         Ok(range)
+    }
+
+    /// Takes back `actor`'s range (it is gone): the environments keep their tracks and history
+    /// for whoever registers them next. Returns the range it held.
+    pub fn release(&mut self, actor: &str) -> Option<ActorRange> {
+        let at = self.state.actors.iter().position(|a| a.actor == actor)?;
+        Some(self.state.actors.remove(at))
     }
 
     /// Takes one rollout's cumulative rewards of all of an actor's environments (refused
@@ -557,6 +575,13 @@ mod tests {
         let restored = TaskController::from_snapshot_bytes(&c.to_snapshot_bytes(), Path::new("mem")).unwrap();
         let mut restored = restored;
         assert_eq!(restored.register("a", 4).unwrap().next_rollout, 2);
+        // A released range goes to the next actor that fits, which continues its history.
+        assert_eq!(restored.release("a").map(|r| r.first_env), Some(0));
+        assert_eq!(restored.release("a"), None);
+        let c2 = restored.register("c", 3).unwrap();
+        assert_eq!((c2.first_env, c2.next_rollout), (0, 2));
+        assert!(matches!(restored.register("d", 2), Err(TaskError::NoRoom { free: 1, .. })), "1 left at 3, none fits 2");
+        assert_eq!(restored.register("d", 1).unwrap().first_env, 3);
     }
 
     #[test]

@@ -121,13 +121,48 @@ pub struct LocalTasks {
     controller: Mutex<TaskController>,
     snapshot: Option<PathBuf>,
     events: broadcast::Sender<TaskEvent>,
+    /// When each actor last registered or reported (actors of a restored snapshot: when this
+    /// service started), and after how long without either its range may go to another actor.
+    contacts: Mutex<std::collections::HashMap<String, std::time::Instant>>,
+    release_after: Option<std::time::Duration>,
+    started: std::time::Instant,
 }
 
 impl LocalTasks {
     /// Serves `controller`; `snapshot` is where every change is persisted (`None`: the caller
     /// persists the state itself, e.g. inside a training checkpoint).
     pub fn new(controller: TaskController, snapshot: Option<PathBuf>) -> Self {
-        Self { controller: Mutex::new(controller), snapshot, events: broadcast::channel(1024).0 }
+        Self {
+            controller: Mutex::new(controller),
+            snapshot,
+            events: broadcast::channel(1024).0,
+            contacts: Mutex::default(),
+            release_after: None,
+            started: std::time::Instant::now(),
+        }
+    }
+
+    /// Lets a registration that finds no room take the ranges of actors silent for longer than
+    /// `after` (the run's actor timeout): an actor that is gone for good, or renamed, does not
+    /// hold its environments forever. A live actor is never disturbed unless another needs
+    /// the room; if it comes back, it registers again.
+    pub fn release_after(mut self, after: std::time::Duration) -> Self {
+        self.release_after = Some(after);
+        self
+    }
+
+    fn touch(&self, actor: &str) {
+        self.contacts.lock().insert(actor.to_string(), std::time::Instant::now());
+    }
+
+    /// Actors silent for longer than the release time, other than `asking`.
+    fn gone(&self, asking: &str) -> Vec<String> {
+        let Some(after) = self.release_after else { return Vec::new() };
+        let contacts = self.contacts.lock();
+        self.read(|c| c.actors().iter().map(|a| a.actor.clone()).collect::<Vec<_>>())
+            .into_iter()
+            .filter(|a| a != asking && contacts.get(a).copied().unwrap_or(self.started).elapsed() > after)
+            .collect()
     }
 
     /// Every change from now on.
@@ -172,11 +207,27 @@ impl LocalTasks {
 
 impl TaskService for LocalTasks {
     fn register(&self, actor: &str, envs: usize) -> Result<Registration, TaskServiceError> {
+        let gone = self.gone(actor);
         let (range, tracks) = self.change(|c| {
-            let range = c.register(actor, envs)?;
+            let range = match c.register(actor, envs) {
+                Err(TaskError::NoRoom { .. }) if !gone.is_empty() => {
+                    for a in &gone {
+                        if let Some(r) = c.release(a) {
+                            tracing::warn!(
+                                "actor {a} silent beyond the actor timeout: environments {}..{} released",
+                                r.first_env,
+                                r.first_env + r.envs
+                            );
+                        }
+                    }
+                    c.register(actor, envs)?
+                }
+                other => other?,
+            };
             let tracks = c.slots()[range.first_env..range.first_env + range.envs].iter().map(|s| s.track.clone()).collect();
             Ok((range, tracks))
         })?;
+        self.touch(actor);
         let registration = Registration { first_env: range.first_env, tracks, next_rollout: range.next_rollout };
         // Nobody watching is not an error.
         let _ = self.events.send(TaskEvent::Registered(range));
@@ -184,6 +235,7 @@ impl TaskService for LocalTasks {
     }
 
     fn report(&self, actor: &str, rollout: u64, rewards: &[f64]) -> Result<Vec<(usize, Arc<Track>)>, TaskServiceError> {
+        self.touch(actor);
         let (switches, events) = self.change(|c| {
             let before = c.history().len();
             let switches = c.report_rollout(actor, rollout, rewards)?;
@@ -242,6 +294,23 @@ mod tests {
         assert_eq!((registered.first_env, registered.tracks.len()), (0, 4));
         assert_eq!(tasks.summary().unwrap(), Summary { envs: 4, switches: 0, mean_q: None });
         assert_eq!(TaskController::restore(&snapshot).unwrap().actors().len(), 1, "the change after the panic was persisted");
+    }
+
+    #[test]
+    fn an_actor_silent_beyond_the_timeout_gives_its_range_to_one_that_needs_room() {
+        let tasks = LocalTasks::new(controller(4, SwitchPolicy::Random), None).release_after(std::time::Duration::from_millis(50));
+        tasks.register("a", 2).unwrap();
+        tasks.register("b", 2).unwrap();
+        assert!(tasks.register("c", 2).is_err(), "both live: no room");
+        std::thread::sleep(std::time::Duration::from_millis(80));
+        tasks.report("b", 0, &[1.0, 1.0]).unwrap();
+        let c = tasks.register("c", 2).unwrap();
+        assert_eq!(c.first_env, 0, "a's range: a was silent, b had just reported");
+        assert!(tasks.report("a", 0, &[1.0, 1.0]).is_err(), "a holds nothing now; it must register again");
+        let never = LocalTasks::new(controller(4, SwitchPolicy::Random), None);
+        never.register("a", 4).unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        assert!(never.register("b", 1).is_err(), "without a release time, ranges are kept");
     }
 
     #[test]

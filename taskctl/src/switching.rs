@@ -37,6 +37,22 @@ impl Default for SwitchParams {
     }
 }
 
+impl SwitchParams {
+    /// Every value in its range, or the first that is not, named as in a run config.
+    pub fn check(&self) -> Result<(), String> {
+        if self.window < 2 {
+            return Err(format!("switching.window: {} rollouts; ρ needs at least 2", self.window));
+        }
+        if !(self.alpha.is_finite() && self.alpha >= 0.0) {
+            return Err(format!("switching.alpha: {} must be a finite sensitivity ≥ 0", self.alpha));
+        }
+        if !(0.0..=1.0).contains(&self.random_probability) {
+            return Err(format!("switching.random_probability: {} is not a probability", self.random_probability));
+        }
+        Ok(())
+    }
+}
+
 /// Ranks 1..=n of `values`, ties sharing the average of their ranks.
 pub fn average_ranks(values: &[f64]) -> Vec<f64> {
     let mut order: Vec<usize> = (0..values.len()).collect();
