@@ -23,10 +23,10 @@ enum Command {
     Tracks(commands::tracks::TracksCommand),
     /// Evaluate a controller on a set of tracks (S_pw, success, lap times).
     Eval(commands::eval::EvalArgs),
-    /// Write a checkpoint's policy as a stand-alone weights blob.
-    ExportPolicy(commands::eval::ExportArgs),
-    /// Export a policy for other runtimes: the deterministic actor as ONNX.
-    Export(commands::eval::ExportModelArgs),
+    /// Write a checkpoint's policy (or the weight average of several) as a stand-alone weights
+    /// blob, or as ONNX for other runtimes.
+    #[command(alias = "export-policy")]
+    Export(commands::eval::ExportArgs),
     /// Serve a trained policy over gRPC (dronerace.v1.Pilot) for a flight stack.
     Serve(runtime::pilot::ServeArgs),
     /// Simulator tools: replay action files, render the camera, measure stepping speed.
@@ -50,12 +50,20 @@ enum Command {
     Status(commands::status::StatusArgs),
     /// Run an actor process (environments, inference, rollouts).
     Actor(runtime::services::ActorArgs),
-    /// Measure rollout throughput and weight-broadcast latency of a transport.
+    /// Measure speed: the PPO step, the transports, the simulator, track generation.
+    #[command(subcommand)]
+    Bench(commands::bench::BenchCommand),
+    /// Measure rollout throughput and weight-broadcast latency (`bench transport`).
+    #[command(hide = true)]
     TransportBench(runtime::transport_bench::TransportBenchArgs),
     /// Kill -9 random processes of a training run for minutes, then audit what was lost.
     Chaos(runtime::chaos::ChaosArgs),
-    /// Time one PPO gradient step (forward, backward, optimiser) on this machine.
+    /// Time one PPO gradient step (`bench learner`; this spelling is kept for scripts).
+    #[command(hide = true)]
     LearnerBench(commands::train::LearnerBenchArgs),
+    /// Draw runs' learning curves (training return, validation S_pw and success against env
+    /// steps, the runs overlaid) from their metrics.csv.
+    Plot(commands::curves::PlotArgs),
 }
 
 /// Keeps freed memory in the process instead of handing it back to the kernel.
@@ -85,7 +93,6 @@ fn main() -> std::process::ExitCode {
     let result = match Cli::parse().command {
         Command::Tracks(c) => commands::tracks::run(c),
         Command::Eval(a) => commands::eval::run(a),
-        Command::ExportPolicy(a) => commands::eval::export(a),
         Command::Sim(c) => commands::sim::run(c),
         Command::Train(a) => commands::train::run(a),
         Command::Experiment(c) => commands::experiment::run(c),
@@ -99,13 +106,16 @@ fn main() -> std::process::ExitCode {
         Command::LearnerBench(a) => commands::train::bench(a),
         Command::TransportBench(a) => runtime::transport_bench::run(a),
         Command::Serve(a) => runtime::pilot::serve(a),
-        Command::Export(a) => commands::eval::export_model(a),
+        Command::Export(a) => commands::eval::export(a),
+        Command::Plot(a) => commands::curves::run(a),
+        Command::Bench(c) => commands::bench::run(c),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
-            std::process::ExitCode::FAILURE
+            let fatal = e.chain().any(|c| c.downcast_ref::<runtime::TrainError>().is_some_and(runtime::TrainError::is_fatal));
+            if fatal { std::process::ExitCode::from(runtime::supervisor::EXIT_FATAL) } else { std::process::ExitCode::FAILURE }
         }
     }
 }

@@ -1,5 +1,6 @@
-//! Track drawings: per track a top view (x–y) and a side view (x–z) with the arena, the gates
-//! as oriented bars with index and direction, the start pose and the reference pilot's line.
+//! Drawings: tracks (per track a top view (x–y) and a side view (x–z) with the arena, the gates
+//! as oriented bars with index and direction, the start pose and the reference pilot's line),
+//! experiments' validation curves, and single runs' learning curves.
 
 use std::path::Path;
 use std::sync::{Arc, Once};
@@ -238,6 +239,94 @@ pub fn draw_track_curves(curves: &[runtime::experiment::TrackCurve], boundaries:
         .border_style(BLACK)
         .position(SeriesLabelPosition::UpperRight)
         .draw()?;
+    root.present().with_context(|| format!("writing {}", out.display()))?;
+    Ok(())
+}
+
+/// One run's learning curves as `metrics.csv` holds them: (env steps, value) per column.
+pub struct RunCurves {
+    /// The run's name in the legend (its directory).
+    pub name: String,
+    /// Mean training return of the episodes that ended in each iteration.
+    pub training_return: Vec<(f64, f64)>,
+    /// Validation S_pw at each validation.
+    pub validation_s_pw: Vec<(f64, f64)>,
+    /// Validation success at each validation.
+    pub validation_success: Vec<(f64, f64)>,
+}
+
+impl RunCurves {
+    /// Reads `<run>/metrics.csv`; columns are found by their names, so files of older runs
+    /// (fewer columns) read too. Empty cells (no episode ended, no validation due) are skipped.
+    pub fn read(run: &Path) -> anyhow::Result<Self> {
+        let path = run.join("metrics.csv");
+        let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+        let mut lines = text.lines();
+        let header: Vec<&str> = lines.next().with_context(|| format!("{}: empty", path.display()))?.split(',').collect();
+        let column = |name: &str| header.iter().position(|h| *h == name).with_context(|| format!("{}: no column {name}", path.display()));
+        let (steps, ret, s_pw, success) =
+            (column("env_steps")?, column("charts/episodic_return")?, column("eval/S_pw")?, column("eval/success")?);
+        let mut curves = Self {
+            name: run.file_name().map_or_else(|| run.display().to_string(), |n| n.to_string_lossy().into_owned()),
+            training_return: Vec::new(),
+            validation_s_pw: Vec::new(),
+            validation_success: Vec::new(),
+        };
+        for (row, line) in lines.enumerate() {
+            let cells: Vec<&str> = line.split(',').collect();
+            let number = |i: usize| cells.get(i).and_then(|c| c.parse::<f64>().ok()).filter(|v| v.is_finite());
+            let x = number(steps).with_context(|| format!("{}: row {}: no env_steps", path.display(), row + 2))? / 1e6;
+            for (i, series) in
+                [(ret, &mut curves.training_return), (s_pw, &mut curves.validation_s_pw), (success, &mut curves.validation_success)]
+            {
+                if let Some(y) = number(i) {
+                    series.push((x, y));
+                }
+            }
+        }
+        Ok(curves)
+    }
+}
+
+/// Training return, validation S_pw and validation success against environment steps, one
+/// panel each, every run overlaid in its own colour.
+pub fn draw_run_curves(runs: &[RunCurves], out: &Path) -> anyhow::Result<()> {
+    register_font();
+    let root = BitMapBackend::new(out, (960, 1080)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let panels = root.split_evenly((3, 1));
+    type Pick = fn(&RunCurves) -> &[(f64, f64)];
+    let series: [(&str, Pick); 3] = [
+        ("training return (mean over the episodes of an iteration)", |r| &r.training_return),
+        ("validation S_pw (1/s)", |r| &r.validation_s_pw),
+        ("validation success", |r| &r.validation_success),
+    ];
+    let max_x = runs.iter().flat_map(|r| r.training_return.iter().chain(&r.validation_s_pw)).map(|p| p.0).fold(1.0, f64::max);
+    for (panel, (title, pick)) in panels.iter().zip(series) {
+        let ys = runs.iter().flat_map(|r| pick(r).iter().map(|p| p.1));
+        let (low, high) = ys.fold((0.0f64, 0.0f64), |(lo, hi), y| (lo.min(y), hi.max(y)));
+        let pad = ((high - low) * 0.05).max(1e-3);
+        let mut chart = ChartBuilder::on(panel)
+            .caption(title, ("sans-serif", 20))
+            .margin(10)
+            .x_label_area_size(36)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0.0..max_x * 1.02, (low - pad)..(high + pad))?;
+        chart.configure_mesh().x_desc("environment steps (millions)").draw()?;
+        for (i, run) in runs.iter().enumerate() {
+            let colour = Palette99::pick(i).to_rgba();
+            chart
+                .draw_series(LineSeries::new(pick(run).iter().copied(), colour.stroke_width(2)))?
+                .label(run.name.clone())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .position(SeriesLabelPosition::LowerRight)
+            .draw()?;
+    }
     root.present().with_context(|| format!("writing {}", out.display()))?;
     Ok(())
 }

@@ -60,15 +60,67 @@ fn eval_prints_and_writes_json_and_markdown() {
         "600",
         "--out",
         out.to_str().unwrap(),
+        "--trajectories",
+        out.join("trajectories").to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let printed = String::from_utf8_lossy(&o.stdout);
     assert!(printed.contains("| Kidney |"), "{printed}");
     let report: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("eval.json")).unwrap()).unwrap();
     assert_eq!(report["tracks"][0]["deployments"].as_array().unwrap().len(), 3);
+    // The trajectories: one CSV a deployment, a row a step and one for the state after the last.
+    for (k, deployment) in report["tracks"][0]["deployments"].as_array().unwrap().iter().enumerate() {
+        let csv = std::fs::read_to_string(out.join(format!("trajectories/00-Kidney-{k:03}.csv"))).unwrap();
+        let mut lines = csv.lines();
+        assert!(lines.next().unwrap().starts_with("t,x,y,z,vx,vy,vz,qw,qx,qy,qz,p,q,r,a0"));
+        let rows: Vec<&str> = lines.collect();
+        assert_eq!(rows.len() as u64, deployment["steps"].as_u64().unwrap() + 1, "deployment {k}");
+        let laps = rows.last().unwrap().rsplit(',').next().unwrap();
+        assert_eq!(laps.parse::<usize>().unwrap(), deployment["lap_times"].as_array().unwrap().len(), "deployment {k}");
+    }
     assert_eq!(report["config"]["steps"], 600);
     assert!(report["s_pw"].as_f64().unwrap() > 0.0);
     assert!(std::fs::read_to_string(out.join("eval.md")).unwrap().contains("S_pw"));
+}
+
+#[test]
+fn a_policy_given_is_the_policy_flown_and_asking_for_the_pilot_with_it_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("eval");
+    let generalist = Path::new(env!("CARGO_MANIFEST_DIR")).join("policies/generalist.bin").display().to_string();
+    let figure8 = library_file("figure8.toml");
+    let common = ["--tracks", figure8.as_str(), "--runs", "1", "--steps", "50", "--out", out.to_str().unwrap()];
+    let o = dronerace(&[&["eval", "--policy", &generalist][..], &common].concat());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("eval.json")).unwrap()).unwrap();
+    assert!(report["controller"].as_str().unwrap().starts_with("policy v"), "--policy alone flies the policy: {}", report["controller"]);
+    let o = dronerace(&[&["eval", "--controller", "pilot", "--policy", &generalist][..], &common].concat());
+    assert!(!o.status.success() && stderr(&o).contains("--controller pilot"), "{}", stderr(&o));
+    let gif = dir.path().join("f.gif");
+    let o = dronerace(&[
+        "sim",
+        "render",
+        "--track",
+        &figure8,
+        "--controller",
+        "pilot",
+        "--policy",
+        &generalist,
+        "--out",
+        gif.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success() && stderr(&o).contains("--controller pilot"), "sim render too: {}", stderr(&o));
+    // One export verb: several policies are averaged only when asked to be.
+    let o = dronerace(&["export", &generalist, &generalist, "--out", dir.path().join("two.bin").to_str().unwrap()]);
+    assert!(!o.status.success() && stderr(&o).contains("--average"), "{}", stderr(&o));
+    let o = dronerace(&["export", "--average", &generalist, &generalist, "--out", dir.path().join("two.bin").to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = dronerace(&["export", &generalist, "--out", dir.path().join("g.onnx").to_str().unwrap()]);
+    assert!(
+        o.status.success() && String::from_utf8_lossy(&o.stdout).contains("actions in [-1, 1]"),
+        "a .onnx file is ONNX: {}",
+        stderr(&o)
+    );
 }
 
 #[test]
@@ -357,6 +409,29 @@ fn eval_flies_a_vision_policy_with_the_camera() {
     assert!(report["controller"].as_str().unwrap().contains("vision-based"), "{}", report["controller"]);
     assert_eq!(report["tracks"][0]["deployments"].as_array().unwrap().len(), 2);
     // A vision policy cannot be served or exported as a state-based one: refused by name.
-    let o = dronerace(&["export", "--policy", path.to_str().unwrap(), "--out", dir.path().join("v.onnx").to_str().unwrap()]);
+    let o = dronerace(&["export", path.to_str().unwrap(), "--out", dir.path().join("v.onnx").to_str().unwrap()]);
     assert!(!o.status.success() && stderr(&o).contains("vision-based"), "{}", stderr(&o));
+}
+
+#[test]
+fn plot_draws_the_learning_curves_of_runs_overlaid_and_names_a_missing_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let header = "iteration,env_steps,wall_seconds,charts/episodic_return,eval/S_pw,eval/success";
+    for (run, shift) in [("a", 0.0), ("b", 0.5)] {
+        std::fs::create_dir(dir.path().join(run)).unwrap();
+        let rows: Vec<String> = (1..=20)
+            .map(|i| {
+                let validation = if i % 5 == 0 { format!("{},{}", 0.01 * i as f64 + shift * 0.01, 0.04 * i as f64) } else { ",".into() };
+                format!("{i},{},{},{},{validation}", i * 24000, i as f64, -5.0 + i as f64 + shift)
+            })
+            .collect();
+        std::fs::write(dir.path().join(run).join("metrics.csv"), format!("{header}\n{}\n", rows.join("\n"))).unwrap();
+    }
+    let out = dir.path().join("curves.png");
+    let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+    let o = dronerace(&["plot", a.to_str().unwrap(), b.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(png_size(&out), (960, 1080), "three panels");
+    let o = dronerace(&["plot", dir.path().join("missing").to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(!o.status.success() && stderr(&o).contains("missing/metrics.csv"), "{}", stderr(&o));
 }

@@ -86,8 +86,9 @@ fn an_interrupted_experiment_resumes_without_redoing_finished_runs_and_reports()
     let third = run(&experiment, &out, None);
     assert_eq!((third.skipped.len(), third.started.len(), third.resumed.len()), (4, 0, 0));
 
+    // `experiment report FILE --out DIR`, the arguments of `experiment run`.
     let o = Command::new(env!("CARGO_BIN_EXE_dronerace"))
-        .args(["experiment", "report", file.to_str().unwrap(), out.to_str().unwrap()])
+        .args(["experiment", "report", file.to_str().unwrap(), "--out", out.to_str().unwrap()])
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));

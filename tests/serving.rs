@@ -171,3 +171,106 @@ fn the_python_client_gets_the_actions_evaluation_takes() {
         assert_eq!(actions, served.expected.iter().map(|e| e.to_vec()).collect::<Vec<_>>(), "python {key}");
     }
 }
+
+/// A `DroneState` message of the simulated drone's state.
+fn drone_state(body: &sim::quadrotor::BodyState) -> proto::v1::RaceRequest {
+    let q = body.attitude;
+    proto::v1::RaceRequest {
+        kind: Some(proto::v1::race_request::Kind::State(proto::v1::DroneState {
+            position: body.position.iter().copied().collect(),
+            velocity: body.velocity.iter().copied().collect(),
+            orientation: vec![q.w, q.i, q.j, q.k],
+            angular_velocity: body.body_rates.iter().copied().collect(),
+        })),
+    }
+}
+
+/// A `RaceStart` with `track_toml`.
+fn race_start(track_toml: &str) -> proto::v1::RaceRequest {
+    proto::v1::RaceRequest { kind: Some(proto::v1::race_request::Kind::Start(proto::v1::RaceStart { track_toml: track_toml.into() })) }
+}
+
+/// The shipped generalist flown through `Pilot/Race` from nothing but the drone's states: the
+/// simulator plays the drone, the server keeps the race. Every command equals the action
+/// `dronerace eval`'s controller takes at that step, and the flight ends as eval's does.
+#[test]
+fn the_shipped_generalist_races_from_drone_states_as_eval_flies_it_step_for_step() {
+    let _serial = serial();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let (policy_path, track_path) = (root.join("policies/generalist.bin"), root.join("tracks/figure8.toml"));
+    let dir = tempfile::tempdir().unwrap();
+    let addr = format!("127.0.0.1:{}", free_port());
+    let server = Proc::start(
+        dir.path(),
+        "serve",
+        &args(&["serve", "--policy", policy_path.to_str().unwrap(), "--listen", &addr, "--track", track_path.to_str().unwrap()]),
+    );
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let channel = tonic::transport::Endpoint::from_shared(format!("http://{addr}")).unwrap();
+    let mut client = None;
+    wait_until(Duration::from_secs(30), "the pilot server answers", &[&server], || {
+        client = rt.block_on(channel.connect()).ok().map(PilotClient::new);
+        client.is_some()
+    });
+    let mut client = client.unwrap();
+    // Eval's deterministic flights of Figure8, from the same track file's text.
+    let text = std::fs::read_to_string(&track_path).unwrap();
+    let track = Arc::new(racetracks::parse_track(&text, &track_path).unwrap());
+    let blob = learner::checkpoint::read_policy(&policy_path).unwrap();
+    let policy = Arc::new(Policy::from_blob(&blob).unwrap());
+    let config = sim::eval::EvalConfig::default();
+    // The first of eval's deployments that completes a lap, so that lap counting is exercised.
+    let (stream, reference) = (0..config.runs as u64)
+        .map(|k| (k, sim::eval::deploy(track.clone(), &mut PolicyController::new(policy.clone()), &config, k)))
+        .find(|(_, d)| d.success)
+        .expect("the generalist completes a lap of Figure8 in some deployment");
+    let mut env_config = config.env;
+    env_config.race.max_episode_steps = config.steps;
+    let mut env = RaceEnv::new(track, env_config, config.seed, stream);
+    let mut controller = PolicyController::new(policy);
+    rt.block_on(async {
+        let (tx, rx) = tokio::sync::mpsc::channel(4);
+        let mut commands = client.race(tokio_stream::wrappers::ReceiverStream::new(rx)).await.unwrap().into_inner();
+        tx.send(race_start(&text)).await.unwrap();
+        for step in 0..config.steps {
+            tx.send(drone_state(env.body())).await.unwrap();
+            let command = commands.message().await.unwrap().expect("a command per state");
+            assert_eq!(command.action, controller.act(&env).to_vec(), "step {step}");
+            assert_eq!((command.target_gate as usize, command.laps), (env.target_gate(), env.stats().laps), "step {step}");
+            let action: [f32; 4] = command.action.as_slice().try_into().unwrap();
+            if env.step(&action).done() {
+                break;
+            }
+        }
+        assert_eq!((env.stats().length, env.stats().laps as usize), (reference.steps, reference.lap_times.len()), "the flight eval flew");
+        // The server's own track when the start names none: the same first command.
+        let (tx, rx) = tokio::sync::mpsc::channel(4);
+        let mut commands = client.race(tokio_stream::wrappers::ReceiverStream::new(rx)).await.unwrap().into_inner();
+        tx.send(race_start("")).await.unwrap();
+        let start = RaceEnv::new(Arc::new(racetracks::parse_track(&text, &track_path).unwrap()), env_config, config.seed, stream);
+        tx.send(drone_state(start.body())).await.unwrap();
+        let first = commands.message().await.unwrap().unwrap();
+        assert_eq!(first.action, PolicyController::new(Arc::new(Policy::from_blob(&blob).unwrap())).act(&start).to_vec());
+        // Refusals name what is wrong, and end the stream.
+        let body = *start.body();
+        let mut short = drone_state(&body);
+        if let Some(proto::v1::race_request::Kind::State(s)) = &mut short.kind {
+            s.position.pop();
+        }
+        let mut nan = drone_state(&body);
+        if let Some(proto::v1::race_request::Kind::State(s)) = &mut nan.kind {
+            s.velocity[1] = f64::NAN;
+        }
+        let cases = [
+            (vec![drone_state(&body)], "before any RaceStart"),
+            (vec![race_start(""), short], "DroneState.position has 2 numbers"),
+            (vec![race_start(""), nan], "DroneState.velocity[1]"),
+            (vec![race_start("name = \"broken\"\n")], "RaceStart.track_toml"),
+        ];
+        for (messages, expected) in cases {
+            let status = client.race(tokio_stream::iter(messages)).await.unwrap().into_inner().message().await.unwrap_err();
+            assert_eq!(status.code(), tonic::Code::InvalidArgument, "{expected}: {status:?}");
+            assert!(status.message().contains(expected), "{expected}: {}", status.message());
+        }
+    });
+}

@@ -22,7 +22,7 @@ if ! "$venv/bin/python" -c "import torch" 2>/dev/null; then
 fi
 threads=$(nproc)
 ours() { # profile samples -> whole-step milliseconds
-  "$bin" learner-bench --agent vision --profile "$1" --samples "$2" --repeats 3 2>/dev/null | tail -1 |
+  "$bin" bench learner --agent vision --profile "$1" --samples "$2" --repeats 3 2>/dev/null | tail -1 |
     sed -E 's/.*forward ([0-9.]+) ms, backward ([0-9.]+) ms, optimiser ([0-9.]+) ms.*/\1 \2 \3/' |
     awk '{printf "%.1f", $1 + $2 + $3}'
 }

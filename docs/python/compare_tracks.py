@@ -1,6 +1,6 @@
 """Which tracks two controllers fly: the tracks both fly, only one flies, neither flies.
 
-    dronerace eval --controller policy --policy P --tracks val100 --runs 10 --out ev-policy
+    dronerace eval --policy P --tracks val100 --runs 10 --out ev-policy
     dronerace eval --controller pilot --tracks val100 --runs 10 --out ev-pilot
     python3 docs/python/compare_tracks.py ev-policy/eval.json ev-pilot/eval.json [--prefix test-]
 

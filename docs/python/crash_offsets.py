@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Where gate-frame crashes happen relative to the gate the drone was flying to.
 
-    dronerace eval --controller policy --policy P --tracks ts --out ev
+    dronerace eval --policy P --tracks ts --out ev
     python3 docs/python/crash_offsets.py ev/eval.json ts
 
 An experiment run's `test.json` works too (its `best.bin`'s test deployments).

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """In which lap failed deployments end, and the crash hazard of each lap.
 
-    dronerace eval --controller policy --policy P --tracks ts --out ev
+    dronerace eval --policy P --tracks ts --out ev
     python3 docs/python/failure_laps.py ev/eval.json [more eval.json …]
 
 For each report: deployments that succeeded, crashed before finishing lap 1, crashed in a later

@@ -2,7 +2,7 @@
 """Success by how many loop-around gates a track has.
 
     dronerace tracks generate --seed 8000000 --count 100 --out val100
-    dronerace eval --controller policy --policy P --tracks val100 --runs 10 --out ev
+    dronerace eval --policy P --tracks val100 --runs 10 --out ev
     python3 docs/python/loop_around.py val100 ev/eval.json [more reports …]
 
 A loop-around gate faces the drone as it leaves the previous gate: the previous gate's centre

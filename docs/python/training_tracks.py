@@ -2,7 +2,7 @@
 """Write the tracks a run's environments were training on as track files.
 
     python3 docs/python/training_tracks.py RUN/taskctl.snapshot train-tracks
-    dronerace eval --controller policy --policy RUN/checkpoints/ckpt-N.bin --tracks train-tracks --out ev
+    dronerace eval --policy RUN/checkpoints/ckpt-N.bin --tracks train-tracks --out ev
 
 The task controller's snapshot (`DRTASKS` then JSON) holds every environment's current track.
 Evaluating a policy on them beside the validation and test sets separates memorising (it flies

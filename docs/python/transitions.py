@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Which gate-to-gate legs a controller crashes on, by the leg's geometry.
 
-    dronerace eval --controller policy --policy P --tracks val100 --runs 10 --out ev
+    dronerace eval --policy P --tracks val100 --runs 10 --out ev
     python3 docs/python/transitions.py val100 ev/eval.json
 
 A leg is the way from gate k-1 to gate k. Every deployment attempts the legs it reaches (the

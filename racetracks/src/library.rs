@@ -1,10 +1,10 @@
 //! The hand-designed track library shipped with dronerace (the files under `tracks/`).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use sim::Track;
 
-use crate::track_file::{TrackFileError, parse_track};
+use crate::track_file::{TrackFileError, parse_track, read_track, read_track_dir};
 
 /// The library's files, compiled in so every command has them whatever the working directory.
 const LIBRARY: &[(&str, &str)] = &[
@@ -29,6 +29,66 @@ pub fn library_track(name: &str) -> Result<Option<Track>, TrackFileError> {
     Ok(library()?.into_iter().find(|t| t.name.eq_ignore_ascii_case(name)))
 }
 
+/// Tracks chosen by a config or the command line, by library name or from a user's files.
+#[derive(Debug, thiserror::Error)]
+pub enum ChosenTracksError {
+    /// A name the library does not have.
+    #[error("{field}: no library track {name:?} (the library: {known}); a track file is named by its path")]
+    UnknownName {
+        /// Where the name was given, e.g. `tracks.names`.
+        field: String,
+        /// The name.
+        name: String,
+        /// The library's names.
+        known: String,
+    },
+    /// A file or directory that could not be read as tracks.
+    #[error("{field}: {source}")]
+    File {
+        /// Where the file was given, e.g. `tracks.files`.
+        field: String,
+        /// What is wrong with it (naming the file).
+        source: TrackFileError,
+    },
+    /// A directory without track files.
+    #[error("{field}: {dir}: no *.toml track files in this directory")]
+    EmptyDirectory {
+        /// Where the directory was given.
+        field: String,
+        /// The directory.
+        dir: PathBuf,
+    },
+}
+
+/// The library tracks `names` (case-insensitive) then the tracks in `files` (track files, or
+/// directories of them read in file-name order), in the order given; `field` names where they
+/// were given (`tracks`, `eval`, `--track`) for errors.
+pub fn chosen_tracks(field: &str, names: &[String], files: &[PathBuf]) -> Result<Vec<Track>, ChosenTracksError> {
+    let file_error = |source| ChosenTracksError::File { field: format!("{field}.files"), source };
+    let library = library().map_err(file_error)?;
+    let mut tracks = Vec::new();
+    for name in names {
+        let track = library.iter().find(|t| t.name.eq_ignore_ascii_case(name)).ok_or_else(|| ChosenTracksError::UnknownName {
+            field: format!("{field}.names"),
+            name: name.clone(),
+            known: library.iter().map(|t| t.name.as_str()).collect::<Vec<_>>().join(", "),
+        })?;
+        tracks.push(track.clone());
+    }
+    for path in files {
+        if path.is_dir() {
+            let found = read_track_dir(path).map_err(file_error)?;
+            if found.is_empty() {
+                return Err(ChosenTracksError::EmptyDirectory { field: format!("{field}.files"), dir: path.clone() });
+            }
+            tracks.extend(found);
+        } else {
+            tracks.push(read_track(path).map_err(file_error)?);
+        }
+    }
+    Ok(tracks)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -50,5 +110,23 @@ mod tests {
         for t in library().unwrap() {
             assert!(on_disk.contains(&t), "{} differs from its file", t.name);
         }
+    }
+
+    #[test]
+    fn chosen_tracks_mix_library_names_files_and_directories_and_name_what_is_wrong() {
+        let dir = tempfile::tempdir().unwrap();
+        let mine = library_track("Kidney").unwrap().unwrap();
+        let mine = Track { name: "Mine".into(), ..mine };
+        crate::write_track(&mine, &dir.path().join("mine.toml")).unwrap();
+        let tracks = chosen_tracks("tracks", &["figure8".into()], &[dir.path().join("mine.toml"), dir.path().to_path_buf()]).unwrap();
+        let names: Vec<&str> = tracks.iter().map(|t| t.name.as_str()).collect();
+        assert_eq!(names, ["Figure8", "Mine", "Mine"]);
+        let e = chosen_tracks("tracks", &["Nowhere".into()], &[]).unwrap_err().to_string();
+        assert!(e.starts_with("tracks.names: no library track \"Nowhere\"") && e.contains("Figure8"), "{e}");
+        let e = chosen_tracks("eval", &[], &[dir.path().join("missing.toml")]).unwrap_err().to_string();
+        assert!(e.starts_with("eval.files:") && e.contains("missing.toml"), "{e}");
+        std::fs::write(dir.path().join("bad.toml"), "name = \"Bad\"\n").unwrap();
+        let e = chosen_tracks("tracks", &[], &[dir.path().join("bad.toml")]).unwrap_err().to_string();
+        assert!(e.contains("bad.toml"), "{e}");
     }
 }

@@ -92,6 +92,49 @@ pub fn parse_track(text: &str, file: &Path) -> Result<Track, TrackFileError> {
     })
 }
 
+/// A track from a CSV of gate poses, one gate a row in racing order: `x,y,z,yaw_deg` (m, world;
+/// the gate's flight direction in degrees from +x); a header row and `#` comments are skipped.
+/// The arena is SPEC §6's when every gate fits in it, else the gates' bounding box widened by
+/// 4 m sideways and reaching from the ground to 3 m above the highest gate; the start pose is
+/// SPEC's default behind the first gate. `file` names the CSV in errors (`row N`).
+pub fn track_from_csv(name: &str, text: &str, file: &Path) -> Result<Track, TrackFileError> {
+    let invalid = |field: String, message: String| TrackFileError::Invalid { file: file.to_path_buf(), field, message };
+    let mut gates = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') || (gates.is_empty() && line.chars().next().is_some_and(char::is_alphabetic)) {
+            continue;
+        }
+        let values: Vec<f64> = line
+            .split(',')
+            .map(|cell| cell.trim().parse::<f64>())
+            .collect::<Result<_, _>>()
+            .map_err(|e| invalid(format!("row {}", i + 1), format!("{line:?}: {e}")))?;
+        let [x, y, z, yaw_deg] = values[..] else {
+            return Err(invalid(format!("row {}", i + 1), format!("{} values; a gate is x,y,z,yaw_deg", values.len())));
+        };
+        gates.push(Gate::new(Vector3::new(x, y, z), yaw_deg.to_radians()));
+    }
+    // The gates and the default start behind gate 0 must fit in the arena.
+    let mut points: Vec<Vector3<f64>> = gates.iter().map(|g| g.position).collect();
+    if let Some(g0) = gates.first() {
+        points.push(g0.position - g0.normal() * sim::track::START_BEHIND_FIRST_GATE);
+    }
+    let default = Arena::default();
+    let inside = |p: &Vector3<f64>| (0..3).all(|k| p[k] > default.min[k] && p[k] < default.max[k]);
+    let arena = if points.iter().all(inside) {
+        default
+    } else {
+        let low = |k: usize| points.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min);
+        let high = |k: usize| points.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max);
+        Arena {
+            min: Vector3::new(low(0) - 4.0, low(1) - 4.0, low(2).min(0.0)),
+            max: Vector3::new(high(0) + 4.0, high(1) + 4.0, high(2) + 3.0),
+        }
+    };
+    Track::new(name, gates, None, arena).map_err(|e| invalid(e.field, e.message))
+}
+
 /// Reads and validates a track file.
 pub fn read_track(path: &Path) -> Result<Track, TrackFileError> {
     let text = std::fs::read_to_string(path).map_err(|source| TrackFileError::Io { file: path.to_path_buf(), source })?;
@@ -205,5 +248,30 @@ yaw_deg = 90.0
     fn stacked_gates_like_split_s_are_valid() {
         let text = VALID.replace("[6.0, 3.0, 2.5]", "[0.0, 0.2, 4.36]").replace("yaw_deg = 90.0", "yaw_deg = 180.0");
         assert!(parse_track(&text, Path::new("s.toml")).is_ok());
+    }
+
+    #[test]
+    fn a_csv_of_gate_poses_imports_to_the_track_it_describes_and_bad_rows_are_named() {
+        let figure8 = crate::library_track("Figure8").unwrap().unwrap();
+        let rows: Vec<String> =
+            figure8.gates.iter().map(|g| format!("{},{},{},{}", g.position.x, g.position.y, g.position.z, g.yaw.to_degrees())).collect();
+        let csv = format!("x,y,z,yaw_deg\n# figure eight\n{}\n", rows.join("\n"));
+        let imported = track_from_csv("Mine", &csv, Path::new("gates.csv")).unwrap();
+        assert_eq!(imported.gates.len(), figure8.gates.len());
+        for (a, b) in imported.gates.iter().zip(&figure8.gates) {
+            assert!((a.position - b.position).norm() < 1e-9 && (a.yaw - b.yaw).abs() < 1e-9);
+        }
+        assert_eq!(imported.arena, Arena::default(), "its gates fit SPEC's arena");
+        // Back through a track file, the same track.
+        let back = parse_track(&track_to_toml(&imported), Path::new("mine.toml")).unwrap();
+        assert_eq!(back, imported);
+        // A layout larger than SPEC's arena gets one around its gates.
+        let hall = track_from_csv("Hall", "0,0,2,0\n30,0,2,180\n30,20,3,180\n0,20,2,0\n", Path::new("hall.csv")).unwrap();
+        // (its start, 2 m behind gate 0 at x = 0, sets the low x)
+        assert_eq!((hall.arena.min.x, hall.arena.max.x, hall.arena.max.z), (-6.0, 34.0, 6.0));
+        let e = track_from_csv("Bad", "1,2,3,0\n4,5,x,0\n", Path::new("bad.csv")).unwrap_err().to_string();
+        assert!(e.starts_with("bad.csv: row 2:"), "{e}");
+        let e = track_from_csv("Bad", "1,2,3\n", Path::new("bad.csv")).unwrap_err().to_string();
+        assert!(e.contains("row 1") && e.contains("x,y,z,yaw_deg"), "{e}");
     }
 }

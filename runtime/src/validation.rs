@@ -29,11 +29,15 @@ pub struct EvalSettings {
     /// Library tracks to fly instead of generated validation tracks (e.g. the four core
     /// tracks, to watch a sequential curriculum forget them). Default none.
     pub library: Vec<String>,
+    /// Track files, or directories of them, to fly (with `library`) instead of generated
+    /// validation tracks: a user's own tracks. Default none.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub files: Vec<std::path::PathBuf>,
 }
 
 impl Default for EvalSettings {
     fn default() -> Self {
-        Self { every: 50, tracks: 20, runs: 10, steps: 1000, seed: 0, library: Vec::new() }
+        Self { every: 50, tracks: 20, runs: 10, steps: 1000, seed: 0, library: Vec::new(), files: Vec::new() }
     }
 }
 
@@ -47,17 +51,18 @@ pub struct Validator {
 impl Validator {
     /// The validator `settings` describe; `None` when evaluation is off.
     pub fn new(settings: &EvalSettings) -> Result<Option<Self>, ValidationSetError> {
-        if settings.every == 0 || settings.runs == 0 || (settings.tracks == 0 && settings.library.is_empty()) {
+        let chosen = !settings.library.is_empty() || !settings.files.is_empty();
+        if settings.every == 0 || settings.runs == 0 || (settings.tracks == 0 && !chosen) {
             return Ok(None);
         }
-        let tracks = if settings.library.is_empty() {
-            racetracks::validation_set(settings.tracks)?
+        let tracks = if chosen {
+            // `eval.library` is the config's name for the library part.
+            racetracks::chosen_tracks("eval", &settings.library, &settings.files).map_err(|e| match e {
+                racetracks::ChosenTracksError::UnknownName { name, .. } => ValidationSetError::UnknownTrack(name),
+                other => ValidationSetError::Files(other),
+            })?
         } else {
-            let mut tracks = Vec::new();
-            for name in &settings.library {
-                tracks.push(racetracks::library_track(name)?.ok_or_else(|| ValidationSetError::UnknownTrack(name.clone()))?);
-            }
-            tracks
+            racetracks::validation_set(settings.tracks)?
         };
         let tracks = tracks.into_iter().map(Arc::new).collect();
         let config = EvalConfig { runs: settings.runs, steps: settings.steps, seed: settings.seed, ..EvalConfig::default() };
@@ -101,6 +106,9 @@ pub enum ValidationSetError {
     /// The built-in library could not be read.
     #[error(transparent)]
     Library(#[from] racetracks::TrackFileError),
+    /// `eval.files` names a file or directory that cannot be read as tracks.
+    #[error(transparent)]
+    Files(racetracks::ChosenTracksError),
     /// `eval.library` names a track the library does not have.
     #[error("eval.library: no library track {0:?}")]
     UnknownTrack(String),

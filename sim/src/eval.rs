@@ -210,8 +210,73 @@ pub struct EvalReport {
     pub tracks: Vec<TrackResult>,
 }
 
+/// The header of [`Trajectory::to_csv`]: time, world position, world velocity, attitude
+/// (body to world, w x y z), body rates, the action taken there, target gate and laps.
+pub const TRAJECTORY_HEADER: &str = "t,x,y,z,vx,vy,vz,qw,qx,qy,qz,p,q,r,a0,a1,a2,a3,target_gate,laps";
+
+/// The states of one deployment, one row per policy step (before the action), and the state
+/// after its last step (with no action).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Trajectory {
+    /// Rows of [`TRAJECTORY_HEADER`]'s columns.
+    pub rows: Vec<[f64; 20]>,
+}
+
+impl Trajectory {
+    fn record(&mut self, env: &RaceEnv, action: Option<&[f32; 4]>) {
+        let b = env.body();
+        let a = action.map_or([f64::NAN; 4], |a| a.map(f64::from));
+        let q = b.attitude;
+        self.rows.push([
+            env.time(),
+            b.position.x,
+            b.position.y,
+            b.position.z,
+            b.velocity.x,
+            b.velocity.y,
+            b.velocity.z,
+            q.w,
+            q.i,
+            q.j,
+            q.k,
+            b.body_rates.x,
+            b.body_rates.y,
+            b.body_rates.z,
+            a[0],
+            a[1],
+            a[2],
+            a[3],
+            env.target_gate() as f64,
+            f64::from(env.stats().laps),
+        ]);
+    }
+
+    /// The rows as CSV under [`TRAJECTORY_HEADER`] (the last row's action cells empty).
+    pub fn to_csv(&self) -> String {
+        let mut out = String::from(TRAJECTORY_HEADER);
+        out.push('\n');
+        for row in &self.rows {
+            let cells: Vec<String> = row.iter().map(|v| if v.is_nan() { String::new() } else { format!("{v}") }).collect();
+            out.push_str(&cells.join(","));
+            out.push('\n');
+        }
+        out
+    }
+}
+
 /// Flies one deployment and records it.
 pub fn deploy(track: Arc<Track>, controller: &mut dyn Controller, config: &EvalConfig, stream: u64) -> Deployment {
+    deploy_recording(track, controller, config, stream, None)
+}
+
+/// [`deploy`], also recording its states into `trajectory` when given.
+pub fn deploy_recording(
+    track: Arc<Track>,
+    controller: &mut dyn Controller,
+    config: &EvalConfig,
+    stream: u64,
+    mut trajectory: Option<&mut Trajectory>,
+) -> Deployment {
     let mut env_config = config.env;
     env_config.race.max_episode_steps = config.steps;
     let mut env = RaceEnv::new(track, env_config, config.seed, stream);
@@ -219,12 +284,19 @@ pub fn deploy(track: Arc<Track>, controller: &mut dyn Controller, config: &EvalC
     let mut lap_times = Vec::new();
     let mut crash = None;
     for _ in 0..config.steps {
-        let out = env.step(&controller.act(&env));
+        let action = controller.act(&env);
+        if let Some(t) = trajectory.as_deref_mut() {
+            t.record(&env, Some(&action));
+        }
+        let out = env.step(&action);
         lap_times.extend(out.lap_time);
         if out.done() {
             crash = out.crash;
             break;
         }
+    }
+    if let Some(t) = trajectory {
+        t.record(&env, None);
     }
     Deployment {
         success: crash.is_none() && !lap_times.is_empty(),
@@ -244,14 +316,30 @@ pub fn evaluate(
     make_controller: &(dyn Fn() -> Box<dyn Controller> + Sync),
     config: &EvalConfig,
 ) -> EvalReport {
+    evaluate_recording(controller_name, tracks, make_controller, config, false).0
+}
+
+/// [`evaluate`], also returning every deployment's [`Trajectory`] when `record` is set (track
+/// by track, deployments in order; empty otherwise).
+pub fn evaluate_recording(
+    controller_name: &str,
+    tracks: &[Arc<Track>],
+    make_controller: &(dyn Fn() -> Box<dyn Controller> + Sync),
+    config: &EvalConfig,
+    record: bool,
+) -> (EvalReport, Vec<Trajectory>) {
     let jobs: Vec<(usize, usize)> = (0..tracks.len()).flat_map(|t| (0..config.runs).map(move |k| (t, k))).collect();
-    let deployments: Vec<Deployment> = jobs
+    let (deployments, trajectories): (Vec<Deployment>, Vec<Trajectory>) = jobs
         .par_iter()
         .map(|&(t, k)| {
             let mut controller = make_controller();
-            deploy(tracks[t].clone(), controller.as_mut(), config, (t * config.runs + k) as u64)
+            let mut trajectory = Trajectory::default();
+            let recording = record.then_some(&mut trajectory);
+            let d = deploy_recording(tracks[t].clone(), controller.as_mut(), config, (t * config.runs + k) as u64, recording);
+            (d, trajectory)
         })
-        .collect();
+        .unzip();
+    let trajectories = if record { trajectories } else { Vec::new() };
     let mut per_track = deployments.chunks(config.runs.max(1));
     let results: Vec<TrackResult> = tracks
         .iter()
@@ -261,7 +349,7 @@ pub fn evaluate(
         })
         .collect();
     let all = summarise("all", deployments);
-    EvalReport {
+    let report = EvalReport {
         controller: controller_name.to_owned(),
         config: *config,
         s_pw: all.s_pw,
@@ -270,7 +358,8 @@ pub fn evaluate(
         fastest_lap: all.fastest_lap,
         outcomes: all.outcomes,
         tracks: results,
-    }
+    };
+    (report, trajectories)
 }
 
 fn summarise(track: &str, deployments: Vec<Deployment>) -> TrackResult {

@@ -11,6 +11,7 @@ pub mod perception;
 pub mod pilot;
 pub mod quadrotor;
 pub mod race;
+pub mod racer;
 pub mod randomization;
 pub mod replay;
 pub mod reward;
@@ -28,6 +29,7 @@ pub use observation::{
 pub use params::{GRAVITY, QuadrotorParams, RaceParams};
 pub use pilot::{Controller, PilotMemory, PilotParams, RacingLine, ReferencePilot};
 pub use race::{ControllerModel, CrashCause, EnvConfig, EpisodeStats, RaceEnv, StartGate, StepOutcome};
+pub use racer::Racer;
 pub use randomization::RandomizationParams;
 pub use reward::{ProgressDistance, RewardParams, RewardTerms};
 pub use track::{Arena, Gate, Pose, Track};

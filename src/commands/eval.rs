@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use ::sim::ReferencePilot;
-use ::sim::eval::{EvalConfig, evaluate};
+use ::sim::eval::{EvalConfig, evaluate_recording};
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use policy::ControllerFactory;
@@ -19,12 +19,28 @@ pub enum ControllerKind {
     Policy,
 }
 
+impl ControllerKind {
+    /// The controller a command flies: `--controller` if given, else the policy when `--policy`
+    /// names one and the reference pilot otherwise; `--controller pilot` with `--policy` is an
+    /// error rather than a pilot flight the user did not ask for.
+    pub fn resolve(chosen: Option<Self>, policy_given: bool) -> anyhow::Result<Self> {
+        match (chosen, policy_given) {
+            (Some(Self::Pilot), true) => {
+                anyhow::bail!("--policy names a policy, but --controller pilot flies the reference pilot: drop one of them")
+            }
+            (Some(kind), _) => Ok(kind),
+            (None, true) => Ok(Self::Policy),
+            (None, false) => Ok(Self::Pilot),
+        }
+    }
+}
+
 /// Arguments of `dronerace eval`.
 #[derive(Args)]
 pub struct EvalArgs {
-    /// Controller to evaluate.
-    #[arg(long, value_enum, default_value = "pilot")]
-    controller: ControllerKind,
+    /// Controller to evaluate [default: policy with --policy, else pilot].
+    #[arg(long, value_enum)]
+    controller: Option<ControllerKind>,
     /// Track files or directories; the built-in library when omitted.
     #[arg(long, num_args = 1..)]
     tracks: Vec<PathBuf>,
@@ -37,8 +53,8 @@ pub struct EvalArgs {
     /// Seed of the start perturbations.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Checkpoint or weights blob of the policy (with `--controller policy`); several
-    /// state-based ones fly as an ensemble, the mean of their actions.
+    /// Checkpoint or weights blob of the policy to fly; several state-based ones fly as an
+    /// ensemble, the mean of their actions.
     #[arg(long, num_args = 1..)]
     policy: Vec<PathBuf>,
     /// TOML file of the reference pilot's tuning (`sim::PilotParams`; every field optional),
@@ -48,6 +64,11 @@ pub struct EvalArgs {
     /// Directory for `eval.json` and `eval.md`.
     #[arg(long, default_value = "runs/eval")]
     out: PathBuf,
+    /// Also write every deployment's states, one CSV a deployment (`<t>-<track>-<run>.csv`:
+    /// time, position, velocity, attitude, body rates, action, target gate, laps), into this
+    /// directory.
+    #[arg(long)]
+    trajectories: Option<PathBuf>,
 }
 
 /// The reference pilot, or the mean action of the policy at `policy` (a checkpoint or blob;
@@ -83,7 +104,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.steps > 0, "--steps must be at least 1");
     let tracks = load_tracks(&args.tracks)?;
     let config = EvalConfig { runs: args.runs, steps: args.steps, seed: args.seed, ..EvalConfig::default() };
-    let (name, make) = match (&args.pilot_tuning, args.controller) {
+    let kind = ControllerKind::resolve(args.controller, !args.policy.is_empty())?;
+    let (name, make) = match (&args.pilot_tuning, kind) {
         (None, ControllerKind::Policy) if args.policy.len() > 1 => ensemble_factory(&args.policy)?,
         (None, kind) => controller_factory(kind, args.policy.first().map(PathBuf::as_path))?,
         (Some(path), ControllerKind::Pilot) => {
@@ -96,7 +118,16 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         (Some(_), ControllerKind::Policy) => anyhow::bail!("--pilot-tuning retunes the pilot; it does not apply to --controller policy"),
     };
     let started = std::time::Instant::now();
-    let report = evaluate(&name, &tracks, make.as_ref(), &config);
+    let (report, trajectories) = evaluate_recording(&name, &tracks, make.as_ref(), &config, args.trajectories.is_some());
+    if let Some(dir) = &args.trajectories {
+        for (i, trajectory) in trajectories.iter().enumerate() {
+            // Track names become file names: keep letters, digits, '-' and '_'.
+            let track: String =
+                tracks[i / args.runs].name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' }).collect();
+            write_atomic(&dir.join(format!("{:02}-{track}-{:03}.csv", i / args.runs, i % args.runs)), trajectory.to_csv().as_bytes())?;
+        }
+        println!("wrote {} trajectories into {}", trajectories.len(), dir.display());
+    }
     let markdown = report.to_markdown();
     println!("{markdown}");
     tracing::info!(deployments = tracks.len() * args.runs, seconds = started.elapsed().as_secs_f64(), "evaluation finished");
@@ -106,70 +137,74 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Arguments of `dronerace export-policy`.
-#[derive(Args)]
-pub struct ExportArgs {
-    /// Checkpoint (or weights blob) to take the policy from; several (of one run) export the
-    /// mean of their weights, under the newest one's normaliser (stochastic weight averaging).
-    #[arg(required = true)]
-    checkpoints: Vec<PathBuf>,
-    /// Weights blob to write: architecture, normaliser, version and weights only.
-    #[arg(long)]
-    out: PathBuf,
-}
-
-/// Writes the policy of a checkpoint — or the weight average of several — as a stand-alone
-/// weights blob (what `eval --policy`, `train --init-from` and actors read), without
-/// optimiser, environments or curriculum.
-pub fn export(args: ExportArgs) -> anyhow::Result<()> {
-    let blobs = read_policies(&args.checkpoints)?;
-    let blob = match blobs.as_slice() {
-        [one] => one.clone(),
-        many => policy::averaging::average(many).context("averaging the policies")?,
-    };
-    let bytes = blob.to_bytes();
-    write_atomic(&args.out, &bytes)?;
-    let of = if blobs.len() > 1 { format!("mean of {} policies, newest ", blobs.len()) } else { String::new() };
-    println!("wrote {} ({of}policy v{}, {} bytes)", args.out.display(), blob.version, bytes.len());
-    Ok(())
-}
-
 /// Formats `dronerace export` writes.
-#[derive(Clone, Copy, Debug, ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum ExportFormat {
+    /// The policy as a weights blob (safetensors: architecture, normaliser, version, weights),
+    /// what `eval --policy`, `serve`, `train --init-from` and actors read.
+    Safetensors,
     /// The deterministic actor with its normaliser folded in, as an ONNX model (opset 13).
     Onnx,
 }
 
 /// Arguments of `dronerace export`.
 #[derive(Args)]
-pub struct ExportModelArgs {
-    /// Checkpoint or weights blob of the policy.
+pub struct ExportArgs {
+    /// Checkpoint or weights blob to take the policy from; with `--average`, several of one run.
+    policies: Vec<PathBuf>,
+    /// The policy (an earlier spelling of the first argument).
+    #[arg(long = "policy", hide = true)]
+    policy_flag: Option<PathBuf>,
+    /// Export the mean of the given policies' weights, under the newest one's normaliser
+    /// (stochastic weight averaging).
     #[arg(long)]
-    policy: PathBuf,
-    /// Format of the file to write.
-    #[arg(long, value_enum, default_value = "onnx")]
-    format: ExportFormat,
+    average: bool,
+    /// Format of the file to write [default: onnx for a `.onnx` file (or with the earlier
+    /// `--policy` spelling), else safetensors].
+    #[arg(long, value_enum)]
+    format: Option<ExportFormat>,
     /// File to write.
     #[arg(long)]
     out: PathBuf,
 }
 
-/// Writes a policy in a format other programs run (ONNX Runtime, TensorRT, …).
-pub fn export_model(args: ExportModelArgs) -> anyhow::Result<()> {
-    let blob = learner::checkpoint::read_policy(&args.policy)?;
-    let bytes = match args.format {
+/// Writes a checkpoint's policy — or the weight average of several — as a stand-alone weights
+/// blob without optimiser, environments or curriculum, or as a model other programs run (ONNX
+/// Runtime, TensorRT, …).
+pub fn export(args: ExportArgs) -> anyhow::Result<()> {
+    let paths: Vec<PathBuf> = args.policies.iter().chain(&args.policy_flag).cloned().collect();
+    anyhow::ensure!(!paths.is_empty(), "export: name the checkpoint or weights blob to export");
+    anyhow::ensure!(
+        paths.len() == 1 || args.average,
+        "export: {} policies given; pass --average to export the mean of their weights",
+        paths.len()
+    );
+    let blobs = read_policies(&paths)?;
+    let blob = match blobs.as_slice() {
+        [one] => one.clone(),
+        many => policy::averaging::average(many).context("averaging the policies")?,
+    };
+    let onnx_file = args.out.extension().is_some_and(|e| e.eq_ignore_ascii_case("onnx"));
+    // `--policy` is the earlier spelling of `export`, whose only format was ONNX.
+    let onnx_default = onnx_file || args.policy_flag.is_some();
+    let format = args.format.unwrap_or(if onnx_default { ExportFormat::Onnx } else { ExportFormat::Safetensors });
+    let bytes = match format {
+        ExportFormat::Safetensors => blob.to_bytes(),
         ExportFormat::Onnx => policy::onnx::actor_model(&blob)?,
     };
     write_atomic(&args.out, &bytes)?;
-    println!(
-        "wrote {} (policy v{}: {} raw observations in the {} frame -> {} actions in [-1, 1], {} bytes)",
-        args.out.display(),
-        blob.version,
-        blob.architecture.observation_dim,
-        blob.architecture.observation_frame.name(),
-        blob.architecture.action_dim,
-        bytes.len()
-    );
+    let of = if blobs.len() > 1 { format!("mean of {} policies, newest ", blobs.len()) } else { String::new() };
+    match format {
+        ExportFormat::Safetensors => println!("wrote {} ({of}policy v{}, {} bytes)", args.out.display(), blob.version, bytes.len()),
+        ExportFormat::Onnx => println!(
+            "wrote {} ({of}policy v{}: {} raw observations in the {} frame -> {} actions in [-1, 1], {} bytes)",
+            args.out.display(),
+            blob.version,
+            blob.architecture.observation_dim,
+            blob.architecture.observation_frame.name(),
+            blob.architecture.action_dim,
+            bytes.len()
+        ),
+    }
     Ok(())
 }

@@ -30,12 +30,16 @@ pub enum ExperimentCommand {
         #[arg(long = "seed")]
         seeds: Vec<u64>,
     },
-    /// Write report.md and curves.png for the runs of FILE under DIR.
+    /// Write report.md and curves.png for the runs of FILE under --out.
     Report {
         /// Experiment file.
         file: PathBuf,
-        /// Directory of the experiment's runs.
-        dir: PathBuf,
+        /// Directory of the experiment's runs (as given to `experiment run`).
+        #[arg(long, required_unless_present = "dir")]
+        out: Option<PathBuf>,
+        /// The directory as a second argument (an earlier spelling of --out).
+        #[arg(hide = true, conflicts_with = "out")]
+        dir: Option<PathBuf>,
     },
 }
 
@@ -64,7 +68,10 @@ pub fn run(command: ExperimentCommand) -> anyhow::Result<()> {
             );
             report(&experiment, &out)
         }
-        ExperimentCommand::Report { file, dir } => report(&Experiment::read(&file)?, &dir),
+        ExperimentCommand::Report { file, out, dir } => {
+            let out = out.or(dir).context("experiment report: --out DIR names the experiment's runs")?;
+            report(&Experiment::read(&file)?, &out)
+        }
     }
 }
 

@@ -1,5 +1,7 @@
 //! One module per subcommand: argument types and the glue that calls the crates.
 
+pub mod bench;
+pub mod curves;
 pub mod distill;
 pub mod eval;
 pub mod experiment;

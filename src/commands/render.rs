@@ -28,10 +28,10 @@ pub struct RenderArgs {
     /// Target gate of the single frame.
     #[arg(long, default_value_t = 0)]
     target: usize,
-    /// Who flies the flight.
-    #[arg(long, value_enum, default_value = "pilot")]
-    controller: ControllerKind,
-    /// Checkpoint or weights blob (with `--controller policy`).
+    /// Who flies the flight [default: policy with --policy, else pilot].
+    #[arg(long, value_enum)]
+    controller: Option<ControllerKind>,
+    /// Checkpoint or weights blob of the policy to fly.
     #[arg(long)]
     policy: Option<PathBuf>,
     /// Policy steps to fly at most; the flight also ends at a crash or after `--laps` laps.
@@ -117,7 +117,8 @@ fn flight(track: &Arc<Track>, args: &RenderArgs) -> anyhow::Result<()> {
     ensure!(args.every > 0, "--every must be at least 1");
     ensure!(args.strip.is_none() || !args.strip_steps.is_empty(), "--strip needs --strip-steps, e.g. 0,40,80");
     ensure!(args.out.extension().is_some_and(|e| e == "gif"), "--out {}: a flight is written as a .gif", args.out.display());
-    let (name, make) = controller_factory(args.controller, args.policy.as_deref())?;
+    let kind = ControllerKind::resolve(args.controller, args.policy.is_some())?;
+    let (name, make) = controller_factory(kind, args.policy.as_deref())?;
     let mut controller = make();
     let config = EnvConfig { randomization: ::sim::RandomizationParams::none(), ..EnvConfig::evaluation() };
     let mut env = RaceEnv::new(track.clone(), config, 0, 0);

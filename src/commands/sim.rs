@@ -31,27 +31,32 @@ pub enum SimCommand {
     },
     /// Render what the vision agent sees: one frame from a pose (PNG), or a flight (GIF).
     Render(super::render::RenderArgs),
-    /// Measure environment steps per second with random actions.
-    Bench {
-        /// Parallel environments.
-        #[arg(long, default_value_t = 96)]
-        envs: usize,
-        /// Worker threads (default: all cores).
-        #[arg(long)]
-        threads: Option<usize>,
-        /// Vectorised steps to time.
-        #[arg(long, default_value_t = 3000)]
-        steps: usize,
-        /// `random`: uniform random actions with training randomisation (many early crashes);
-        /// `hover`: the hover command without randomisation, so every step runs all substeps and
-        /// episodes end only by truncation (the worst case per step).
-        #[arg(long, value_enum, default_value = "random")]
-        actions: BenchActions,
-        /// `state`: the 40-number observation only; `vision`: also the 84×84 camera image of
-        /// every environment after every step (SPEC §5).
-        #[arg(long, value_enum, default_value = "state")]
-        obs: BenchObs,
-    },
+    /// Measure environment steps per second (an earlier spelling of `bench sim`).
+    #[command(hide = true)]
+    Bench(SimBenchArgs),
+}
+
+/// Arguments of `dronerace bench sim`.
+#[derive(clap::Args)]
+pub struct SimBenchArgs {
+    /// Parallel environments.
+    #[arg(long, default_value_t = 96)]
+    envs: usize,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Vectorised steps to time.
+    #[arg(long, default_value_t = 3000)]
+    steps: usize,
+    /// `random`: uniform random actions with training randomisation (many early crashes);
+    /// `hover`: the hover command without randomisation, so every step runs all substeps and
+    /// episodes end only by truncation (the worst case per step).
+    #[arg(long, value_enum, default_value = "random")]
+    actions: BenchActions,
+    /// `state`: the 40-number observation only; `vision`: also the 84×84 camera image of
+    /// every environment after every step (SPEC §5).
+    #[arg(long, value_enum, default_value = "state")]
+    obs: BenchObs,
 }
 
 /// What `sim bench` observes.
@@ -90,7 +95,7 @@ pub fn run(command: SimCommand) -> anyhow::Result<()> {
             Ok(())
         }
         SimCommand::Render(args) => super::render::run(args),
-        SimCommand::Bench { envs, threads, steps, actions, obs } => bench(envs, threads, steps, actions, obs),
+        SimCommand::Bench(args) => bench(args),
     }
 }
 
@@ -142,7 +147,8 @@ fn read_actions(path: &Path) -> anyhow::Result<Vec<[f64; 4]>> {
 }
 
 /// Steps `envs` environments (library tracks, round robin) and reports the rate.
-fn bench(envs: usize, threads: Option<usize>, steps: usize, kind: BenchActions, obs: BenchObs) -> anyhow::Result<()> {
+pub fn bench(args: SimBenchArgs) -> anyhow::Result<()> {
+    let SimBenchArgs { envs, threads, steps, actions: kind, obs } = args;
     anyhow::ensure!(envs > 0 && steps > 0, "--envs and --steps must be at least 1");
     let threads = threads.unwrap_or_else(rayon::current_num_threads);
     let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;

@@ -66,18 +66,35 @@ pub enum TracksCommand {
         #[arg(long)]
         out: PathBuf,
     },
-    /// Measure generation speed and acceptance, and the cost of one task-controller update.
-    Bench {
-        /// Tracks to generate.
-        #[arg(long, default_value_t = 1000)]
-        count: usize,
-        /// Environments reporting per iteration.
-        #[arg(long, default_value_t = 96)]
-        envs: usize,
-        /// Switching window l.
-        #[arg(long, default_value_t = 600)]
-        window: usize,
+    /// Make a track file from a CSV of gate poses, one gate a row in racing order:
+    /// `x,y,z,yaw_deg` (a header row and `#` comments are skipped).
+    Import {
+        /// The CSV.
+        csv: PathBuf,
+        /// The track's name [default: the CSV's file name without extension].
+        #[arg(long)]
+        name: Option<String>,
+        /// Track file to write.
+        #[arg(long)]
+        out: PathBuf,
     },
+    /// Measure generation and switching (an earlier spelling of `bench tracks`).
+    #[command(hide = true)]
+    Bench(TracksBenchArgs),
+}
+
+/// Arguments of `dronerace bench tracks`.
+#[derive(clap::Args)]
+pub struct TracksBenchArgs {
+    /// Tracks to generate.
+    #[arg(long, default_value_t = 1000)]
+    count: usize,
+    /// Environments reporting per iteration.
+    #[arg(long, default_value_t = 96)]
+    envs: usize,
+    /// Switching window l.
+    #[arg(long, default_value_t = 600)]
+    window: usize,
 }
 
 /// Generator choice on the command line.
@@ -135,7 +152,22 @@ pub fn run(command: TracksCommand) -> anyhow::Result<()> {
             println!("wrote {} tracks (library, then generated from seed {seed}) to {}", tracks.len(), out.display());
             Ok(())
         }
-        TracksCommand::Bench { count, envs, window } => bench(count, envs, window),
+        TracksCommand::Import { csv, name, out } => {
+            let text = std::fs::read_to_string(&csv).with_context(|| format!("reading {}", csv.display()))?;
+            let name = name.unwrap_or_else(|| csv.file_stem().map_or_else(|| "imported".into(), |s| s.to_string_lossy().into_owned()));
+            let track = racetracks::track_from_csv(&name, &text, &csv)?;
+            racetracks::write_track(&track, &out)?;
+            println!(
+                "wrote {} ({}: {} gates, arena {:?} to {:?} m)",
+                out.display(),
+                track.name,
+                track.gates.len(),
+                track.arena.min.as_slice(),
+                track.arena.max.as_slice()
+            );
+            Ok(())
+        }
+        TracksCommand::Bench(args) => bench(args),
     }
 }
 
@@ -188,7 +220,8 @@ fn fit(points: &Path, smoothing: f64) -> anyhow::Result<()> {
 }
 
 /// Generation rate and acceptance for both generators; task-controller update cost.
-fn bench(count: usize, envs: usize, window: usize) -> anyhow::Result<()> {
+pub fn bench(args: TracksBenchArgs) -> anyhow::Result<()> {
+    let TracksBenchArgs { count, envs, window } = args;
     anyhow::ensure!(count > 0 && envs > 0 && window > 1, "--count, --envs must be ≥ 1 and --window ≥ 2");
     for kind in [GeneratorKind::Informed, GeneratorKind::Uniform] {
         let generator = TrackGenerator { kind, params: TrackGenParams::default() };

@@ -1,7 +1,7 @@
 //! `dronerace train`: the task controller, the learner and the actors as supervised processes
 //! on this machine (the default), or all in this process (`--in-process`, for debugging).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
@@ -20,10 +20,11 @@ pub struct TrainArgs {
     /// Continue the run in this directory from its newest checkpoint.
     #[arg(long, conflicts_with_all = ["config", "out", "profile", "track", "total_env_steps", "seed", "init_from"])]
     resume: Option<PathBuf>,
-    /// Profile: cpu or paper (overrides the config).
-    #[arg(long)]
+    /// Profile (overrides the config): cpu (256×256, 96 environments) or paper (SPEC §10).
+    #[arg(long, value_parser = ["cpu", "paper"])]
     profile: Option<String>,
-    /// Train on this one library track instead of generated tracks.
+    /// Train on this one track instead of generated tracks: a library track's name (e.g.
+    /// Figure8) or a track file (e.g. my-track.toml); validation then flies it too.
     #[arg(long)]
     track: Option<String>,
     /// Environment steps of the run (overrides the config).
@@ -48,9 +49,9 @@ pub struct TrainArgs {
     /// Run everything in this one process (no services; for debugging and tests).
     #[arg(long, conflicts_with_all = ["actors"])]
     in_process: bool,
-    /// `state` (default) or `vision`: the agent of a new run, with its defaults (a config file
-    /// names its agent itself, `agent = "vision"`).
-    #[arg(long, conflicts_with_all = ["config", "resume"])]
+    /// The agent of a new run, with its defaults [default: state] (a config file names its
+    /// agent itself, `agent = "vision"`).
+    #[arg(long, conflicts_with_all = ["config", "resume"], value_parser = ["state", "vision"])]
     agent: Option<String>,
 }
 
@@ -79,7 +80,16 @@ fn prepare(args: &TrainArgs) -> anyhow::Result<(PathBuf, TrainConfig, bool)> {
         config.profile = p.clone();
     }
     if let Some(t) = &args.track {
-        config.tracks = TrackSource::Library { names: vec![t.clone()] };
+        // A path (a file that exists, or anything ending in .toml) is a track file; otherwise
+        // a library name. Either way the validation flies the same track.
+        let is_file = t.ends_with(".toml") || Path::new(t).is_file();
+        // Absolute, so that the run's config.toml still finds the file from elsewhere (resume).
+        let file = || std::fs::canonicalize(t).with_context(|| format!("--track {t}"));
+        let (names, files) = if is_file { (Vec::new(), vec![file()?]) } else { (vec![t.clone()], Vec::new()) };
+        racetracks::chosen_tracks("--track", &names, &files)?;
+        config.eval.library = names.clone();
+        config.eval.files = files.clone();
+        config.tracks = TrackSource::Chosen { names, files };
         config.switching.policy = taskctl::SwitchPolicy::None;
     }
     if let Some(n) = args.total_env_steps {
@@ -106,11 +116,11 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     runtime::train::with_processes(&dir, config, resume, actors, args.transport, args.iterations)
 }
 
-/// Arguments of `dronerace learner-bench`.
+/// Arguments of `dronerace bench learner`.
 #[derive(Args)]
 pub struct LearnerBenchArgs {
-    /// Profile: cpu or paper.
-    #[arg(long, default_value = "paper")]
+    /// Profile whose network and PPO settings are timed.
+    #[arg(long, default_value = "paper", value_parser = ["cpu", "paper"])]
     profile: String,
     /// Samples per gradient step.
     #[arg(long, default_value_t = 4096)]
@@ -127,7 +137,7 @@ pub struct LearnerBenchArgs {
     hidden: Option<Vec<usize>>,
     /// `state`: the MLP actor-critic; `vision`: the CNN actor on 84×84 images (SPEC §5) with
     /// the profile's MLP widths.
-    #[arg(long, default_value = "state")]
+    #[arg(long, default_value = "state", value_parser = ["state", "vision"])]
     agent: String,
 }
 

@@ -1,0 +1,115 @@
+//! The race state a policy reads, kept from a real drone's states: what a flight stack needs to
+//! fly a trained policy without the simulator. It follows target gate, laps and previous action
+//! exactly as [`crate::RaceEnv`] does (a gate counts when the path between two consecutive
+//! states crosses its opening, SPEC §4) and builds the observation with the same function.
+
+use std::sync::Arc;
+
+use nalgebra::Vector3;
+
+use crate::observation::{ObservationLayout, write_state_observation};
+use crate::pilot::RacingLine;
+use crate::quadrotor::BodyState;
+use crate::track::Track;
+
+/// One race on one track, fed the drone's state once per control step.
+#[derive(Clone, Debug)]
+pub struct Racer {
+    track: Arc<Track>,
+    layout: ObservationLayout,
+    line: Option<Arc<RacingLine>>,
+    target: usize,
+    laps: u32,
+    gate0_passed: bool,
+    previous_action: [f64; 4],
+    previous_position: Option<Vector3<f64>>,
+}
+
+impl Racer {
+    /// A race on `track` from its start: target gate 0, no laps, no previous action; the
+    /// observation in `layout` (the policy's).
+    pub fn new(track: Arc<Track>, layout: ObservationLayout) -> Self {
+        let line = (layout.line_points > 0).then(|| Arc::new(RacingLine::new(&track)));
+        Self { track, layout, line, target: 0, laps: 0, gate0_passed: false, previous_action: [0.0; 4], previous_position: None }
+    }
+
+    /// Takes the drone's state at a control step (one step after the previous one): counts the
+    /// target gate if the path since the previous state passed it, then returns the
+    /// observation the policy acts on.
+    pub fn observe(&mut self, body: &BodyState) -> Vec<f32> {
+        if let Some(from) = self.previous_position
+            && self.track.gates[self.target].crossing(&from, &body.position).is_some()
+        {
+            if self.target == 0 {
+                // Targets advance strictly in order, so a repeat pass of gate 0 closes a lap.
+                self.laps += u32::from(self.gate0_passed);
+                self.gate0_passed = true;
+            }
+            self.target = self.track.next_index(self.target);
+        }
+        self.previous_position = Some(body.position);
+        let mut out = vec![0.0; self.layout.dim()];
+        write_state_observation(body, &self.previous_action, &self.track, self.line.as_deref(), self.target, self.layout, &mut out);
+        out
+    }
+
+    /// Records the action flown from the state just observed (the next observation reads it).
+    pub fn acted(&mut self, action: &[f32; 4]) {
+        self.previous_action = action.map(|a| f64::from(a).clamp(-1.0, 1.0));
+    }
+
+    /// The gate the drone races to now.
+    pub fn target_gate(&self) -> usize {
+        self.target
+    }
+
+    /// Laps completed.
+    pub fn laps(&self) -> u32 {
+        self.laps
+    }
+
+    /// The track.
+    pub fn track(&self) -> &Arc<Track> {
+        &self.track
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{Controller, EnvConfig, RaceEnv, ReferencePilot};
+
+    /// The reference pilot flies three laps of a library-like track; a racer fed only the
+    /// drone's states sees every observation, target gate and lap count the environment has.
+    #[test]
+    fn a_racer_fed_the_drones_states_keeps_the_race_as_the_environment_does() {
+        let gates = vec![
+            crate::Gate::new(Vector3::new(6.0, 0.0, 2.0), std::f64::consts::FRAC_PI_2),
+            crate::Gate::new(Vector3::new(0.0, 6.0, 2.0), std::f64::consts::PI),
+            crate::Gate::new(Vector3::new(-6.0, 0.0, 2.0), -std::f64::consts::FRAC_PI_2),
+            crate::Gate::new(Vector3::new(0.0, -6.0, 2.0), 0.0),
+        ];
+        let track = Arc::new(Track::new("square", gates, None, crate::Arena::default()).unwrap());
+        let mut config = EnvConfig::evaluation();
+        config.race.max_episode_steps = 2000;
+        let mut env = RaceEnv::new(track.clone(), config, 0, 3);
+        let layout = env.config().observation_layout();
+        let mut racer = Racer::new(track, layout);
+        let mut pilot = ReferencePilot::default();
+        pilot.reset(&env);
+        let mut laps_seen = 0;
+        for step in 0..1500 {
+            let expected = env.observation_in(layout);
+            assert_eq!(racer.observe(env.body()), expected, "step {step}");
+            assert_eq!((racer.target_gate(), racer.laps()), (env.target_gate(), env.stats().laps), "step {step}");
+            let action = pilot.act(&env);
+            racer.acted(&action);
+            let out = env.step(&action);
+            laps_seen = env.stats().laps;
+            if out.done() {
+                break;
+            }
+        }
+        assert!(laps_seen >= 2, "the pilot flew {laps_seen} laps: the lap counting was exercised");
+    }
+}
