@@ -118,7 +118,7 @@ fn checkpoints_that_keep_failing_stop_the_run_with_a_fatal_error() {
     let error = (0..3).find_map(|_| t.iteration_step().err()).expect("the run stops within three failing iterations");
     assert!(error.is_fatal(), "{error}");
     let text = error.to_string();
-    assert!(text.contains("checkpoints in a row could not be written") && text.contains(".bin"), "{text}");
+    assert!(text.contains("writes of the run's state in a row failed") && text.contains(".bin"), "{text}");
     assert!(t.iteration() >= 2, "one failed write did not stop it: iteration {}", t.iteration());
 }
 

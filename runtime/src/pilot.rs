@@ -188,23 +188,8 @@ impl Pilot for PilotService {
 
     /// Answers each observation in order; a refused one ends the stream with its status.
     async fn fly(&self, request: Request<Streaming<ActRequest>>) -> Result<Response<Self::FlyStream>, Status> {
-        let mut inbound = request.into_inner();
         let service = self.clone();
-        let (tx, rx) = tokio::sync::mpsc::channel(16);
-        tokio::spawn(async move {
-            loop {
-                let reply = match inbound.message().await {
-                    Ok(Some(request)) => service.act(&request.observation),
-                    Ok(None) => break,
-                    Err(status) => Err(status),
-                };
-                let failed = reply.is_err();
-                if tx.send(reply).await.is_err() || failed {
-                    break;
-                }
-            }
-        });
-        Ok(Response::new(Box::pin(tokio_stream::wrappers::ReceiverStream::new(rx))))
+        Ok(Response::new(answer_each(request.into_inner(), move |request: ActRequest| Some(service.act(&request.observation)))))
     }
 
     type RaceStream = CommandStream;
@@ -212,38 +197,53 @@ impl Pilot for PilotService {
     /// A `RaceStart`, then a command per `DroneState`; a refused message ends the stream with
     /// its status (INVALID_ARGUMENT naming the field).
     async fn race(&self, request: Request<Streaming<RaceRequest>>) -> Result<Response<Self::RaceStream>, Status> {
-        let mut inbound = request.into_inner();
         let service = self.clone();
-        let (tx, rx) = tokio::sync::mpsc::channel(16);
-        tokio::spawn(async move {
-            let mut racer: Option<Racer> = None;
-            loop {
-                let reply = match inbound.message().await {
-                    Ok(Some(RaceRequest { kind: Some(Kind::Start(start)) })) => match service.start_race(&start.track_toml) {
-                        Ok(r) => {
-                            racer = Some(r);
-                            continue;
-                        }
-                        Err(status) => Err(status),
-                    },
-                    Ok(Some(RaceRequest { kind: Some(Kind::State(state)) })) => match racer.as_mut() {
-                        Some(r) => service.race_step(r, &state),
-                        None => Err(Status::invalid_argument("a DroneState before any RaceStart: start the race with its track first")),
-                    },
-                    Ok(Some(RaceRequest { kind: None })) => {
-                        Err(Status::invalid_argument("RaceRequest holds neither a RaceStart nor a DroneState"))
-                    }
-                    Ok(None) => break,
-                    Err(status) => Err(status),
-                };
-                let failed = reply.is_err();
-                if tx.send(reply).await.is_err() || failed {
-                    break;
+        let mut racer: Option<Racer> = None;
+        Ok(Response::new(answer_each(request.into_inner(), move |request: RaceRequest| match request.kind {
+            Some(Kind::Start(start)) => match service.start_race(&start.track_toml) {
+                Ok(r) => {
+                    racer = Some(r);
+                    None
                 }
-            }
-        });
-        Ok(Response::new(Box::pin(tokio_stream::wrappers::ReceiverStream::new(rx))))
+                Err(status) => Some(Err(status)),
+            },
+            Some(Kind::State(state)) => Some(match racer.as_mut() {
+                Some(r) => service.race_step(r, &state),
+                None => Err(Status::invalid_argument("a DroneState before any RaceStart: start the race with its track first")),
+            }),
+            None => Some(Err(Status::invalid_argument("RaceRequest holds neither a RaceStart nor a DroneState"))),
+        })))
     }
+}
+
+/// Answers a stream's messages in order with `answer` (`None`: this message needs no answer);
+/// the first refusal ends the stream with its status.
+fn answer_each<In, Out>(
+    mut inbound: Streaming<In>,
+    mut answer: impl FnMut(In) -> Option<Result<Out, Status>> + Send + 'static,
+) -> Pin<Box<dyn Stream<Item = Result<Out, Status>> + Send>>
+where
+    In: Send + 'static,
+    Out: Send + 'static,
+{
+    let (tx, rx) = tokio::sync::mpsc::channel(16);
+    tokio::spawn(async move {
+        loop {
+            let reply = match inbound.message().await {
+                Ok(Some(message)) => match answer(message) {
+                    Some(reply) => reply,
+                    None => continue,
+                },
+                Ok(None) => break,
+                Err(status) => Err(status),
+            };
+            let failed = reply.is_err();
+            if tx.send(reply).await.is_err() || failed {
+                break;
+            }
+        }
+    });
+    Box::pin(tokio_stream::wrappers::ReceiverStream::new(rx))
 }
 
 #[cfg(test)]

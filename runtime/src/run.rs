@@ -396,9 +396,9 @@ pub enum TrainError {
         /// Why the last was refused.
         last: String,
     },
-    /// Checkpoints kept failing to be written (a full or failing disk): going on would train
-    /// what no checkpoint keeps.
-    #[error("{count} checkpoints in a row could not be written; the last: {last}. Free space in the run directory, then resume")]
+    /// Checkpoints (or the task controller's snapshots) kept failing to be written (a full or
+    /// failing disk): going on would train what nothing keeps.
+    #[error("{count} writes of the run's state in a row failed; the last: {last}. Free space in the run directory, then resume")]
     CheckpointsFailing {
         /// Failed writes in a row.
         count: u32,

@@ -60,6 +60,9 @@ pub(crate) fn async_runtime(threads: usize) -> anyhow::Result<tokio::runtime::Ru
     tokio::runtime::Builder::new_multi_thread().worker_threads(threads).enable_all().build().context("starting the async runtime")
 }
 
+/// Snapshot writes failed in a row before the task controller stops.
+const MAX_FAILED_SNAPSHOTS: u32 = 3;
+
 /// Starts the plaintext health server for probes on `addr` (`--health-listen`), if given,
 /// reporting `serving` SERVING until `stop`.
 pub(crate) fn spawn_health(
@@ -122,15 +125,37 @@ pub fn taskctl(args: TaskctlArgs) -> anyhow::Result<()> {
         c
     };
     let stop = stop_flag()?;
-    let service = taskctl::grpc::TaskControllerService::new(Arc::new(
+    let tasks = Arc::new(
         taskctl::LocalTasks::new(controller, Some(args.snapshot.clone()))
             .release_after(Duration::from_secs_f64(config.learner.actor_timeout_seconds)),
-    ));
+    );
+    let service = taskctl::grpc::TaskControllerService::new(tasks.clone());
+    // Snapshots that keep failing (a full disk) refuse every report: stop rather than leave the
+    // actors retrying forever; the supervisor then stops the run (exit code 3).
+    let failing = Arc::new(std::sync::Mutex::new(None));
+    let watcher = {
+        let (stop, failing) = (stop.clone(), failing.clone());
+        std::thread::spawn(move || {
+            while !stop.load(Ordering::SeqCst) {
+                let (count, last) = tasks.failed_snapshots();
+                if count >= MAX_FAILED_SNAPSHOTS {
+                    *failing.lock().unwrap_or_else(|e| e.into_inner()) = Some(crate::TrainError::CheckpointsFailing { count, last });
+                    stop.store(true, Ordering::SeqCst);
+                }
+                std::thread::sleep(Duration::from_millis(200));
+            }
+        })
+    };
     eprintln!("taskctl: serving on {}", args.listen);
     let rt = async_runtime(1)?;
     spawn_health(&rt, args.health_listen, &["dronerace.v1.TaskController"], stop.clone())?;
-    rt.block_on(taskctl::grpc::serve(args.listen, &security, service, until(stop)))
-        .map_err(|e| anyhow::anyhow!("taskctl on {}: {e}", args.listen))
+    let served = rt.block_on(taskctl::grpc::serve(args.listen, &security, service, until(stop.clone())));
+    stop.store(true, Ordering::SeqCst);
+    let _ = watcher.join();
+    if let Some(fatal) = failing.lock().unwrap_or_else(|e| e.into_inner()).take() {
+        return Err(fatal.into());
+    }
+    served.map_err(|e| anyhow::anyhow!("taskctl on {}: {e}", args.listen))
 }
 
 /// Arguments of `dronerace learner`.

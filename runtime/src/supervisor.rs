@@ -44,8 +44,8 @@ struct Supervised {
 }
 
 /// Exit code of a process that stopped for a reason its restart would only repeat (a
-/// diverging run, a disk that takes no checkpoints: [`crate::run::TrainError::is_fatal`]): the
-/// supervisor stops the run instead of restarting it.
+/// diverging run, a disk that takes no checkpoints or snapshots:
+/// [`crate::run::TrainError::is_fatal`]): the supervisor stops the run instead of restarting it.
 pub const EXIT_FATAL: u8 = 3;
 
 /// A process that dies sooner than this after starting is failing at start (a bad config, a
@@ -265,6 +265,12 @@ pub fn run(plan: ClusterPlan) -> anyhow::Result<()> {
             }
         }
         if let Some(status) = taskctl.exited() {
+            if status.code() == Some(i32::from(EXIT_FATAL)) {
+                outcome = Err(anyhow::anyhow!(
+                    "the task controller stopped for a reason a restart would repeat (its message is above); the run stops"
+                ));
+                break;
+            }
             eprintln!("train: the task controller exited ({status}); restarting it from its snapshot");
             if let Err(e) = taskctl.restart(status) {
                 outcome = Err(e);

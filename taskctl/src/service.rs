@@ -126,6 +126,8 @@ pub struct LocalTasks {
     contacts: Mutex<std::collections::HashMap<String, std::time::Instant>>,
     release_after: Option<std::time::Duration>,
     started: std::time::Instant,
+    /// Snapshot writes that failed in a row, and the last failure.
+    failed_snapshots: Mutex<(u32, String)>,
 }
 
 impl LocalTasks {
@@ -139,7 +141,14 @@ impl LocalTasks {
             contacts: Mutex::default(),
             release_after: None,
             started: std::time::Instant::now(),
+            failed_snapshots: Mutex::new((0, String::new())),
         }
+    }
+
+    /// Snapshot writes that failed in a row (each refused its change), and the last error: a
+    /// process serving this can stop once the disk clearly will not take them (a full disk).
+    pub fn failed_snapshots(&self) -> (u32, String) {
+        self.failed_snapshots.lock().clone()
     }
 
     /// Lets a registration that finds no room take the ranges of actors silent for longer than
@@ -182,8 +191,15 @@ impl LocalTasks {
         let mut next = guard.clone();
         let out = change(&mut next)?;
         if let Some(file) = &self.snapshot {
-            racetracks::files::write_atomic(file, &next.to_snapshot_bytes())
-                .map_err(|source| TaskServiceError::Snapshot { file: file.clone(), source })?;
+            let written = racetracks::files::write_atomic(file, &next.to_snapshot_bytes());
+            let mut failed = self.failed_snapshots.lock();
+            match written {
+                Ok(()) => failed.0 = 0,
+                Err(source) => {
+                    *failed = (failed.0 + 1, format!("{}: {source}", file.display()));
+                    return Err(TaskServiceError::Snapshot { file: file.clone(), source });
+                }
+            }
         }
         *guard = next;
         Ok(out)
