@@ -48,7 +48,7 @@ pub struct LearnerProcess<L: LearnerLink> {
     total_envs: usize,
     members: BTreeSet<String>,
     iterations_here: u64,
-    /// Updates refused (and rolled back) in a row, and the last reason.
+    /// Updates refused (and rolled back) in a row.
     refused_updates: u32,
     /// Checkpoint writes that failed in a row.
     failed_checkpoints: u32,
