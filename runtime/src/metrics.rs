@@ -167,7 +167,8 @@ impl MetricsWriter {
     /// cell, no TensorBoard scalar).
     pub fn write_columns(&mut self, iteration: u64, env_steps: u64, wall_seconds: f64, columns: &[(&str, f64)]) -> std::io::Result<()> {
         let cells: Vec<String> = columns.iter().map(|(_, v)| if v.is_nan() { String::new() } else { format!("{v}") }).collect();
-        writeln!(self.csv, "{iteration},{env_steps},{wall_seconds:.3},{}", cells.join(","))?;
+        // One write of the whole line: a reader of the growing file sees whole rows.
+        self.csv.write_all(format!("{iteration},{env_steps},{wall_seconds:.3},{}\n", cells.join(",")).as_bytes())?;
         self.csv.flush()?;
         let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default().as_secs_f64();
         let scalars: Vec<(&str, f32)> = columns.iter().filter(|(_, v)| v.is_finite()).map(|(n, v)| (*n, *v as f32)).collect();

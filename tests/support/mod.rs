@@ -197,10 +197,12 @@ pub fn shm_files() -> Vec<String> {
     names
 }
 
-/// Rows of a run's metrics.csv as (iteration, env_steps).
+/// Rows of a run's metrics.csv as (iteration, env_steps). The learner may be appending while
+/// this reads: a last line without its newline is not a row yet.
 pub fn metrics_rows(dir: &Path) -> Vec<(u64, u64)> {
-    std::fs::read_to_string(dir.join("metrics.csv"))
-        .unwrap_or_default()
+    let text = std::fs::read_to_string(dir.join("metrics.csv")).unwrap_or_default();
+    let complete = &text[..text.rfind('\n').map_or(0, |end| end + 1)];
+    complete
         .lines()
         .skip(1)
         .map(|l| {
