@@ -61,15 +61,16 @@ pub enum ChosenTracksError {
 }
 
 /// The library tracks `names` (case-insensitive) then the tracks in `files` (track files, or
-/// directories of them read in file-name order), in the order given; `field` names where they
-/// were given (`tracks`, `eval`, `--track`) for errors.
-pub fn chosen_tracks(field: &str, names: &[String], files: &[PathBuf]) -> Result<Vec<Track>, ChosenTracksError> {
-    let file_error = |source| ChosenTracksError::File { field: format!("{field}.files"), source };
+/// directories of them read in file-name order), in the order given; `fields` names where each
+/// list was given (e.g. `tracks.names` and `tracks.files`, or `--tracks` for both) for errors.
+pub fn chosen_tracks(fields: [&str; 2], names: &[String], files: &[PathBuf]) -> Result<Vec<Track>, ChosenTracksError> {
+    let [names_field, files_field] = fields;
+    let file_error = |source| ChosenTracksError::File { field: files_field.to_string(), source };
     let library = library().map_err(file_error)?;
     let mut tracks = Vec::new();
     for name in names {
         let track = library.iter().find(|t| t.name.eq_ignore_ascii_case(name)).ok_or_else(|| ChosenTracksError::UnknownName {
-            field: format!("{field}.names"),
+            field: names_field.to_string(),
             name: name.clone(),
             known: library.iter().map(|t| t.name.as_str()).collect::<Vec<_>>().join(", "),
         })?;
@@ -79,7 +80,7 @@ pub fn chosen_tracks(field: &str, names: &[String], files: &[PathBuf]) -> Result
         if path.is_dir() {
             let found = read_track_dir(path).map_err(file_error)?;
             if found.is_empty() {
-                return Err(ChosenTracksError::EmptyDirectory { field: format!("{field}.files"), dir: path.clone() });
+                return Err(ChosenTracksError::EmptyDirectory { field: files_field.to_string(), dir: path.clone() });
             }
             tracks.extend(found);
         } else {
@@ -118,15 +119,17 @@ mod tests {
         let mine = library_track("Kidney").unwrap().unwrap();
         let mine = Track { name: "Mine".into(), ..mine };
         crate::write_track(&mine, &dir.path().join("mine.toml")).unwrap();
-        let tracks = chosen_tracks("tracks", &["figure8".into()], &[dir.path().join("mine.toml"), dir.path().to_path_buf()]).unwrap();
+        let tracks =
+            chosen_tracks(["tracks.names", "tracks.files"], &["figure8".into()], &[dir.path().join("mine.toml"), dir.path().to_path_buf()])
+                .unwrap();
         let names: Vec<&str> = tracks.iter().map(|t| t.name.as_str()).collect();
         assert_eq!(names, ["Figure8", "Mine", "Mine"]);
-        let e = chosen_tracks("tracks", &["Nowhere".into()], &[]).unwrap_err().to_string();
+        let e = chosen_tracks(["tracks.names", "tracks.files"], &["Nowhere".into()], &[]).unwrap_err().to_string();
         assert!(e.starts_with("tracks.names: no library track \"Nowhere\"") && e.contains("Figure8"), "{e}");
-        let e = chosen_tracks("eval", &[], &[dir.path().join("missing.toml")]).unwrap_err().to_string();
+        let e = chosen_tracks(["eval.library", "eval.files"], &[], &[dir.path().join("missing.toml")]).unwrap_err().to_string();
         assert!(e.starts_with("eval.files:") && e.contains("missing.toml"), "{e}");
         std::fs::write(dir.path().join("bad.toml"), "name = \"Bad\"\n").unwrap();
-        let e = chosen_tracks("tracks", &[], &[dir.path().join("bad.toml")]).unwrap_err().to_string();
+        let e = chosen_tracks(["tracks.names", "tracks.files"], &[], &[dir.path().join("bad.toml")]).unwrap_err().to_string();
         assert!(e.contains("bad.toml"), "{e}");
     }
 }

@@ -53,7 +53,7 @@ impl TrackSource {
         Ok(match self {
             TrackSource::Generated => TaskController::new(envs, generator, switching, seed)?,
             TrackSource::Chosen { names, files } => {
-                let chosen: Vec<Arc<sim::Track>> = racetracks::chosen_tracks("tracks", names, files)
+                let chosen: Vec<Arc<sim::Track>> = racetracks::chosen_tracks(["tracks.names", "tracks.files"], names, files)
                     .map_err(|e| TrainError::Config(e.to_string()))?
                     .into_iter()
                     .map(Arc::new)

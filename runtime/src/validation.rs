@@ -56,11 +56,7 @@ impl Validator {
             return Ok(None);
         }
         let tracks = if chosen {
-            // `eval.library` is the config's name for the library part.
-            racetracks::chosen_tracks("eval", &settings.library, &settings.files).map_err(|e| match e {
-                racetracks::ChosenTracksError::UnknownName { name, .. } => ValidationSetError::UnknownTrack(name),
-                other => ValidationSetError::Files(other),
-            })?
+            racetracks::chosen_tracks(["eval.library", "eval.files"], &settings.library, &settings.files)?
         } else {
             racetracks::validation_set(settings.tracks)?
         };
@@ -103,15 +99,10 @@ pub enum ValidationSetError {
     /// Generating the validation set failed.
     #[error(transparent)]
     Generated(#[from] racetracks::TrackSetError),
-    /// The built-in library could not be read.
+    /// `eval.library` or `eval.files` names a track that cannot be had (the message names the
+    /// field and the name or file).
     #[error(transparent)]
-    Library(#[from] racetracks::TrackFileError),
-    /// `eval.files` names a file or directory that cannot be read as tracks.
-    #[error(transparent)]
-    Files(racetracks::ChosenTracksError),
-    /// `eval.library` names a track the library does not have.
-    #[error("eval.library: no library track {0:?}")]
-    UnknownTrack(String),
+    Chosen(#[from] racetracks::ChosenTracksError),
 }
 
 /// One evaluation on the validation set, with its wall time.

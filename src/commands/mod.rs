@@ -20,19 +20,7 @@ use anyhow::Context;
 
 /// Tracks from files and directories of `*.toml`; the built-in library when `paths` is empty.
 pub fn load_tracks(paths: &[PathBuf]) -> anyhow::Result<Vec<Arc<Track>>> {
-    let mut tracks = Vec::new();
-    if paths.is_empty() {
-        tracks = racetracks::library()?;
-    }
-    for path in paths {
-        if path.is_dir() {
-            let found = racetracks::read_track_dir(path)?;
-            anyhow::ensure!(!found.is_empty(), "{}: no *.toml track files in this directory", path.display());
-            tracks.extend(found);
-        } else {
-            tracks.push(racetracks::read_track(path)?);
-        }
-    }
+    let tracks = if paths.is_empty() { racetracks::library()? } else { racetracks::chosen_tracks(["--tracks"; 2], &[], paths)? };
     Ok(tracks.into_iter().map(Arc::new).collect())
 }
 

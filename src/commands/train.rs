@@ -86,7 +86,7 @@ fn prepare(args: &TrainArgs) -> anyhow::Result<(PathBuf, TrainConfig, bool)> {
         // Absolute, so that the run's config.toml still finds the file from elsewhere (resume).
         let file = || std::fs::canonicalize(t).with_context(|| format!("--track {t}"));
         let (names, files) = if is_file { (Vec::new(), vec![file()?]) } else { (vec![t.clone()], Vec::new()) };
-        racetracks::chosen_tracks("--track", &names, &files)?;
+        racetracks::chosen_tracks(["--track"; 2], &names, &files)?;
         config.eval.library = names.clone();
         config.eval.files = files.clone();
         config.tracks = TrackSource::Chosen { names, files };
