@@ -28,7 +28,7 @@ enum Command {
     #[command(alias = "export-policy")]
     Export(commands::eval::ExportArgs),
     /// Serve a trained policy over gRPC (dronerace.v1.Pilot) for a flight stack.
-    Serve(runtime::pilot::ServeArgs),
+    Serve(commands::serve::ServeArgs),
     /// Simulator tools: replay action files, render the camera, measure stepping speed.
     #[command(subcommand)]
     Sim(commands::sim::SimCommand),
@@ -41,23 +41,23 @@ enum Command {
     /// images, the teacher labels every state it visits.
     Distill(commands::distill::DistillArgs),
     /// Serve the task controller (tracks and switching of every environment) over gRPC.
-    Taskctl(runtime::services::TaskctlArgs),
+    Taskctl(commands::processes::TaskctlArgs),
     /// Run the learner process (PPO; takes rollouts, publishes weights).
-    Learner(runtime::services::LearnerArgs),
+    Learner(commands::processes::LearnerArgs),
     /// Show the task controller's state: every environment's track, window, ρ, q, switches.
     Tasks(commands::tasks::TasksArgs),
     /// Show how a running training is doing, from its learner: iteration, env steps, actors.
     Status(commands::status::StatusArgs),
     /// Run an actor process (environments, inference, rollouts).
-    Actor(runtime::services::ActorArgs),
+    Actor(commands::processes::ActorArgs),
     /// Measure speed: the PPO step, the transports, the simulator, track generation.
     #[command(subcommand)]
     Bench(commands::bench::BenchCommand),
     /// Measure rollout throughput and weight-broadcast latency (`bench transport`).
     #[command(hide = true)]
-    TransportBench(runtime::transport_bench::TransportBenchArgs),
+    TransportBench(commands::transport_bench::TransportBenchArgs),
     /// Kill -9 random processes of a training run for minutes, then audit what was lost.
-    Chaos(runtime::chaos::ChaosArgs),
+    Chaos(commands::chaos::ChaosArgs),
     /// Time one PPO gradient step (`bench learner`; this spelling is kept for scripts).
     #[command(hide = true)]
     LearnerBench(commands::train::LearnerBenchArgs),
@@ -97,15 +97,15 @@ fn main() -> std::process::ExitCode {
         Command::Train(a) => commands::train::run(a),
         Command::Experiment(c) => commands::experiment::run(c),
         Command::Distill(a) => commands::distill::run(a),
-        Command::Taskctl(a) => runtime::services::taskctl(a),
-        Command::Learner(a) => runtime::services::learner(a),
-        Command::Actor(a) => runtime::services::actor(a),
+        Command::Taskctl(a) => commands::processes::taskctl(a),
+        Command::Learner(a) => commands::processes::learner(a),
+        Command::Actor(a) => commands::processes::actor(a),
         Command::Tasks(a) => commands::tasks::run(a),
         Command::Status(a) => commands::status::run(a),
-        Command::Chaos(a) => runtime::chaos::run(a),
+        Command::Chaos(a) => commands::chaos::run(a),
         Command::LearnerBench(a) => commands::train::bench(a),
-        Command::TransportBench(a) => runtime::transport_bench::run(a),
-        Command::Serve(a) => runtime::pilot::serve(a),
+        Command::TransportBench(a) => commands::transport_bench::run(a),
+        Command::Serve(a) => commands::serve::serve(a),
         Command::Export(a) => commands::eval::export(a),
         Command::Plot(a) => commands::curves::run(a),
         Command::Bench(c) => commands::bench::run(c),
@@ -115,7 +115,7 @@ fn main() -> std::process::ExitCode {
         Err(e) => {
             eprintln!("error: {e:#}");
             let fatal = e.chain().any(|c| c.downcast_ref::<runtime::TrainError>().is_some_and(runtime::TrainError::is_fatal));
-            if fatal { std::process::ExitCode::from(runtime::supervisor::EXIT_FATAL) } else { std::process::ExitCode::FAILURE }
+            if fatal { std::process::ExitCode::from(commands::supervisor::EXIT_FATAL) } else { std::process::ExitCode::FAILURE }
         }
     }
 }

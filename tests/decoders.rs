@@ -287,10 +287,9 @@ fn no_mutated_run_config_panics_its_checks() {
 
 #[test]
 fn no_mutated_act_request_panics_the_served_policy() {
-    use proto::v1::pilot_server::Pilot;
+    use runtime::pilot::Pilot;
     let blob = tiny_learner().weights();
-    let service = runtime::pilot::PilotService::new(std::sync::Arc::new(policy::Policy::from_blob(&blob).unwrap()));
-    let rt = tokio::runtime::Builder::new_current_thread().build().unwrap();
+    let pilot = runtime::pilot::PolicyPilot::new(std::sync::Arc::new(policy::Policy::from_blob(&blob).unwrap()));
     let valid = proto::v1::ActRequest { observation: vec![0.25; blob.architecture.observation_dim] }.encode_to_vec();
     fuzz(
         "gRPC ActRequest",
@@ -299,7 +298,7 @@ fn no_mutated_act_request_panics_the_served_policy() {
         |b| b,
         |b| {
             let Ok(request) = proto::v1::ActRequest::decode(b) else { return false };
-            rt.block_on(service.act(tonic::Request::new(request))).is_ok_and(|r| r.get_ref().action.iter().all(|a| a.is_finite()))
+            pilot.act(&request.observation).is_ok_and(|action| action.iter().all(|a| a.is_finite()))
         },
     );
 }

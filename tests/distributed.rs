@@ -173,7 +173,7 @@ struct Cluster {
 impl Cluster {
     fn new(dir: &Path, transport: &'static str, extra: &str) -> Self {
         // The supervisor's own choice of ports, which holds both listeners until both are known.
-        let (taskctl_addr, learner_addr) = runtime::supervisor::two_free_ports().unwrap();
+        let (taskctl_addr, learner_addr) = support::two_free_ports();
         Self {
             dir: dir.to_path_buf(),
             config: write_config(dir, extra).display().to_string(),

@@ -299,11 +299,6 @@ impl ActingPolicy {
     }
 }
 
-/// Camera bytes as the network reads them: scaled to [0, 1].
-pub fn pixels_to_unit(image: &[u8]) -> Vec<f32> {
-    image.iter().map(|&p| f32::from(p) / 255.0).collect()
-}
-
 /// Flies a [`RaceEnv`] with a vision policy's deterministic mean action: renders the camera
 /// every step (SPEC §5), as evaluation of a vision agent needs, and the earlier frames a
 /// stacked-frame policy sees from the poses it remembers.

@@ -24,9 +24,9 @@ pub use burn::tensor::Device;
 pub use ensemble::EnsembleController;
 pub use inference::{
     Acting, ActingPolicy, ControllerFactory, HALF_LN_2PI, Policy, PolicyController, VisionPolicy, VisionPolicyController,
-    controller_factory, gaussian_log_prob, pixels_to_unit,
+    controller_factory, gaussian_log_prob,
 };
 pub use network::ActorCritic;
 pub use normalizer::ObsNormalizer;
 pub use rollout::{ChunkLimits, EpisodeRecord, RolloutChunk, RolloutWireError};
-pub use vision::VisionActorCritic;
+pub use vision::{VisionActorCritic, pixels_to_unit};

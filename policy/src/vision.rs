@@ -30,13 +30,19 @@ const PREVIOUS_ACTION: usize = sim::ACTION_DIM;
 pub fn actor_state_len(arch: &Architecture) -> usize {
     PROPRIOCEPTION + if arch.vision_previous_action { PREVIOUS_ACTION } else { 0 }
 }
+
+/// Camera bytes as the network reads them: scaled to [0, 1].
+pub fn pixels_to_unit(image: &[u8]) -> Vec<f32> {
+    image.iter().map(|&p| f32::from(p) / 255.0).collect()
+}
+
 /// Camera images as the CNN reads them: `n` observations of `frames` 84×84 images each
 /// (bytes, current frame first) → `[n, frames, 84, 84]` scaled to [0, 1].
 pub fn image_tensor(pixels: &[u8], frames: usize, device: &Device) -> Tensor<4> {
     let observation = frames * IMAGE_SIDE * IMAGE_SIDE;
     let n = pixels.len() / observation;
     assert_eq!(pixels.len(), n * observation, "whole observations of {frames} frames");
-    Tensor::<4>::from_data(TensorData::new(crate::pixels_to_unit(pixels), [n, frames, IMAGE_SIDE, IMAGE_SIDE]), device)
+    Tensor::<4>::from_data(TensorData::new(pixels_to_unit(pixels), [n, frames, IMAGE_SIDE, IMAGE_SIDE]), device)
 }
 
 /// The three convolutions: (output channels, kernel, stride).

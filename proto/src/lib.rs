@@ -1,6 +1,6 @@
 //! `dronerace.v1`: the gRPC messages and services (generated from `proto/dronerace/v1`), and
 //! everything both ends of a connection must agree on: track conversion, the rollout/weights
-//! transports (iceoryx2 on one machine, gRPC across machines, memory within one process), message limits, TLS and tokens.
+//! transports (iceoryx2 on one machine, gRPC across machines, memory within one process), message limits, TLS and tokens; and the gRPC adapters of the task controller (`task_grpc`, `task_client`).
 
 pub mod board;
 pub mod budget;
@@ -10,6 +10,8 @@ pub mod grpc_link;
 pub mod memory;
 pub mod security;
 pub mod shm;
+pub mod task_client;
+pub mod task_grpc;
 pub mod transport;
 
 /// Generated messages, clients and servers of package `dronerace.v1`.

@@ -25,7 +25,8 @@ use serde::{Deserialize, Serialize};
 use sim::eval::{EvalConfig, EvalReport, OutcomeCounts, evaluate};
 
 use crate::overrides::merge;
-use crate::run::{IterationSummary, TrainConfig, TrainError};
+use crate::progress::IterationSummary;
+use crate::run::{TrainConfig, TrainError};
 use crate::run_lock::{LockError, RunLock};
 use crate::trainer::Trainer;
 use learner::checkpoint::CheckpointDir;

@@ -18,7 +18,8 @@ use proto::board::LearnerBoard;
 use proto::{Admission, Delivery, LearnerLink, LearnerStatus, Received, WeightsUpdate};
 use taskctl::TaskService;
 
-use crate::run::{IterationSummary, IterationTiming, LearnerSettings, Run, TrainError};
+use crate::progress::IterationSummary;
+use crate::run::{IterationTiming, LearnerSettings, Run, TrainError};
 use crate::validation::Validator;
 use learner::checkpoint::Checkpoint;
 use learner::learner::Learner;

@@ -2,13 +2,13 @@
 //! (`metrics`), validation during training (`validation`), the actor's and the learner's
 //! process loops (`actor_process`, `learner_process`), training in one process by turns of
 //! those same loops over an in-memory link (`trainer`), experiment files (`experiment`), config
-//! files as overrides of a config's own defaults (`overrides`), the
-//! progress line (`progress`), the three processes' commands and servers (`services`), the
-//! supervisor of `dronerace train` (`supervisor`), distillation by DAgger (`distill`) and
-//! the imitation warm start of a run built on it (`warm_start`).
+//! files as overrides of a config's own defaults (`overrides`), the progress line (`progress`),
+//! the process's stop flag (`signal`), a trained policy serving actions without a transport
+//! (`pilot`), distillation by DAgger (`distill`) and the imitation warm start of a run built
+//! on it (`warm_start`). The processes' commands, their servers and the supervisor are the
+//! binary's (`src/commands`).
 
 pub mod actor_process;
-pub mod chaos;
 pub mod distill;
 pub mod experiment;
 pub mod learner_process;
@@ -18,14 +18,12 @@ pub mod pilot;
 pub mod progress;
 pub mod run;
 pub mod run_lock;
-pub mod services;
-pub mod supervisor;
-pub mod train;
+pub mod signal;
 pub mod trainer;
-pub mod transport_bench;
 pub mod validation;
 pub mod warm_start;
 
-pub use run::{IterationSummary, Run, TrackSource, TrainConfig, TrainError};
+pub use progress::IterationSummary;
+pub use run::{Run, TrackSource, TrainConfig, TrainError};
 pub use trainer::Trainer;
 pub use validation::{EvalSettings, Validation, Validator};

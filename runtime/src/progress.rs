@@ -7,7 +7,34 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
-use crate::run::IterationSummary;
+use learner::learner::IterationReport;
+
+/// What one iteration produced, for the progress line.
+#[derive(Clone, Debug)]
+pub struct IterationSummary {
+    /// Iteration number (1-based, equals the new policy version).
+    pub iteration: u64,
+    /// Learner report.
+    pub report: IterationReport,
+    /// Environment steps per second of this iteration's collection and update (the validation
+    /// that ran in its interval left out).
+    pub sps: f64,
+    /// Seconds spent collecting the rollout (simulation and inference).
+    pub collect_seconds: f64,
+    /// Seconds of the previous iteration's validation, which ran in this iteration's interval
+    /// (0 when there was none).
+    pub validation_seconds: f64,
+    /// Seconds spent in the PPO update.
+    pub update_seconds: f64,
+    /// Mean return of the episodes that ended.
+    pub mean_return: f64,
+    /// Mean laps per ended episode.
+    pub laps_per_episode: f64,
+    /// Task switches so far.
+    pub switches: usize,
+    /// Validation S_pw and success rate, when this iteration was evaluated.
+    pub validation: Option<(f64, f64)>,
+}
 
 /// `train.log` of a run directory, opened for appending.
 pub struct ProgressLog {

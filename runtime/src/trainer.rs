@@ -19,7 +19,8 @@ use proto::memory::{MemoryActorLink, MemoryLearnerLink, memory_link};
 use taskctl::{LocalTasks, TaskController, TaskService};
 
 use crate::learner_process::LearnerProcess;
-use crate::run::{IterationSummary, LearnerSettings, Run, TrainConfig, TrainError};
+use crate::progress::IterationSummary;
+use crate::run::{LearnerSettings, Run, TrainConfig, TrainError};
 use learner::checkpoint::Checkpoint;
 use learner::learner::Learner;
 

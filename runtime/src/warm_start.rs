@@ -137,7 +137,7 @@ pub fn prepare(config: &mut TrainConfig, run_dir: &Path) -> anyhow::Result<()> {
         let distill = warm_start.distill_config(config)?;
         let rounds = distill.rounds;
         let resume = CheckpointDir::new(dir.join("checkpoints"), distill.keep_checkpoints)?.latest().is_some();
-        let stop = crate::services::stop_flag()?;
+        let stop = crate::signal::stop_flag()?;
         eprintln!("warm start: imitating {} for {rounds} rounds in {}", warm_start.teacher.display(), dir.display());
         let outcome = crate::distill::run(&dir, (!resume).then_some(distill), None, &stop)?;
         if !outcome.finished || stop.load(Ordering::SeqCst) {

@@ -13,9 +13,10 @@ use std::cell::RefCell;
 
 use nalgebra::{Matrix3, Vector3};
 
-use crate::race::CAMERA_TILT;
 use crate::track::{GATE_HALF_DEPTH, GATE_HALF_OPENING, GATE_HALF_OUTER, Gate, Track};
 
+/// Camera tilt above the body x axis (rad): the forward camera of the vision profile (SPEC §5).
+pub const CAMERA_TILT: f64 = 30.0 * std::f64::consts::PI / 180.0;
 /// Image width and height (pixels).
 pub const IMAGE_SIDE: usize = 84;
 /// Pixels in one image.

@@ -12,6 +12,7 @@ pub mod pilot;
 pub mod quadrotor;
 pub mod race;
 pub mod racer;
+pub mod racing_line;
 pub mod randomization;
 pub mod replay;
 pub mod reward;
@@ -27,9 +28,10 @@ pub use observation::{
     ObservationLayout, ObstacleOrder, PREVIOUS_ACTION_RANGE, PROXIMITY_DIM, STATE_OBS_DIM, TARGET_CORNERS_RANGE,
 };
 pub use params::{GRAVITY, QuadrotorParams, RaceParams};
-pub use pilot::{Controller, PilotMemory, PilotParams, RacingLine, ReferencePilot};
+pub use pilot::{Controller, PilotMemory, PilotParams, ReferencePilot};
 pub use race::{ControllerModel, CrashCause, EnvConfig, EpisodeStats, RaceEnv, StartGate, StepOutcome};
 pub use racer::Racer;
+pub use racing_line::{LinePoint, PathLimits, RacingLine};
 pub use randomization::RandomizationParams;
 pub use reward::{ProgressDistance, RewardParams, RewardTerms};
 pub use track::{Arena, Gate, Pose, Track};

@@ -101,8 +101,8 @@ mod tests {
     use super::*;
     use crate::observation::{ObstacleOrder, write_state_observation};
     use crate::params::QuadrotorParams;
-    use crate::pilot::RacingLine;
     use crate::quadrotor::{BodyState, Command, Quadrotor};
+    use crate::racing_line::RacingLine;
     use crate::track::{Arena, Gate, Pose, Track};
 
     /// The reflection y → −y of the world.

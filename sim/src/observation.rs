@@ -8,8 +8,8 @@
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::pilot::RacingLine;
 use crate::quadrotor::BodyState;
+use crate::racing_line::RacingLine;
 use crate::track::Track;
 
 /// Length of the state observation of SPEC §5.

@@ -15,14 +15,11 @@ use crate::observation::{
 };
 use crate::params::{QuadrotorParams, RaceParams};
 use crate::perception::GatePerception;
-use crate::pilot::RacingLine;
 use crate::quadrotor::{BodyState, Command, Quadrotor};
+use crate::racing_line::RacingLine;
 use crate::randomization::RandomizationParams;
 use crate::reward::{ActionFilter, ProgressDistance, RewardParams, RewardTerms, StepFacts};
 use crate::track::{Pose, START_BEHIND_FIRST_GATE, Track};
-
-/// Camera tilt above the body x axis (rad): the forward camera of the vision profile (SPEC §5).
-pub const CAMERA_TILT: f64 = 30.0 * std::f64::consts::PI / 180.0;
 
 /// What the low-level flight controller believes about the randomised vehicle.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -476,9 +473,9 @@ impl RaceEnv {
         lap
     }
 
-    /// Forward camera axis in the world (tilted up by [`CAMERA_TILT`]).
+    /// Forward camera axis in the world (tilted up by [`crate::camera::CAMERA_TILT`]).
     fn camera_axis(&self) -> Vector3<f64> {
-        self.quad.body.rotation() * Vector3::new(CAMERA_TILT.cos(), 0.0, CAMERA_TILT.sin())
+        self.quad.body.rotation() * Vector3::new(crate::camera::CAMERA_TILT.cos(), 0.0, crate::camera::CAMERA_TILT.sin())
     }
 
     /// Writes the state observation of the configured layout into `out` (its `dim()` long).

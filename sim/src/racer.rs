@@ -8,8 +8,8 @@ use std::sync::Arc;
 use nalgebra::Vector3;
 
 use crate::observation::{ObservationLayout, write_state_observation};
-use crate::pilot::RacingLine;
 use crate::quadrotor::BodyState;
+use crate::racing_line::RacingLine;
 use crate::track::Track;
 
 /// One race on one track, fed the drone's state once per control step.

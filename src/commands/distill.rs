@@ -44,7 +44,7 @@ pub struct DistillArgs {
 
 /// Runs the distillation and reports where the student is.
 pub fn run(args: DistillArgs) -> anyhow::Result<()> {
-    let stop = runtime::services::stop_flag()?;
+    let stop = runtime::signal::stop_flag()?;
     let (dir, config) = match &args.resume {
         Some(dir) => {
             if let Some(rounds) = args.total_rounds {

@@ -1,16 +1,21 @@
 //! One module per subcommand: argument types and the glue that calls the crates.
 
 pub mod bench;
+pub mod chaos;
 pub mod curves;
 pub mod distill;
 pub mod eval;
 pub mod experiment;
+pub mod processes;
 pub mod render;
+pub mod serve;
 pub mod sim;
 pub mod status;
+pub mod supervisor;
 pub mod tasks;
 pub mod tracks;
 pub mod train;
+pub mod transport_bench;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

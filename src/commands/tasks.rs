@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use taskctl::client::TaskClient;
+use proto::task_client::TaskClient;
 use taskctl::{TaskInfo, TaskService};
 
 /// Arguments of `dronerace tasks`.

@@ -5,8 +5,15 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
-use runtime::services::Transport;
-use runtime::{TrackSource, TrainConfig};
+use std::sync::atomic::Ordering;
+
+use learner::checkpoint::CheckpointDir;
+use runtime::progress::{ProgressLog, progress_line};
+use runtime::signal::stop_flag;
+use runtime::{TrackSource, TrainConfig, Trainer};
+
+use super::processes::Transport;
+use super::supervisor::{self, ClusterPlan};
 
 /// Arguments of `dronerace train`.
 #[derive(Args)]
@@ -110,10 +117,10 @@ fn prepare(args: &TrainArgs) -> anyhow::Result<(PathBuf, TrainConfig, bool)> {
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let (dir, config, resume) = prepare(&args)?;
     if args.in_process {
-        return runtime::train::in_process(&dir, config, resume, args.iterations);
+        return in_process(&dir, config, resume, args.iterations);
     }
     let actors = args.actors.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    runtime::train::with_processes(&dir, config, resume, actors, args.transport, args.iterations)
+    with_processes(&dir, config, resume, actors, args.transport, args.iterations)
 }
 
 /// Arguments of `dronerace bench learner`.
@@ -167,5 +174,57 @@ pub fn bench(args: LearnerBenchArgs) -> anyhow::Result<()> {
         t.optimizer * 1e3,
         t.gflops
     );
+    Ok(())
+}
+
+/// Trains with supervised processes until the budget is spent, `iterations` are done, or
+/// Ctrl-C. A new run needs a directory without checkpoints (its config is written there); a
+/// resumed one needs a checkpoint to resume from.
+fn with_processes(
+    dir: &Path,
+    mut config: TrainConfig,
+    resume: bool,
+    actors: usize,
+    transport: Transport,
+    iterations: Option<u64>,
+) -> anyhow::Result<()> {
+    let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
+    if resume {
+        anyhow::ensure!(checkpoints.latest().is_some(), "{} has no checkpoint to resume from", dir.display());
+    } else {
+        anyhow::ensure!(
+            checkpoints.latest().is_none(),
+            "{} already holds checkpoints: resume it (--resume), or choose another run directory",
+            dir.display()
+        );
+        let _ = std::fs::remove_file(dir.join("taskctl.snapshot"));
+        runtime::warm_start::prepare(&mut config, dir)?;
+        let text = toml::to_string(&config).context("serialising the config")?;
+        let path = dir.join("config.toml");
+        racetracks::files::write_atomic(&path, text.as_bytes()).with_context(|| format!("writing {}", path.display()))?;
+    }
+    let envs = config.resolved_profile()?.envs;
+    supervisor::run(ClusterPlan { dir: dir.to_path_buf(), actors, envs, transport, iterations })
+}
+
+/// Trains in this process, by turns of the actor's and the learner's loops, until the budget is
+/// spent, `iterations` are done, or Ctrl-C; then checkpoints.
+fn in_process(dir: &Path, config: TrainConfig, resume: bool, iterations: Option<u64>) -> anyhow::Result<()> {
+    let mut trainer = if resume {
+        Trainer::resume(dir)?
+    } else {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        Trainer::start(config, dir)?
+    };
+    let stop = stop_flag()?;
+    let mut log = ProgressLog::open(trainer.dir())?;
+    let first = trainer.iteration();
+    eprintln!("training in {} (from iteration {first}, in one process)", trainer.dir().display());
+    while !trainer.finished() && !stop.load(Ordering::SeqCst) && iterations.is_none_or(|n| trainer.iteration() - first < n) {
+        let s = trainer.iteration_step()?;
+        log.line(&progress_line(&s, trainer.eta_seconds()))?;
+    }
+    let path = trainer.checkpoint()?;
+    eprintln!("checkpoint written to {}", path.display());
     Ok(())
 }

@@ -1,11 +1,9 @@
 //! The curriculum: task switching (`switching`), the task controller that owns every
-//! environment's track (`controller`), the same as a service with no transport in it
-//! (`service`), its gRPC adapter (`grpc`) and a client implementing the service over gRPC
-//! (`client`). Tracks themselves come from the `racetracks` crate.
+//! environment's track (`controller`) and the same as a service with no transport in it
+//! (`service`). Tracks themselves come from the `racetracks` crate; the service's gRPC adapter
+//! and client live with the other adapters, in `proto` (`task_grpc`, `task_client`).
 
-pub mod client;
 pub mod controller;
-pub mod grpc;
 pub mod service;
 pub mod switching;
 

@@ -26,6 +26,13 @@ pub fn free_port() -> u16 {
     TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
 }
 
+/// Two distinct free local ports, both held until both are known (one dropped before the next
+/// bind lets the kernel hand the same port out twice).
+pub fn two_free_ports() -> (std::net::SocketAddr, std::net::SocketAddr) {
+    let (first, second) = (TcpListener::bind("127.0.0.1:0").unwrap(), TcpListener::bind("127.0.0.1:0").unwrap());
+    (first.local_addr().unwrap(), second.local_addr().unwrap())
+}
+
 /// A tiny run: 8 environments, 32-step rollouts, 1 epoch, a checkpoint every iteration, a
 /// 3 s actor timeout; `extra` is appended to the TOML.
 pub fn write_config(dir: &Path, extra: &str) -> PathBuf {
@@ -183,8 +190,8 @@ impl Clients {
     }
 
     /// A task-controller client.
-    pub fn tasks(&self, url: &str) -> taskctl::client::TaskClient {
-        taskctl::client::TaskClient::new(self.rt.handle().clone(), url, &self.security).unwrap()
+    pub fn tasks(&self, url: &str) -> proto::task_client::TaskClient {
+        proto::task_client::TaskClient::new(self.rt.handle().clone(), url, &self.security).unwrap()
     }
 }
 

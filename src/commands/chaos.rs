@@ -18,7 +18,7 @@ use learner::checkpoint::Checkpoint;
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
-use crate::services::Transport;
+use super::processes::Transport;
 
 /// Arguments of `dronerace chaos`.
 #[derive(Args)]

@@ -7,17 +7,16 @@ use std::net::SocketAddr;
 use std::pin::Pin;
 use std::sync::Arc;
 
-use proto::convert::{track_from_proto, track_to_proto};
-use proto::security::MAX_MESSAGE_BYTES;
-use proto::transport::check_actor_name;
-use proto::v1;
-use proto::v1::task_controller_server::{TaskController as TaskControllerRpc, TaskControllerServer};
+use taskctl::{LocalTasks, Summary, SwitchEvent, TaskError, TaskEvent, TaskInfo, TaskService, TaskServiceError};
 use tokio::sync::broadcast;
 use tokio_stream::Stream;
 use tonic::{Request, Response, Status};
 
-use crate::controller::{SwitchEvent, TaskError};
-use crate::service::{LocalTasks, Summary, TaskEvent, TaskInfo, TaskService, TaskServiceError};
+use crate::convert::{track_from_proto, track_to_proto};
+use crate::security::MAX_MESSAGE_BYTES;
+use crate::transport::check_actor_name;
+use crate::v1;
+use crate::v1::task_controller_server::{TaskController as TaskControllerRpc, TaskControllerServer};
 
 /// The gRPC face of a [`LocalTasks`].
 pub struct TaskControllerService {
@@ -25,7 +24,7 @@ pub struct TaskControllerService {
 }
 
 /// The one place service errors become status codes (the client reads them back in
-/// `client::status_error`).
+/// `task_client::status_error`).
 fn status(e: TaskServiceError) -> Status {
     let message = e.to_string();
     match e {
@@ -224,12 +223,12 @@ where
 /// Serves the task controller on `addr` until `shutdown` resolves.
 pub async fn serve(
     addr: SocketAddr,
-    security: &proto::Security,
+    security: &crate::Security,
     service: TaskControllerService,
     shutdown: impl std::future::Future<Output = ()>,
 ) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
     security.check_listen(&addr)?;
-    proto::with_discovery(security.server()?, &["dronerace.v1.TaskController"])
+    crate::with_discovery(security.server()?, &["dronerace.v1.TaskController"])
         .await
         .add_service(tonic::service::interceptor::InterceptedService::new(service.into_server(), security.token_check()))
         .serve_with_shutdown(addr, shutdown)
@@ -240,9 +239,8 @@ pub async fn serve(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::TaskController;
-    use crate::switching::SwitchParams;
     use racetracks::generator::TrackGenerator;
+    use taskctl::{SwitchParams, TaskController};
 
     #[test]
     fn messages_and_refusals_cross_the_adapter_intact() {

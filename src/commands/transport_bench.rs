@@ -16,7 +16,7 @@ use proto::grpc_link::{GrpcActorLink, LearnerService};
 use proto::shm::{ShmActorLink, ShmConfig, ShmLearnerLink};
 use proto::{ActorLink, Admission, LearnerLink, Received, Security, WeightsUpdate};
 
-use crate::services::Transport;
+use super::processes::Transport;
 
 /// Arguments of `dronerace transport-bench`.
 #[derive(Args)]
@@ -212,7 +212,7 @@ pub fn run(args: TransportBenchArgs) -> anyhow::Result<()> {
             listener.set_nonblocking(true)?;
             let board = Arc::new(proto::board::LearnerBoard::default());
             let (service, link) =
-                LearnerService::with_rollouts(board.clone(), crate::run::LearnerSettings::default().rollout_memory_mib << 20);
+                LearnerService::with_rollouts(board.clone(), runtime::run::LearnerSettings::default().rollout_memory_mib << 20);
             board.set_admission(proto::Admission {
                 learner_epoch: 0,
                 version: 0,

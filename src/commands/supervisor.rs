@@ -16,7 +16,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 
-use crate::services::{Transport, stop_flag};
+use super::processes::Transport;
+use runtime::signal::stop_flag;
 
 /// What the supervisor starts.
 pub struct ClusterPlan {
@@ -45,7 +46,7 @@ struct Supervised {
 
 /// Exit code of a process that stopped for a reason its restart would only repeat (a
 /// diverging run, a disk that takes no checkpoints or snapshots:
-/// [`crate::run::TrainError::is_fatal`]): the supervisor stops the run instead of restarting it.
+/// [`runtime::TrainError::is_fatal`]): the supervisor stops the run instead of restarting it.
 pub const EXIT_FATAL: u8 = 3;
 
 /// A process that dies sooner than this after starting is failing at start (a bad config, a
@@ -132,7 +133,7 @@ impl Supervised {
 /// Two distinct free local ports, for the task controller and the learner. Both listeners are
 /// held until both ports are known: one dropped before the next bind lets the kernel hand the
 /// same port out twice (seen in CI: the learner could not bind the task controller's port).
-pub fn two_free_ports() -> anyhow::Result<(SocketAddr, SocketAddr)> {
+fn two_free_ports() -> anyhow::Result<(SocketAddr, SocketAddr)> {
     let bind = || TcpListener::bind("127.0.0.1:0").context("finding a free local port");
     let (first, second) = (bind()?, bind()?);
     Ok((first.local_addr()?, second.local_addr()?))

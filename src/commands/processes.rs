@@ -11,17 +11,18 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use crate::learner_process::{LearnerProcess, learner_only};
-use crate::progress::{ProgressLog, progress_line};
-use crate::{Run, TrainConfig};
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use proto::board::LearnerBoard;
 use proto::grpc_link::{GrpcActorLink, LearnerService};
 use proto::shm::{ShmActorLink, ShmConfig, ShmLearnerLink};
+use proto::task_client::TaskClient;
 use proto::{LearnerLink, Security};
+use runtime::learner_process::{LearnerProcess, learner_only};
+use runtime::progress::{ProgressLog, progress_line};
+use runtime::signal::stop_flag;
+use runtime::{Run, TrainConfig};
 use taskctl::TaskService;
-use taskctl::client::TaskClient;
 
 /// How rollouts and weights travel between actors and the learner.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -32,23 +33,8 @@ pub enum Transport {
     Grpc,
 }
 
-/// The process's stop flag, raised by SIGINT/SIGTERM. The handler is installed by the first
-/// call; later calls (a warm start, then the training it precedes) share the same flag.
-pub fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
-    static STOP: std::sync::Mutex<Option<Arc<AtomicBool>>> = std::sync::Mutex::new(None);
-    let mut installed = STOP.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-    if let Some(stop) = installed.as_ref() {
-        return Ok(stop.clone());
-    }
-    let stop = Arc::new(AtomicBool::new(false));
-    let flag = stop.clone();
-    ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst)).context("installing the signal handler")?;
-    *installed = Some(stop.clone());
-    Ok(stop)
-}
-
 /// The run configuration at `path`, or the defaults.
-pub(crate) fn read_config(path: &Option<PathBuf>) -> anyhow::Result<TrainConfig> {
+pub fn read_config(path: &Option<PathBuf>) -> anyhow::Result<TrainConfig> {
     Ok(match path {
         Some(p) => TrainConfig::read(p)?,
         None => TrainConfig::default(),
@@ -56,7 +42,7 @@ pub(crate) fn read_config(path: &Option<PathBuf>) -> anyhow::Result<TrainConfig>
 }
 
 /// A multi-threaded tokio runtime with `threads` workers.
-pub(crate) fn async_runtime(threads: usize) -> anyhow::Result<tokio::runtime::Runtime> {
+pub fn async_runtime(threads: usize) -> anyhow::Result<tokio::runtime::Runtime> {
     tokio::runtime::Builder::new_multi_thread().worker_threads(threads).enable_all().build().context("starting the async runtime")
 }
 
@@ -65,7 +51,7 @@ const MAX_FAILED_SNAPSHOTS: u32 = 3;
 
 /// Starts the plaintext health server for probes on `addr` (`--health-listen`), if given,
 /// reporting `serving` SERVING until `stop`.
-pub(crate) fn spawn_health(
+pub fn spawn_health(
     rt: &tokio::runtime::Runtime,
     addr: Option<SocketAddr>,
     serving: &'static [&'static str],
@@ -129,7 +115,7 @@ pub fn taskctl(args: TaskctlArgs) -> anyhow::Result<()> {
         taskctl::LocalTasks::new(controller, Some(args.snapshot.clone()))
             .release_after(Duration::from_secs_f64(config.learner.actor_timeout_seconds)),
     );
-    let service = taskctl::grpc::TaskControllerService::new(tasks.clone());
+    let service = proto::task_grpc::TaskControllerService::new(tasks.clone());
     // Snapshots that keep failing (a full disk) refuse every report: stop rather than leave the
     // actors retrying forever; the supervisor then stops the run (exit code 3).
     let failing = Arc::new(std::sync::Mutex::new(None));
@@ -139,7 +125,7 @@ pub fn taskctl(args: TaskctlArgs) -> anyhow::Result<()> {
             while !stop.load(Ordering::SeqCst) {
                 let (count, last) = tasks.failed_snapshots();
                 if count >= MAX_FAILED_SNAPSHOTS {
-                    *failing.lock().unwrap_or_else(|e| e.into_inner()) = Some(crate::TrainError::CheckpointsFailing { count, last });
+                    *failing.lock().unwrap_or_else(|e| e.into_inner()) = Some(runtime::TrainError::CheckpointsFailing { count, last });
                     stop.store(true, Ordering::SeqCst);
                 }
                 std::thread::sleep(Duration::from_millis(200));
@@ -149,7 +135,7 @@ pub fn taskctl(args: TaskctlArgs) -> anyhow::Result<()> {
     eprintln!("taskctl: serving on {}", args.listen);
     let rt = async_runtime(1)?;
     spawn_health(&rt, args.health_listen, &["dronerace.v1.TaskController"], stop.clone())?;
-    let served = rt.block_on(taskctl::grpc::serve(args.listen, &security, service, until(stop.clone())));
+    let served = rt.block_on(proto::task_grpc::serve(args.listen, &security, service, until(stop.clone())));
     stop.store(true, Ordering::SeqCst);
     let _ = watcher.join();
     if let Some(fatal) = failing.lock().unwrap_or_else(|e| e.into_inner()).take() {
@@ -328,7 +314,7 @@ pub fn actor(args: ActorArgs) -> anyhow::Result<()> {
     let security = Security::load(&config.network)?;
     let rt = async_runtime(1)?;
     let tasks = TaskClient::new(rt.handle().clone(), &args.taskctl, &security)?;
-    let settings = crate::actor_process::ActorSettings {
+    let settings = runtime::actor_process::ActorSettings {
         name: args.name.clone(),
         envs: args.envs,
         seed: config.seed,
@@ -341,11 +327,11 @@ pub fn actor(args: ActorArgs) -> anyhow::Result<()> {
     match args.transport {
         Transport::Grpc => {
             let mut link = GrpcActorLink::connect(rt.handle().clone(), &args.learner, &security)?;
-            crate::actor_process::run_actor(&settings, &mut link, &tasks, &stop)?;
+            runtime::actor_process::run_actor(&settings, &mut link, &tasks, &stop)?;
         }
         Transport::Shm => {
             let mut link = ShmActorLink::open(&ShmConfig { run: args.shm_run.clone(), max_actors: args.max_actors.max(1) })?;
-            crate::actor_process::run_actor(&settings, &mut link, &tasks, &stop)?;
+            runtime::actor_process::run_actor(&settings, &mut link, &tasks, &stop)?;
         }
     }
     Ok(())

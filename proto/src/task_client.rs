@@ -4,18 +4,17 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use proto::convert::track_from_proto;
-use proto::security::{AddToken, MAX_MESSAGE_BYTES};
-use proto::v1;
-use proto::v1::task_controller_client::TaskControllerClient;
 use sim::Track;
-
-use crate::controller::SwitchEvent;
-use crate::grpc::{summary_from_proto, switch_from_proto, task_from_proto};
-use crate::service::{Registration, Summary, TaskInfo, TaskService, TaskServiceError};
+use taskctl::{Registration, Summary, SwitchEvent, TaskInfo, TaskService, TaskServiceError};
 use tokio::runtime::Handle;
 use tonic::codegen::InterceptedService;
 use tonic::transport::Channel;
+
+use crate::convert::track_from_proto;
+use crate::security::{AddToken, MAX_MESSAGE_BYTES};
+use crate::task_grpc::{summary_from_proto, switch_from_proto, task_from_proto};
+use crate::v1;
+use crate::v1::task_controller_client::TaskControllerClient;
 
 /// The one place gRPC status codes are read on the client side (the adapter's `status` writes
 /// them): unreachable, restarting or slow is transient, a refusal is not.
@@ -39,7 +38,7 @@ impl TaskClient {
     /// A client of the task controller at `url` (connects lazily, reconnects by itself). The
     /// runtime must be multi-threaded: calls block on its handle, which cannot drive a
     /// current-thread runtime's I/O.
-    pub fn new(runtime: Handle, url: &str, security: &proto::Security) -> Result<Self, proto::SecurityError> {
+    pub fn new(runtime: Handle, url: &str, security: &crate::Security) -> Result<Self, crate::SecurityError> {
         let channel = {
             let _guard = runtime.enter();
             security.channel(url)?
