@@ -191,58 +191,6 @@ fn fine_tuning_starts_from_the_given_policy_at_version_zero() {
     assert!(err.contains("init_from") && err.contains("architecture"), "{err}");
 }
 
-#[test]
-fn a_warm_started_run_starts_from_the_pilots_imitation_and_first_trains_its_critic_alone() {
-    let dir = tempfile::tempdir().unwrap();
-    let warm_start = runtime::warm_start::WarmStart {
-        rounds: 2,
-        steps_per_round: 16,
-        updates_per_round: 4,
-        minibatch: 32,
-        critic_iterations: 1,
-        imitation_weight: 0.5,
-        ..Default::default()
-    };
-    let eval = runtime::EvalSettings { tracks: 1, runs: 1, steps: 50, ..Default::default() };
-    let config = TrainConfig { warm_start: Some(warm_start), hidden: Some(vec![16, 16]), eval, ..tiny_config() };
-    let mut trainer = Trainer::start(config.clone(), dir.path()).unwrap();
-    let student = learner::checkpoint::read_policy(&dir.path().join("warm-start/student.bin")).unwrap();
-    assert_eq!(student.architecture.hidden, vec![16, 16]);
-    let values = |blob: &policy::WeightsBlob| blob.params.iter().map(|p| p.values.clone()).collect::<Vec<_>>();
-    let start = trainer.learner().weights();
-    assert!(values(&start) == values(&student), "PPO starts from the imitation");
-    // The actor's layers (weight, bias per layer: 3 layers) and the log std come first and last.
-    let actor = |blob: &policy::WeightsBlob| {
-        let v = values(blob);
-        (v[..6].to_vec(), v[v.len() - 1].clone())
-    };
-    trainer.iteration_step().unwrap();
-    let after_one = trainer.learner().weights();
-    assert!(actor(&after_one) == actor(&start), "the critic's warm-up leaves the policy as it was");
-    assert!(values(&after_one)[6..12] != values(&start)[6..12], "…and trains the critic");
-    trainer.iteration_step().unwrap();
-    assert!(actor(&trainer.learner().weights()) != actor(&start), "then the policy learns");
-    // The imitation term joins once the policy trains, and again after a resume (the learner
-    // takes the warm start's data set back).
-    trainer.checkpoint().unwrap();
-    drop(trainer);
-    let mut trainer = Trainer::resume(dir.path()).unwrap();
-    trainer.iteration_step().unwrap();
-    let metrics = std::fs::read_to_string(dir.path().join("metrics.csv")).unwrap();
-    let column = metrics.lines().next().unwrap().split(',').position(|c| c == "losses/imitation").unwrap();
-    let imitation: Vec<&str> = metrics.lines().skip(1).map(|l| l.split(',').nth(column).unwrap()).collect();
-    assert_eq!(imitation[0], "", "no term while the critic warms up");
-    assert!(imitation[1..].iter().all(|v| v.parse::<f64>().unwrap() > 0.0), "{imitation:?}");
-    assert_eq!(imitation.len(), 3);
-    // The warm start is done once: a second run in another directory repeats it identically,
-    // and a config that names both starting points is refused.
-    let again = Trainer::start(config.clone(), &dir.path().join("again")).unwrap();
-    assert!(values(&again.learner().weights()) == values(&start));
-    let both = TrainConfig { init_from: Some(dir.path().join("warm-start/student.bin")), ..config };
-    let err = Trainer::start(both, &dir.path().join("both")).err().expect("refused").to_string();
-    assert!(err.contains("init_from") && err.contains("warm_start"), "{err}");
-}
-
 /// The tiny run with the two nearest other gates, one proximity reading and two racing-line
 /// points in the observation (40 + 24 + 4 + 6 numbers).
 fn tiny_obstacle_config() -> TrainConfig {

@@ -10,7 +10,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::config::Profile;
-use crate::ppo::{GaeInput, ImitationSet, ImitationTerm, MirrorTerm, TrainingBatch, UpdateStats, UpdateStep, gae, update};
+use crate::ppo::{GaeInput, MirrorTerm, TrainingBatch, UpdateStats, UpdateStep, gae, update};
 
 /// A batch of chunks the learner refuses.
 #[derive(Debug, thiserror::Error)]
@@ -98,9 +98,6 @@ pub struct Learner {
     /// Always `Some` between calls; taken while burn's optimiser consumes and returns it.
     model: Option<Network>,
     optimizer: ModuleOptimizer,
-    /// Labelled states the policy keeps imitating, and the term's weight at the run's start
-    /// (not part of checkpoints: the run attaches it again from its warm start).
-    imitation: Option<(ImitationSet, f64)>,
 }
 
 impl Learner {
@@ -117,7 +114,7 @@ impl Learner {
             profile,
         };
         let optimizer = adam(&counters.profile);
-        Self { counters, device, model, optimizer, imitation: None }
+        Self { counters, device, model, optimizer }
     }
 
     /// A fresh learner (version 0, new optimiser) whose network and normaliser start from a
@@ -143,18 +140,6 @@ impl Learner {
         learner.counters.normalizer = blob.normalizer.clone();
         // `new`'s optimiser holds no moments yet, so it starts afresh for the imported ids.
         Ok(learner)
-    }
-
-    /// Adds the imitation term to every later update: the squared error to `set`'s labels,
-    /// weighted `weight` at the start of the run and annealed linearly to 0 at its end; refused
-    /// for states of another width than the policy's.
-    pub fn set_imitation(&mut self, set: ImitationSet, weight: f64) -> Result<(), LearnerError> {
-        let dim = self.counters.profile.architecture.observation_dim;
-        if set.obs_dim() != dim {
-            return Err(LearnerError::State(format!("imitation states have {} numbers; the policy reads {dim}", set.obs_dim())));
-        }
-        self.imitation = Some((set, weight));
-        Ok(())
     }
 
     /// Current policy version (number of updates so far).
@@ -226,17 +211,7 @@ impl Learner {
             Some(m) if ppo.mirror_coef > 0.0 => Some(MirrorTerm::new(&m, &c.normalizer, ppo.mirror_coef, &self.device)),
             _ => None,
         };
-        let step = UpdateStep {
-            learning_rate,
-            train_policy: c.version >= ppo.critic_warmup_iterations,
-            // Annealed with the run: full weight at the start, none at the end.
-            imitation: self.imitation.as_ref().map(|(set, weight)| ImitationTerm {
-                set,
-                normalizer: &c.normalizer,
-                weight: weight * (1.0 - progress.clamp(0.0, 1.0)),
-            }),
-            mirror: mirror.as_ref(),
-        };
+        let step = UpdateStep { learning_rate, train_policy: c.version >= ppo.critic_warmup_iterations, mirror: mirror.as_ref() };
         // What a refused update rolls back to (cheap: the update copies what it writes instead
         // of writing in place while these are held).
         let kept = (self.model.clone(), optimizer.clone(), c.rng.clone());
@@ -321,7 +296,7 @@ impl Learner {
         let optimizer = adam(&counters.profile)
             .from_bytes(Bytes::from_bytes_vec(optimizer.to_vec()))
             .map_err(|e| LearnerError::State(format!("optimiser: {e:?}")))?;
-        Ok(Self { counters, device, model, optimizer, imitation: None })
+        Ok(Self { counters, device, model, optimizer })
     }
 }
 

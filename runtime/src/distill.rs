@@ -190,7 +190,7 @@ impl Default for DistillConfig {
 impl DistillConfig {
     /// The defaults of a `student`: a vision student's as [`Default`]; a state-based
     /// student's take SPEC's SB columns of randomisation (§3), reward (§5) and α = 1000 (§8),
-    /// and the log std −2 that PPO from an imitation starts with (`warm_start`).
+    /// and the log std −2 (σ 0.14), so that PPO from the student keeps what it imitated.
     pub fn defaults_for(student: Agent) -> Self {
         match student {
             Agent::Vision => Self::default(),

@@ -70,13 +70,10 @@ impl<L: LearnerLink> LearnerProcess<L> {
         settings: LearnerSettings,
     ) -> Result<Self, TrainError> {
         let profile = run.config().resolved_profile()?;
-        let mut learner = match checkpoint {
+        let learner = match checkpoint {
             Some(c) => Learner::from_checkpoint(c)?,
             None => run.config().initial_learner()?,
         };
-        if let Some((set, weight)) = crate::warm_start::imitation_set(run.config(), run.dir()).map_err(TrainError::WarmStart)? {
-            learner.set_imitation(set, weight)?;
-        }
         // A fresh epoch per process lifetime: versions repeat after a restart, epochs do not.
         let clock = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default().as_nanos() as u64;
         let epoch = sim::seed::mix(clock ^ u64::from(std::process::id()));

@@ -4,8 +4,7 @@
 //! those same loops over an in-memory link (`trainer`), experiment files (`experiment`), config
 //! files as overrides of a config's own defaults (`overrides`), the progress line (`progress`),
 //! the process's stop flag (`signal`), a trained policy serving actions without a transport
-//! (`pilot`), distillation by DAgger (`distill`) and the imitation warm start of a run built
-//! on it (`warm_start`). The processes' commands, their servers and the supervisor are the
+//! (`pilot`) and distillation by DAgger (`distill`). The processes' commands, their servers and the supervisor are the
 //! binary's (`src/commands`).
 
 pub mod actor_process;
@@ -21,7 +20,6 @@ pub mod run_lock;
 pub mod signal;
 pub mod trainer;
 pub mod validation;
-pub mod warm_start;
 
 pub use progress::IterationSummary;
 pub use run::{Run, TrackSource, TrainConfig, TrainError};

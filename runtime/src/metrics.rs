@@ -64,8 +64,6 @@ metrics_row! {
     critic_grad_norm => "losses/critic_grad_norm",
     /// Mean log standard deviation after the update.
     log_std => "policy/log_std",
-    /// Squared error of the imitation term (warm start), averaged.
-    imitation_loss => "losses/imitation",
     /// Largest policy-version lag among the rollouts used.
     version_lag => "policy/version_lag",
     /// Task switches so far.
@@ -96,7 +94,7 @@ metrics_row! {
 }
 
 /// Number of metric columns.
-const COLUMNS: usize = 30;
+const COLUMNS: usize = 29;
 
 /// Columns of `validation.csv`: one row per validation track per evaluation.
 pub const VALIDATION_COLUMNS: &str = "iteration,env_steps,track,success,s_pw,mean_lap,crash_gate,crash_other,no_lap";

@@ -120,9 +120,6 @@ pub struct TrainConfig {
     /// dimension; unset keeps the policy's own. A distilled student's is whatever its
     /// distillation started with (regression does not train it).
     pub init_log_std: Option<f64>,
-    /// Imitate the reference pilot before PPO and start from the imitation (`[warm_start]`;
-    /// none by default). Exclusive with `init_from`.
-    pub warm_start: Option<crate::warm_start::WarmStart>,
     /// Kind of agent: `state` (default) or `vision` (SPEC §5's camera and CNN). A config file
     /// with `agent = "vision"` starts from [`TrainConfig::vision`], so everything it does not
     /// set takes its VB column.
@@ -156,7 +153,6 @@ impl Default for TrainConfig {
             eval: crate::validation::EvalSettings { tracks: 100, ..Default::default() },
             init_from: None,
             init_log_std: None,
-            warm_start: None,
             agent: Agent::State,
         }
     }
@@ -237,9 +233,6 @@ impl TrainConfig {
         }
         if let Some(ppo) = self.ppo {
             profile.ppo = ppo;
-        }
-        if let Some(warm_start) = &self.warm_start {
-            profile.ppo.critic_warmup_iterations = warm_start.critic_iterations;
         }
         if let Some(hidden) = &self.hidden {
             if hidden.is_empty() || hidden.contains(&0) {
@@ -371,9 +364,6 @@ pub enum TrainError {
     /// The actor's loop failed (training in one process).
     #[error(transparent)]
     ActorLoop(#[from] crate::actor_process::ActorProcessError),
-    /// The warm start could not be run (or was stopped).
-    #[error("warm start: {0:#}")]
-    WarmStart(anyhow::Error),
     /// Training in one process lost its turn order (a bug, reported rather than hidden).
     #[error("in-process training: {0}")]
     TurnOrder(String),
@@ -655,7 +645,6 @@ impl Run {
             actor_grad_norm: s.actor_grad_norm,
             critic_grad_norm: s.critic_grad_norm,
             log_std: s.log_std,
-            imitation_loss: s.imitation_loss,
             version_lag: timing.version_lag as f64,
             switches: summary.switches as f64,
             mean_q: timing.mean_q,

@@ -50,10 +50,8 @@ fn actor_settings(config: &TrainConfig, envs: usize, n_steps: usize) -> ActorSet
 }
 
 impl Trainer {
-    /// Starts a new run in `dir` (which must not hold checkpoints already), after its warm
-    /// start when the config asks for one.
-    pub fn start(mut config: TrainConfig, dir: &Path) -> Result<Self, TrainError> {
-        crate::warm_start::prepare(&mut config, dir).map_err(TrainError::WarmStart)?;
+    /// Starts a new run in `dir` (which must not hold checkpoints already).
+    pub fn start(config: TrainConfig, dir: &Path) -> Result<Self, TrainError> {
         let profile = config.resolved_profile()?;
         let tasks = LocalTasks::new(config.task_controller(profile.envs)?, None);
         let settings = actor_settings(&config, profile.envs, profile.ppo.n_steps);

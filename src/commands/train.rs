@@ -182,7 +182,7 @@ pub fn bench(args: LearnerBenchArgs) -> anyhow::Result<()> {
 /// resumed one needs a checkpoint to resume from.
 fn with_processes(
     dir: &Path,
-    mut config: TrainConfig,
+    config: TrainConfig,
     resume: bool,
     actors: usize,
     transport: Transport,
@@ -198,7 +198,6 @@ fn with_processes(
             dir.display()
         );
         let _ = std::fs::remove_file(dir.join("taskctl.snapshot"));
-        runtime::warm_start::prepare(&mut config, dir)?;
         let text = toml::to_string(&config).context("serialising the config")?;
         let path = dir.join("config.toml");
         racetracks::files::write_atomic(&path, text.as_bytes()).with_context(|| format!("writing {}", path.display()))?;

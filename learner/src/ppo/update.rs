@@ -11,7 +11,6 @@ use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::imitation::ImitationTerm;
 use super::loss::{clipped_surrogate, gaussian_entropy, log_prob, normalize_advantages, value_loss};
 use super::mirror::MirrorTerm;
 use crate::config::{Frozen, PpoConfig};
@@ -68,9 +67,6 @@ pub struct UpdateStats {
     pub critic_grad_norm: f64,
     /// Mean of the policy's log standard deviation after the update (`policy/log_std`).
     pub log_std: f64,
-    /// Squared error of the imitation term before its weight, averaged (`losses/imitation`;
-    /// NaN without the term).
-    pub imitation_loss: f64,
     /// The mirror term's divergence before its weight, averaged (`losses/mirror`; NaN without
     /// the term).
     pub mirror_loss: f64,
@@ -119,7 +115,7 @@ pub trait PpoNetwork: Module {
     /// Number of the critic's parameters, which come last before the log std in that order.
     fn critic_param_count(&self) -> usize;
     /// Action means `[b, action_dim]` of normalised state observations alone, for the
-    /// imitation term; `None` for a network that needs more (the vision agent's images).
+    /// mirror term; `None` for a network that needs more (the vision agent's images).
     fn state_action_means(&self, states: Tensor<2>) -> Option<Tensor<2>>;
     /// The outputs of the `frozen` layers on every image of `batch` (`n × width`), without a
     /// graph, for an update that leaves those layers as they are; `None` for a network without
@@ -312,15 +308,12 @@ pub struct UpdateStep<'a> {
     /// False: only the critic's parameters take the step (the policy's gradients are dropped
     /// before clipping, so neither Adam's moments nor weight decay touch them).
     pub train_policy: bool,
-    /// The imitation term added to every minibatch's loss (with a minibatch of labelled states
-    /// of the same size), when the policy trains.
-    pub imitation: Option<ImitationTerm<'a>>,
     /// The mirror-symmetry term added to every minibatch's loss, when the policy trains.
     pub mirror: Option<&'a MirrorTerm>,
 }
 
 /// One PPO update of `model` on `batch`: `n_epochs` × shuffled minibatches of
-/// [`minibatch_loss`] (plus the imitation and mirror terms) → backward → gradient-norm clipping → Adam
+/// [`minibatch_loss`] (plus the mirror term) → backward → gradient-norm clipping → Adam
 /// step, as `step` says. Returns the updated model and its statistics.
 pub fn update<N: PpoNetwork>(
     mut model: N,
@@ -332,12 +325,11 @@ pub fn update<N: PpoNetwork>(
     device: &Device,
 ) -> (N, UpdateStats) {
     let mut stats = UpdateStats::default();
-    let (mut imitation_sum, mut mirror_sum) = (0.0, 0.0);
+    let mut mirror_sum = 0.0;
     let mut indices: Vec<usize> = (0..batch.len()).collect();
     let ids = model.param_ids();
     let (groups, critic) = clip_groups(ids.len(), model.critic_param_count(), config);
-    // The extra terms move the policy, so they are left out while only the critic trains.
-    let imitation = step.imitation.filter(|_| step.train_policy);
+    // The mirror term moves the policy, so it is left out while only the critic trains.
     let mirror = step.mirror.filter(|_| step.train_policy);
     // Frozen layers take no step, so their outputs are the same in every epoch: computed once
     // here, they replace the images, and no gradient reaches those layers' parameters.
@@ -356,14 +348,6 @@ pub fn update<N: PpoNetwork>(
                 mirror_sum += f64::from(scalar(divergence.clone()));
                 loss = loss + divergence.mul_scalar(term.weight);
             }
-            if let Some(term) = imitation {
-                let (states, labels) = term.set.minibatch(rows.len(), term.normalizer, rng, device);
-                if let Some(means) = model.state_action_means(states) {
-                    let squared_error = (means - labels).powf_scalar(2.0).mean();
-                    imitation_sum += f64::from(scalar(squared_error.clone()));
-                    loss = loss + squared_error.mul_scalar(term.weight);
-                }
-            }
             let mut grads = GradientsParams::from_grads(loss.backward(), &model);
             if !step.train_policy {
                 drop_gradients(&mut grads, ids.iter().enumerate().filter(|(i, _)| !critic.contains(i)).map(|(_, id)| *id));
@@ -374,10 +358,6 @@ pub fn update<N: PpoNetwork>(
         }
     }
     stats.average();
-    stats.imitation_loss = match imitation {
-        Some(_) => imitation_sum / stats.gradient_steps.max(1) as f64,
-        None => f64::NAN,
-    };
     stats.mirror_loss = match mirror {
         Some(_) => mirror_sum / stats.gradient_steps.max(1) as f64,
         None => f64::NAN,
@@ -558,39 +538,6 @@ mod tests {
         }
     }
 
-    #[test]
-    fn the_imitation_term_pulls_the_policy_to_its_labels_and_only_while_the_policy_trains() {
-        let device = Device::flex().autodiff();
-        let arch = policy::Architecture { hidden: vec![16], ..policy::Architecture::paper() };
-        let n = 64;
-        let states: Vec<f32> = (0..n * 40).map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0).collect();
-        let batch = zero_advantage_batch(&states);
-        let set = crate::ppo::ImitationSet::new(states.clone(), vec![0.5; n * 4], 40, 4).unwrap();
-        let normalizer = policy::ObsNormalizer::new(40);
-        let config = PpoConfig { batch_size: 32, n_epochs: 4, ..PpoConfig::default() };
-        let error = |model: &ActorCritic| {
-            let means = model.actor.forward(Tensor::from_data(TensorData::new(states.clone(), [n, 40]), &device));
-            f64::from(scalar((means.sub_scalar(0.5)).powf_scalar(2.0).mean()))
-        };
-        let run = |imitation: bool, train_policy: bool| {
-            let model = ActorCritic::new(&arch, -0.5, 1, &device);
-            let before = error(&model);
-            let mut optimizer = burn::optim::AdamConfig::new().init();
-            let term = ImitationTerm { set: &set, normalizer: &normalizer, weight: 1.0 };
-            let step = UpdateStep { learning_rate: 1e-2, train_policy, imitation: imitation.then_some(term), mirror: None };
-            let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(0);
-            let (model, stats) = update(model, &mut optimizer, &batch, &config, &step, &mut rng, &device);
-            (before, error(&model), stats.imitation_loss)
-        };
-        let (before, after, loss) = run(true, true);
-        assert!(after < 0.5 * before, "imitated: {before} → {after}");
-        assert!(loss < before && loss > after, "the logged loss averages the errors along the way: {before} > {loss} > {after}");
-        let (before, after, loss) = run(false, true);
-        assert!((after - before).abs() < 1e-3 * before && loss.is_nan(), "without the term nothing pulls: {before} → {after}");
-        let (before, after, loss) = run(true, false);
-        assert!(after == before && loss.is_nan(), "the critic's warm-up leaves the policy alone: {before} → {after}");
-    }
-
     /// With zero advantages only the mirror term moves the actor, and it makes the policy's
     /// actions on mirrored states the mirrors of its actions (its divergence falls).
     #[test]
@@ -612,7 +559,7 @@ mod tests {
             let model = ActorCritic::new(&arch, -0.5, 1, &device);
             let before = divergence(&model);
             let mut optimizer = burn::optim::AdamConfig::new().init();
-            let step = UpdateStep { learning_rate: 1e-2, train_policy: true, imitation: None, mirror: mirror.then_some(&term) };
+            let step = UpdateStep { learning_rate: 1e-2, train_policy: true, mirror: mirror.then_some(&term) };
             let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(0);
             let (model, stats) = update(model, &mut optimizer, &batch, &config, &step, &mut rng, &device);
             (before, divergence(&model), stats.mirror_loss)
@@ -637,7 +584,7 @@ mod tests {
             let model = ActorCritic::new(&arch, -1.0, 1, &device);
             let mut optimizer = burn::optim::AdamConfig::new().init();
             let config = PpoConfig { batch_size: n, n_epochs: 5, ent_coef, ..PpoConfig::default() };
-            let step = UpdateStep { learning_rate: 1e-2, train_policy: true, imitation: None, mirror: None };
+            let step = UpdateStep { learning_rate: 1e-2, train_policy: true, mirror: None };
             let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(0);
             update(model, &mut optimizer, &batch, &config, &step, &mut rng, &device).1.log_std
         };
@@ -689,7 +636,7 @@ mod tests {
             let model = VisionActorCritic::new(&arch, -0.5, 3, &device);
             let mut optimizer = burn::optim::AdamConfig::new().init();
             let config = PpoConfig { batch_size: 12, n_epochs: 2, frozen, ..PpoConfig::default() };
-            let step = UpdateStep { learning_rate: 1e-3, train_policy: true, imitation: None, mirror: None };
+            let step = UpdateStep { learning_rate: 1e-3, train_policy: true, mirror: None };
             let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(0);
             let (model, stats) = update(model, &mut optimizer, &batch, &config, &step, &mut rng, &device);
             assert_eq!(stats.gradient_steps, 4);
