@@ -42,15 +42,10 @@ pub struct PpoConfig {
     /// Initial log standard deviation of the policy. -0.5.
     pub initial_log_std: f64,
     /// Iterations at the start of a run in which only the value function learns: the actor
-    /// and log std take no step. For a run that starts from an imitated policy with a fresh
-    /// critic, whose first advantages would otherwise be noise that unlearns the imitation
-    /// (a run's `[warm_start]` sets it). Default 0.
+    /// and log std take no step. For a run that starts from a distilled student with a fresh
+    /// critic, whose first advantages would otherwise be noise that unlearns the imitation.
+    /// Default 0.
     pub critic_warmup_iterations: u64,
-    /// Weight of the mirror-symmetry term ([`crate::ppo::MirrorTerm`]): the KL divergence between
-    /// the policy's actions on mirrored observations and its mirrored actions.
-    /// Beyond the thesis; 0 (off) by default, and left out of files when it is.
-    #[serde(skip_serializing_if = "is_zero")]
-    pub mirror_coef: f64,
     /// Vision agent only: which of its image layers take no step in PPO (`nothing`, the
     /// `convolutions`, or the whole `encoder`: convolutions and embedding layer). Their outputs
     /// are computed once per iteration and the epochs train the rest on them — PPO on top of a
@@ -90,11 +85,6 @@ impl Frozen {
     }
 }
 
-/// True for 0, the mirror term's "off".
-fn is_zero(x: &f64) -> bool {
-    *x == 0.0
-}
-
 impl Default for PpoConfig {
     fn default() -> Self {
         Self {
@@ -114,7 +104,6 @@ impl Default for PpoConfig {
             adam_epsilon: 1e-5,
             initial_log_std: -0.5,
             critic_warmup_iterations: 0,
-            mirror_coef: 0.0,
             frozen: Frozen::Nothing,
         }
     }

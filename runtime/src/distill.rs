@@ -14,7 +14,6 @@
 
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, bail, ensure};
@@ -34,7 +33,6 @@ use taskctl::{LocalTasks, SwitchParams, TaskController, TaskService};
 
 use crate::TrackSource;
 use crate::metrics::{MetricsWriter, append_validation};
-use crate::progress::ProgressLog;
 use crate::validation::{EvalSettings, Validator};
 
 /// The student's name in the task controller.
@@ -92,7 +90,7 @@ pub struct DistillConfig {
     pub gate_loss_weight: f64,
     /// The vision student's CNN and embedding layer keep the weights of `init_from`; only its
     /// actor (and a gate head) learn. For a start whose CNN was trained apart to place the
-    /// gates (`runtime/examples/gate_localisation.rs`): imitation then fits an actor to that
+    /// gates (docs/notebook/vision.md, "A CNN trained to place them"): imitation then fits an actor to that
     /// perception instead of reshaping it. Default false.
     pub frozen_encoder: bool,
     /// The vision student's actor also reads its previous action (beyond SPEC §5's VB actor
@@ -536,6 +534,11 @@ impl Distiller {
         Ok((metrics, Validator::new(&config.eval)?))
     }
 
+    /// The run's configuration.
+    pub fn config(&self) -> &DistillConfig {
+        &self.config
+    }
+
     /// Rounds done.
     pub fn round(&self) -> u64 {
         self.progress.round
@@ -813,35 +816,4 @@ pub fn progress_line(s: &RoundSummary, rounds: u64) -> String {
         s.fly_seconds,
         s.fit_seconds,
     )
-}
-
-/// What [`run`] ended with.
-pub struct DistillOutcome {
-    /// The student now.
-    pub student: WeightsBlob,
-    /// True when every round is done.
-    pub finished: bool,
-}
-
-/// Distils until every round is done, `rounds` more are done, or `stop` is raised; then
-/// checkpoints. A new run starts from `config` in `dir`; `resume` continues the one there.
-#[allow(clippy::print_stderr, reason = "the command's own terminal output")]
-pub fn run(dir: &Path, config: Option<DistillConfig>, rounds: Option<u64>, stop: &AtomicBool) -> anyhow::Result<DistillOutcome> {
-    let mut distiller = match config {
-        Some(config) => {
-            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-            Distiller::start(config, dir)?
-        }
-        None => Distiller::resume(dir)?,
-    };
-    let mut log = ProgressLog::open(dir)?;
-    let first = distiller.round();
-    eprintln!("distilling in {} (from round {first})", dir.display());
-    while !distiller.finished() && !stop.load(Ordering::SeqCst) && rounds.is_none_or(|n| distiller.round() - first < n) {
-        let s = distiller.round_step()?;
-        log.line(&progress_line(&s, distiller.config.rounds))?;
-    }
-    let path = distiller.checkpoint()?;
-    eprintln!("checkpoint written to {} ({:.0} s of distillation so far)", path.display(), distiller.wall_seconds());
-    Ok(DistillOutcome { student: distiller.student(), finished: distiller.finished() })
 }

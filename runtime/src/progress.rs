@@ -51,10 +51,8 @@ impl ProgressLog {
         Ok(Self { path, file })
     }
 
-    /// Prints `line` on stderr and appends it to the log.
-    #[allow(clippy::print_stderr, reason = "the progress line is the command's terminal output")]
-    pub fn line(&mut self, line: &str) -> anyhow::Result<()> {
-        eprintln!("{line}");
+    /// Appends `line` to the log (the command shows it on its terminal too).
+    pub fn append(&mut self, line: &str) -> anyhow::Result<()> {
         writeln!(self.file, "{line}").with_context(|| format!("writing {}", self.path.display()))
     }
 }

@@ -4,7 +4,6 @@
 pub mod camera;
 pub mod eval;
 pub mod frame_stack;
-pub mod mirror;
 pub mod observation;
 pub mod params;
 pub mod perception;
@@ -21,7 +20,6 @@ pub mod track;
 pub mod vec_env;
 
 pub use frame_stack::{CameraHistory, CameraPose, FrameStack};
-pub use mirror::{ACTION_MIRROR_SIGNS, ObservationMirror};
 pub use nalgebra;
 pub use observation::{
     DEFAULT_LINE_SPACING, DEFAULT_PROXIMITY_RANGE, GateSight, LINE_POINT_DIM, NEXT_CORNERS_RANGE, OBSTACLE_GATE_DIM, ObservationFrame,
@@ -29,7 +27,7 @@ pub use observation::{
 };
 pub use params::{GRAVITY, QuadrotorParams, RaceParams};
 pub use pilot::{Controller, PilotMemory, PilotParams, ReferencePilot};
-pub use race::{ControllerModel, CrashCause, EnvConfig, EpisodeStats, RaceEnv, StartGate, StepOutcome};
+pub use race::{ControllerModel, CrashCause, EnvConfig, EpisodeStats, RaceEnv, StepOutcome};
 pub use racer::Racer;
 pub use racing_line::{LinePoint, PathLimits, RacingLine};
 pub use randomization::RandomizationParams;

@@ -6,7 +6,7 @@
 use std::sync::{Arc, OnceLock};
 
 use nalgebra::Vector3;
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
@@ -19,7 +19,7 @@ use crate::quadrotor::{BodyState, Command, Quadrotor};
 use crate::racing_line::RacingLine;
 use crate::randomization::RandomizationParams;
 use crate::reward::{ActionFilter, ProgressDistance, RewardParams, RewardTerms, StepFacts};
-use crate::track::{Pose, START_BEHIND_FIRST_GATE, Track};
+use crate::track::Track;
 
 /// What the low-level flight controller believes about the randomised vehicle.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -34,33 +34,6 @@ pub enum ControllerModel {
     /// commanded. Drag and command delay stay unmodelled.
     Compensating,
 }
-
-/// Which gate an episode starts behind.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum StartGate {
-    /// The track's start pose, behind gate 0 (SPEC §7); evaluation always starts here.
-    #[default]
-    First,
-    /// 2 m behind a uniformly drawn gate, targeting it: a training choice beyond the thesis, so
-    /// that the last gates of a lap are practised as often as the first (episodes that crash
-    /// early never reach them).
-    Random,
-    /// Half the episodes at the track's start; the other half in flight, at a uniformly drawn
-    /// sample of the reference pilot's racing line, moving along it at 0.5–1.5× the pilot's
-    /// planned speed there, towards the gate it leads to. A training choice beyond the thesis,
-    /// so that the last gates of a lap are reached at racing speed as often as the first; it
-    /// did not help at the proxy recipe (docs/notebook/generalist-rejected.md, "Training episodes
-    /// that start in flight").
-    Flying,
-}
-
-/// Share of [`StartGate::Flying`] episodes that start at the track's start instead (from rest,
-/// as evaluation does).
-const STANDING_START_SHARE: f64 = 0.5;
-/// Clearance from every gate frame, beyond the collision radius, that a flying start's drawn
-/// position must keep; closer draws start at the track's start instead (m).
-const FLYING_START_CLEARANCE: f64 = 0.1;
 
 /// Everything that configures an environment except its track.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -92,8 +65,6 @@ pub struct EnvConfig {
     /// Which of the target and next gates the observation shows: `all` (SPEC §5, default) or
     /// `camera` (only while the camera could see them: a teacher for a vision student).
     pub gate_sight: GateSight,
-    /// Which gate episodes start behind. Default first (SPEC §7).
-    pub start_gate: StartGate,
     /// Per-episode randomisation around the nominal vehicle and start pose.
     pub randomization: RandomizationParams,
     /// Timing and episode length.
@@ -115,7 +86,6 @@ impl Default for EnvConfig {
             line_points: 0,
             line_spacing: DEFAULT_LINE_SPACING,
             gate_sight: GateSight::All,
-            start_gate: StartGate::First,
             randomization: RandomizationParams::default(),
             race: RaceParams::default(),
             // Chosen on 100 validation tracks over four proxy seeds (docs/notebook/generalist.md,
@@ -155,7 +125,6 @@ impl EnvConfig {
     /// The evaluation setting of SPEC §9: nominal dynamics, 1000-step episodes.
     pub fn evaluation() -> Self {
         Self {
-            start_gate: StartGate::First,
             randomization: RandomizationParams::evaluation(),
             race: RaceParams { max_episode_steps: 1000, ..RaceParams::default() },
             ..Self::default()
@@ -251,7 +220,7 @@ pub struct RaceEnv {
     /// The drifting gate misjudgement of the observation (with `randomization.gate_perception`).
     #[serde(default)]
     perception: GatePerception,
-    /// The pilot's racing line (flying starts, line observation); derived from the track on
+    /// The pilot's racing line (line observation); derived from the track on
     /// first use.
     #[serde(skip)]
     racing_line: OnceLock<Arc<RacingLine>>,
@@ -286,21 +255,11 @@ impl RaceEnv {
 
     /// Starts a new episode with a fresh randomisation draw.
     pub fn reset(&mut self) {
-        let (start, target, velocity) = self.draw_start();
         let c = &self.config;
-        let mut draw = c.randomization.sample(&c.quadrotor, &start, c.race.substep(), &mut self.rng);
+        let draw = c.randomization.sample(&c.quadrotor, &self.track.start, c.race.substep(), &mut self.rng);
         if c.randomization.misjudges_gates() {
             self.perception.restart(&mut self.rng);
         }
-        let (target, draw) = match velocity {
-            Some(v) if self.clear_of_frames(&draw.start.position) => {
-                draw.start.velocity += v;
-                (target, draw)
-            }
-            // A flying start drawn into a frame or out of the arena starts from rest instead.
-            Some(_) => (0, c.randomization.sample(&c.quadrotor, &self.track.start, c.race.substep(), &mut self.rng)),
-            None => (target, draw),
-        };
         let model = match c.controller_model {
             ControllerModel::Nominal => c.quadrotor,
             ControllerModel::Compensating => draw.plant,
@@ -309,7 +268,7 @@ impl RaceEnv {
         self.delay_substeps = draw.delay_substeps;
         // Before the first action arrives the flight controller holds a hover.
         self.previous_command = Command::hover();
-        self.target = target;
+        self.target = 0;
         self.steps = 0;
         self.time = 0.0;
         self.previous_action = [0.0; 4];
@@ -318,42 +277,9 @@ impl RaceEnv {
         self.stats = EpisodeStats::default();
     }
 
-    /// The nominal start pose of a new episode, its first target gate and, for a flying start,
-    /// the velocity added to the drawn one. `First` draws nothing from the random stream, so
-    /// SPEC episodes stay identical to the reference vectors.
-    fn draw_start(&mut self) -> (Pose, usize, Option<Vector3<f64>>) {
-        match self.config.start_gate {
-            StartGate::First => (self.track.start, 0, None),
-            StartGate::Random => {
-                let k = self.rng.random_range(0..self.track.gates.len());
-                let gate = &self.track.gates[k];
-                let behind = Pose { position: gate.position - gate.normal() * START_BEHIND_FIRST_GATE, yaw: gate.yaw };
-                // Gate 0 keeps the track's own start pose; a pose outside the arena falls back to it too.
-                if k == 0 || !self.track.arena.contains(&behind.position) { (self.track.start, 0, None) } else { (behind, k, None) }
-            }
-            StartGate::Flying => {
-                if self.rng.random_bool(STANDING_START_SHARE) {
-                    return (self.track.start, 0, None);
-                }
-                let line = self.racing_line();
-                let point = line.points()[self.rng.random_range(0..line.points().len())];
-                let speed = point.speed * self.rng.random_range(0.5..=1.5);
-                let pose = Pose { position: point.position, yaw: point.direction.y.atan2(point.direction.x) };
-                (pose, point.target, Some(point.direction * speed))
-            }
-        }
-    }
-
     /// The track's racing line, derived on first use.
     fn racing_line(&self) -> Arc<RacingLine> {
         self.racing_line.get_or_init(|| Arc::new(RacingLine::new(&self.track))).clone()
-    }
-
-    /// True when a drone at `position` is inside the arena and keeps the flying-start
-    /// clearance from every gate frame.
-    fn clear_of_frames(&self, position: &Vector3<f64>) -> bool {
-        let radius = self.config.quadrotor.collision_radius + FLYING_START_CLEARANCE;
-        self.track.arena.contains(position) && !self.track.gates.iter().any(|g| g.frame_touches_sphere(position, radius))
     }
 
     /// Replaces the track and starts a new episode on it (task switching).
@@ -400,7 +326,6 @@ impl RaceEnv {
             distance_before,
             // A pass leaves by the gate's front: its last step is measured to the centre.
             distance_after: if passed.is_some() { (end - gate.position).norm() } else { distance(&end) },
-            step_seconds: self.config.race.dt,
             pass_error: passed.map(|c| c.error),
             crashed: crash.is_some(),
             body_rates_xy: [w.x, w.y],
@@ -581,68 +506,6 @@ mod tests {
 
     fn hover_action(env: &RaceEnv) -> [f32; 4] {
         Command::hover().to_action(&env.config.quadrotor).map(|a| a as f32)
-    }
-
-    #[test]
-    fn random_start_gate_starts_behind_every_gate_and_first_keeps_the_track_start() {
-        let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
-        env.config.start_gate = StartGate::Random;
-        let mut seen = [0; 3];
-        for _ in 0..300 {
-            env.reset();
-            let k = env.target_gate();
-            seen[k] += 1;
-            let gate = env.track.gates[k];
-            let expected = if k == 0 { env.track.start.position } else { gate.position - gate.normal() * START_BEHIND_FIRST_GATE };
-            assert!((env.body().position - expected).norm() < 1e-12, "gate {k}: {:?}", env.body().position);
-        }
-        assert!(seen.iter().all(|&n| n > 60), "draws per gate {seen:?}");
-
-        env.config.start_gate = StartGate::First;
-        env.reset();
-        assert_eq!(env.target_gate(), 0);
-        assert_eq!(env.body().position, Vector3::new(-2.0, 0.0, 2.0));
-    }
-
-    #[test]
-    fn flying_starts_lie_on_the_racing_line_moving_along_it_and_half_start_from_rest() {
-        let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
-        env.config.start_gate = StartGate::Flying;
-        let line = RacingLine::new(&env.track);
-        let line = line.points();
-        let (mut standing, mut targets) = (0, [0; 3]);
-        for _ in 0..400 {
-            env.reset();
-            let body = *env.body();
-            if body.position == env.track.start.position && body.velocity == Vector3::zeros() {
-                assert_eq!(env.target_gate(), 0);
-                standing += 1;
-                continue;
-            }
-            let point = line.iter().find(|q| (q.position - body.position).norm() < 1e-12).expect("a flying start on the line");
-            assert_eq!(env.target_gate(), point.target);
-            targets[point.target] += 1;
-            let speed = body.velocity.norm();
-            assert!((body.velocity / speed - point.direction).norm() < 1e-9, "moving along the line");
-            assert!(speed >= 0.5 * point.speed - 1e-9 && speed <= 1.5 * point.speed + 1e-9, "speed {speed} against {}", point.speed);
-        }
-        assert!((150..=250).contains(&standing), "{standing} standing starts of 400");
-        assert!(targets.iter().all(|&n| n > 30), "flying starts per target gate {targets:?}");
-    }
-
-    #[test]
-    fn a_restored_environment_draws_the_same_flying_starts() {
-        let mut env = straight_env(Vector3::new(-2.0, 0.0, 2.0));
-        env.config.start_gate = StartGate::Flying;
-        env.config.randomization = RandomizationParams::state_based();
-        env.reset();
-        let mut restored: RaceEnv = serde_json::from_str(&serde_json::to_string(&env).unwrap()).unwrap();
-        for _ in 0..20 {
-            env.reset();
-            restored.reset();
-            assert_eq!(env.body(), restored.body());
-            assert_eq!(env.target_gate(), restored.target_gate());
-        }
     }
 
     #[test]

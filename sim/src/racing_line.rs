@@ -1,7 +1,7 @@
 //! The racing line: a closed cubic Hermite path through a track's gate centres (tangent = gate
 //! normal), kept clear of the frames and the arena walls, with a speed profile limited by lateral
 //! and longitudinal acceleration. The reference pilot flies it ([`crate::pilot`]); the race
-//! environment reads it for flying starts and the line observation ([`RacingLine`]).
+//! environment reads it for the line observation ([`RacingLine`]).
 
 use nalgebra::Vector3;
 
@@ -216,8 +216,7 @@ fn clear_segment(
         .expect("at least one tangent scale")
 }
 
-/// A sample of the reference pilot's closed racing line with the gate it leads to: where a
-/// training episode can start in flight ([`crate::StartGate::Flying`]).
+/// A sample of the reference pilot's closed racing line with the gate it leads to.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LinePoint {
     /// Position (m).
@@ -232,8 +231,7 @@ pub struct LinePoint {
 
 /// The default-tuned reference pilot's closed racing line through a track's gates, sample by
 /// sample (each leg from gate i to gate i + 1 has the same number of samples), with its arc
-/// length: where flying starts are drawn ([`crate::StartGate::Flying`]) and what the line
-/// observation reads ([`crate::ObservationLayout::line_points`]).
+/// length: what the line observation reads ([`crate::ObservationLayout::line_points`]).
 #[derive(Clone, Debug)]
 pub struct RacingLine {
     points: Vec<LinePoint>,

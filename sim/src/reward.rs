@@ -64,10 +64,6 @@ pub struct RewardParams {
     /// The distance progress is measured by: `centre` in both of SPEC §5's columns; training's
     /// state-based default (`EnvConfig::default`) is `approach`.
     pub progress_distance: ProgressDistance,
-    /// Closing speed above which progress earns nothing more (m/s); `None` (SPEC §5) pays every
-    /// metre. A cap takes away the reward for flying faster than it, not the penalty for moving
-    /// away. Beyond the thesis.
-    pub progress_speed_cap: Option<f64>,
     /// λ_pass, on passing the target gate.
     pub pass: f64,
     /// λ_error, per metre of traversal error (vision-based only).
@@ -101,7 +97,6 @@ impl RewardParams {
             variant: RewardVariant::StateBased,
             progress: 1.0,
             progress_distance: ProgressDistance::Centre,
-            progress_speed_cap: None,
             pass: 1.0,
             pass_error: 0.0,
             crash: -4.0,
@@ -120,7 +115,6 @@ impl RewardParams {
             variant: RewardVariant::VisionBased,
             progress: 0.8,
             progress_distance: ProgressDistance::Centre,
-            progress_speed_cap: None,
             pass: 4.0,
             pass_error: -1.0,
             crash: -4.0,
@@ -162,8 +156,6 @@ pub struct StepFacts {
     pub distance_before: f64,
     /// Distance to the same gate at the end of the step (m; to its centre when the step passed it).
     pub distance_after: f64,
-    /// Length of the policy step (s).
-    pub step_seconds: f64,
     /// Traversal error e_t when the target gate was passed (m).
     pub pass_error: Option<f64>,
     /// Whether the step ended in a crash.
@@ -203,8 +195,7 @@ impl RewardTerms {
 impl RewardParams {
     /// Evaluates every term for one step.
     pub fn terms(&self, f: &StepFacts) -> RewardTerms {
-        let closing = f.distance_before - f.distance_after;
-        let delta = self.progress_speed_cap.map_or(closing, |cap| closing.min(cap * f.step_seconds));
+        let delta = f.distance_before - f.distance_after;
         let progress = match self.variant {
             RewardVariant::StateBased => self.progress * delta,
             RewardVariant::VisionBased => self.progress * (delta.max(0.0) * f.view_alignment + delta.min(0.0)),
@@ -232,7 +223,6 @@ mod tests {
         StepFacts {
             distance_before: 5.0,
             distance_after: 4.8,
-            step_seconds: 0.02,
             pass_error: None,
             crashed: false,
             body_rates_xy: [0.0, 0.0],
@@ -283,15 +273,6 @@ mod tests {
         assert!(close(t.progress, 0.8 * -0.3));
         let t = p.terms(&StepFacts { pass_error: Some(0.3), ..facts() });
         assert!(close(t.pass, 4.0 - 0.3));
-    }
-
-    #[test]
-    fn a_speed_cap_limits_progress_but_not_moving_away() {
-        let p = RewardParams { progress_speed_cap: Some(5.0), ..RewardParams::state_based() };
-        // 0.2 m in 0.02 s is 10 m/s: paid as 5 m/s × 0.02 s.
-        assert!(close(p.terms(&facts()).progress, 0.1));
-        assert!(close(p.terms(&StepFacts { distance_after: 4.95, ..facts() }).progress, 0.05), "below the cap: paid in full");
-        assert!(close(p.terms(&StepFacts { distance_after: 5.3, ..facts() }).progress, -0.3), "moving away: never capped");
     }
 
     #[test]

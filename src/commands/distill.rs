@@ -1,11 +1,14 @@
 //! `dronerace distill`: a student learns from a teacher by DAgger (`runtime::distill`): a
 //! vision student from a state-based policy, or a state-based student from the pilot.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::Context;
 use clap::Args;
-use runtime::distill::DistillConfig;
+use policy::WeightsBlob;
+use runtime::distill::{DistillConfig, Distiller, progress_line};
+use runtime::progress::ProgressLog;
 
 /// Arguments of `dronerace distill`.
 #[derive(Args)]
@@ -75,11 +78,34 @@ pub fn run(args: DistillArgs) -> anyhow::Result<()> {
             (args.out.clone(), Some(config))
         }
     };
-    let student = runtime::distill::run(&dir, config, args.rounds, &stop)?.student;
+    let student = distil(&dir, config, args.rounds, &stop)?;
     if let Some(path) = &args.save {
         super::write_atomic(path, &student.to_bytes()).with_context(|| format!("saving the student to {}", path.display()))?;
         println!("student (version {}) written to {}", student.version, path.display());
     }
     println!("best student by validation S_pw: {}", dir.join("checkpoints/best.bin").display());
     Ok(())
+}
+
+/// Distils until every round is done, `rounds` more are done, or `stop` is raised; then
+/// checkpoints and returns the student. A new run starts from `config` in `dir`; without one
+/// the run there continues.
+fn distil(dir: &Path, config: Option<DistillConfig>, rounds: Option<u64>, stop: &AtomicBool) -> anyhow::Result<WeightsBlob> {
+    let mut distiller = match config {
+        Some(config) => {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+            Distiller::start(config, dir)?
+        }
+        None => Distiller::resume(dir)?,
+    };
+    let mut log = ProgressLog::open(dir)?;
+    let first = distiller.round();
+    eprintln!("distilling in {} (from round {first})", dir.display());
+    while !distiller.finished() && !stop.load(Ordering::SeqCst) && rounds.is_none_or(|n| distiller.round() - first < n) {
+        let s = distiller.round_step()?;
+        super::report(&mut log, &progress_line(&s, distiller.config().rounds))?;
+    }
+    let path = distiller.checkpoint()?;
+    eprintln!("checkpoint written to {} ({:.0} s of distillation so far)", path.display(), distiller.wall_seconds());
+    Ok(distiller.student())
 }

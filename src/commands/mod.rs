@@ -38,6 +38,12 @@ pub fn client_security(config: Option<&Path>) -> anyhow::Result<proto::Security>
     Ok(proto::Security::load(&network)?)
 }
 
+/// Shows a progress line on the terminal and appends it to the run's `train.log`.
+pub fn report(log: &mut runtime::progress::ProgressLog, line: &str) -> anyhow::Result<()> {
+    eprintln!("{line}");
+    log.append(line)
+}
+
 /// Writes `contents` to `path` atomically, creating parent directories.
 pub fn write_atomic(path: &Path, contents: &[u8]) -> anyhow::Result<()> {
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {

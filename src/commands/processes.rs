@@ -266,7 +266,7 @@ fn drive<L: LearnerLink>(
     while !process.finished() && !stop.load(Ordering::SeqCst) && args.iterations.is_none_or(|n| done < n) {
         let Some(s) = process.iteration_step(stop, tasks.map(|t| t as &dyn TaskService), &learner_only)? else { break };
         done += 1;
-        log.line(&progress_line(&s, process.eta_seconds()))?;
+        super::report(&mut log, &progress_line(&s, process.eta_seconds()))?;
     }
     let path = process.checkpoint(&learner_only)?;
     eprintln!("learner: checkpoint written to {}", path.display());

@@ -221,7 +221,7 @@ fn in_process(dir: &Path, config: TrainConfig, resume: bool, iterations: Option<
     eprintln!("training in {} (from iteration {first}, in one process)", trainer.dir().display());
     while !trainer.finished() && !stop.load(Ordering::SeqCst) && iterations.is_none_or(|n| trainer.iteration() - first < n) {
         let s = trainer.iteration_step()?;
-        log.line(&progress_line(&s, trainer.eta_seconds()))?;
+        super::report(&mut log, &progress_line(&s, trainer.eta_seconds()))?;
     }
     let path = trainer.checkpoint()?;
     eprintln!("checkpoint written to {}", path.display());

@@ -2,7 +2,7 @@
 """In which lap failed deployments end, and the crash hazard of each lap.
 
     dronerace eval --policy P --tracks ts --out ev
-    python3 docs/python/failure_laps.py ev/eval.json [more eval.json …]
+    python3 docs/notebook/scripts/failure_laps.py ev/eval.json [more eval.json …]
 
 For each report: deployments that succeeded, crashed before finishing lap 1, crashed in a later
 lap, or flew no lap; then the hazard of lap k — of the deployments that started lap k, the

@@ -2,7 +2,7 @@
 
     dronerace eval --policy P --tracks val100 --runs 10 --out ev-policy
     dronerace eval --controller pilot --tracks val100 --runs 10 --out ev-pilot
-    python3 docs/python/compare_tracks.py ev-policy/eval.json ev-pilot/eval.json [--prefix test-]
+    python3 docs/notebook/scripts/compare_tracks.py ev-policy/eval.json ev-pilot/eval.json [--prefix test-]
 
 A track counts as flown when at least half of its deployments succeed (a deterministic policy
 flies a track in all of them or in none, nearly always). `--prefix` keeps only the tracks

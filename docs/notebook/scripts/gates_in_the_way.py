@@ -2,7 +2,7 @@
 """Count the tracks on which another gate stands near the straight line between two consecutive gates.
 
     dronerace tracks generate --seed 1000 --count 300 --out gen
-    python3 docs/python/gates_in_the_way.py gen [--within 1.75]
+    python3 docs/notebook/scripts/gates_in_the_way.py gen [--within 1.75]
 
 A policy that cuts straight from gate to gate, and sees only the target gate and the one after it
 (SPEC §5), can fly into such a gate's frame without any warning in its observation. A gate's frame

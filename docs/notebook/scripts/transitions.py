@@ -2,7 +2,7 @@
 """Which gate-to-gate legs a controller crashes on, by the leg's geometry.
 
     dronerace eval --policy P --tracks val100 --runs 10 --out ev
-    python3 docs/python/transitions.py val100 ev/eval.json
+    python3 docs/notebook/scripts/transitions.py val100 ev/eval.json
 
 A leg is the way from gate k-1 to gate k. Every deployment attempts the legs it reaches (the
 gates it passed, and the one it was flying to when it crashed); a crash counts against the leg

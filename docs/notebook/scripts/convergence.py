@@ -1,6 +1,6 @@
 """How fast a fine-tuned run converges against the same track trained from scratch.
 
-    python3 docs/python/convergence.py SCRATCH_RUN FINETUNE_RUN [--window 20] [--share 0.9]
+    python3 docs/notebook/scripts/convergence.py SCRATCH_RUN FINETUNE_RUN [--window 20] [--share 0.9]
 
 Thesis §3.4.4 measures fine-tuning by the iterations it needs to converge. Both run
 directories' metrics.csv give the training return per iteration: scratch's plateau is its
