@@ -314,10 +314,10 @@ mod tests {
         let net = ActorCritic::new(&camera, -0.5, 7, &Device::flex());
         let blob = WeightsBlob::from_model(3, &camera, &ObsNormalizer::new(camera.observation_dim), &net);
         let profile = |architecture: Architecture| Profile { architecture, ..Profile::cpu() };
-        let corners = Architecture { gate_sight: sim::GateSight::Corners, ..camera.clone() };
-        let learner = Learner::from_policy(profile(corners.clone()), 1000, 0, &blob).unwrap();
+        let all = Architecture { gate_sight: sim::GateSight::All, ..camera.clone() };
+        let learner = Learner::from_policy(profile(all.clone()), 1000, 0, &blob).unwrap();
         let tuned = learner.weights();
-        assert_eq!((tuned.architecture, tuned.params.len()), (corners, blob.params.len()), "the run's sight, the start's weights");
+        assert_eq!((tuned.architecture, tuned.params.len()), (all, blob.params.len()), "the run's sight, the start's weights");
         assert!(tuned.params.iter().zip(&blob.params).all(|(a, b)| a.values == b.values));
         let wider = Architecture { hidden: vec![64, 64], ..camera };
         assert!(Learner::from_policy(profile(wider), 1000, 0, &blob).is_err(), "other shapes are still refused");

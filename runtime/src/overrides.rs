@@ -1,10 +1,51 @@
 //! Config files as overrides of defaults: a file's tables merge into the defaults key by key,
 //! so a file that sets one field of a section keeps the defaults of its siblings — the
 //! defaults of *this* config (e.g. a vision run's or distillation's), not those of the
-//! section's type.
+//! section's type. Options removed from the core are read as gone when a file holds the value
+//! every run had, and refused by name otherwise.
+
+use std::borrow::Cow;
 
 use serde::Serialize;
 use serde::de::DeserializeOwned;
+
+/// Options removed from the core: the dotted key, the value (TOML) every run had while it
+/// existed — `None` when any value was a choice — and the last commit that has the option
+/// (docs/notebook/generalist-rejected.md, "Options removed from the core").
+const RETIRED: [(&str, Option<&str>, &str); 6] = [
+    ("warm_start", None, "9b48c91"),
+    ("env.start_gate", Some("\"first\""), "8941555"),
+    ("env.reward.progress_speed_cap", None, "8941555"),
+    ("ppo.mirror_coef", Some("0.0"), "8941555"),
+    ("env.randomization.gate_perception", Some("0.0"), "7da1853"),
+    ("env.randomization.gate_perception_floor", Some("0.0"), "7da1853"),
+];
+
+/// `text` without the removed options it holds at the value every run had (a run directory's
+/// saved config holds them so); a removed option set to anything else is refused by name.
+pub fn retire(text: &str) -> Result<Cow<'_, str>, String> {
+    let mut table: toml::Table = toml::from_str(text).map_err(|e| e.to_string())?;
+    let mut removed = false;
+    for (key, kept, commit) in RETIRED {
+        let (parents, last) = key.rsplit_once('.').map_or((None, key), |(p, l)| (Some(p), l));
+        let mut section = Some(&mut table);
+        for part in parents.into_iter().flat_map(|p| p.split('.')) {
+            section = section.and_then(|s| s.get_mut(part)).and_then(toml::Value::as_table_mut);
+        }
+        let Some(section) = section else { continue };
+        let Some(value) = section.get(last) else { continue };
+        let default = kept.and_then(|k| toml::from_str::<toml::Table>(&format!("v = {k}")).ok()).and_then(|t| t.get("v").cloned());
+        if default.as_ref() != Some(value) {
+            return Err(format!(
+                "`{key}` was removed from dronerace (a rejected option; it last ran at commit {commit}, \
+                 docs/notebook/generalist-rejected.md): delete it from the file"
+            ));
+        }
+        section.remove(last);
+        removed = true;
+    }
+    Ok(if removed { Cow::Owned(toml::to_string(&table).map_err(|e| e.to_string())?) } else { Cow::Borrowed(text) })
+}
 
 /// Merges `overrides` into `table`: tables key by key, anything else replaced.
 pub fn merge(table: &mut toml::Table, overrides: &toml::Table) {
@@ -21,6 +62,8 @@ pub fn merge(table: &mut toml::Table, overrides: &toml::Table) {
 /// Parses `text` as overrides of `defaults`. The text is first parsed on its own, so that an
 /// unknown key or a wrong type is reported with its line.
 pub fn parse_over<T: Serialize + DeserializeOwned>(defaults: &T, text: &str) -> Result<T, String> {
+    let text = retire(text)?;
+    let text = text.as_ref();
     toml::from_str::<T>(text).map_err(|e| e.to_string())?;
     let file: toml::Table = toml::from_str(text).map_err(|e| e.to_string())?;
     let mut table: toml::Table = toml::from_str(&toml::to_string(defaults).map_err(|e| e.to_string())?).map_err(|e| e.to_string())?;
@@ -43,5 +86,16 @@ mod tests {
         assert_eq!(config.envs, DistillConfig::default().envs);
         let err = parse_over(&DistillConfig::default(), "rounds = 7\n[switching]\nwindoww = 3\n").unwrap_err();
         assert!(err.contains("windoww") && err.contains("line 3"), "{err}");
+    }
+
+    #[test]
+    fn a_removed_option_at_its_old_default_is_read_as_gone_and_otherwise_refused_by_name() {
+        let saved = "rounds = 7\n[env]\nstart_gate = \"first\"\n[env.randomization]\ngate_perception = 0.0\nmass = 0.1\n";
+        let config = parse_over(&DistillConfig::default(), saved).unwrap();
+        assert_eq!((config.rounds, config.env.randomization.mass), (7, 0.1));
+        let err = parse_over(&DistillConfig::default(), "[env]\nstart_gate = \"flying\"\n").unwrap_err();
+        assert!(err.contains("env.start_gate") && err.contains("8941555"), "{err}");
+        assert!(retire("[warm_start]\nrounds = 3\n").unwrap_err().contains("warm_start"));
+        assert!(matches!(retire("seed = 1\n").unwrap(), Cow::Borrowed(_)), "a file without them is read as written");
     }
 }

@@ -185,6 +185,8 @@ impl TrainConfig {
     /// `[ppo]` table overrides the named profile's PPO settings field by field, so `gamma =
     /// 0.998` alone keeps the cpu profile's minibatches.
     pub fn from_toml(text: &str) -> Result<Self, String> {
+        let text = crate::overrides::retire(text)?;
+        let text = text.as_ref();
         let config: Self = toml::from_str(text).map_err(|e| e.to_string())?;
         let mut defaults = Self::defaults_for(config.agent);
         if config.ppo.is_some() && defaults.ppo.is_none() {

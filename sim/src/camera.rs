@@ -119,18 +119,6 @@ pub fn gate_in_view(gate: &Gate, position: &Vector3<f64>, body_rotation: &Matrix
     gate_on_image(gate, position, &camera_axes(body_rotation)).is_some()
 }
 
-/// True when world point `point` projects into the image of a drone at `position` with
-/// attitude `body_rotation`: in front of the camera and within its field of view both ways
-/// (whatever hides it). What a corner-limited observation shows.
-pub fn point_in_view(point: &Vector3<f64>, position: &Vector3<f64>, body_rotation: &Matrix3<f64>) -> bool {
-    let p = camera_axes(body_rotation).transpose() * (point - position);
-    let on_image = |x: f64| (-0.5..=IMAGE_SIDE as f64 - 0.5).contains(&x);
-    p.x >= NEAR && {
-        let (column, row) = project(&p);
-        on_image(column) && on_image(row)
-    }
-}
-
 /// The pixel rectangle gate `gate`'s outer box covers seen from `position` along camera
 /// `axes`, and the camera in the gate's frame; `None` when the box is off the image.
 fn gate_on_image(gate: &Gate, position: &Vector3<f64>, axes: &Matrix3<f64>) -> Option<(PixelBox, GateView)> {

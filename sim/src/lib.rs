@@ -6,7 +6,6 @@ pub mod eval;
 pub mod frame_stack;
 pub mod observation;
 pub mod params;
-pub mod perception;
 pub mod pilot;
 pub mod quadrotor;
 pub mod race;

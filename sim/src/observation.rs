@@ -119,10 +119,6 @@ pub enum GateSight {
     All,
     /// A gate only while it is in the camera's view.
     Camera,
-    /// Each corner only while it is on the camera's image, as a student could place it: close
-    /// to a gate, the corners leave the 90° view one by one and the observation loses them
-    /// (δp2's corner also needs δp1's, which it is written from).
-    Corners,
 }
 
 /// What a state observation holds: SPEC §5's 40 numbers in `frame`, then the corners of
@@ -219,7 +215,6 @@ impl ObservationLayout {
         let sight = match self.gate_sight {
             GateSight::All => "",
             GateSight::Camera => ", the two gates' corners zero while the camera cannot see them",
-            GateSight::Corners => ", each gate corner zero while it is off the camera's image",
         };
         format!("raw {}-number state observation in the {} frame{sight}{obstacles}{proximity}{line}", self.dim(), self.frame.name())
     }
@@ -273,7 +268,7 @@ pub fn write_state_observation(
     values[6..9].copy_from_slice((to_frame * body.velocity).as_slice());
     values[9..12].copy_from_slice(body.body_rates.as_slice());
     values[PREVIOUS_ACTION_RANGE].copy_from_slice(previous_action);
-    // Per corner: whether δp1's and δp2's are shown (δp2's is written from δp1's, so needs it).
+    // Per corner: whether δp1's and δp2's are shown (δp2 is written from δp1, so needs it).
     let rotation = body.rotation();
     let shown: [(bool, bool); 4] = match layout.gate_sight {
         GateSight::All => [(true, true); 4],
@@ -281,13 +276,6 @@ pub fn write_state_observation(
             let seen = |g: usize| crate::camera::gate_in_view(&track.gates[g], &body.position, &rotation);
             let target_seen = seen(target);
             [(target_seen, target_seen && seen(track.next_index(target))); 4]
-        }
-        GateSight::Corners => {
-            let seen = |corner: &Vector3<f64>| crate::camera::point_in_view(corner, &body.position, &rotation);
-            std::array::from_fn(|c| {
-                let target_seen = seen(&target_corners[c]);
-                (target_seen, target_seen && seen(&next_corners[c]))
-            })
         }
     };
     for (c, (show_target, show_next)) in shown.into_iter().enumerate() {
@@ -457,39 +445,6 @@ mod tests {
         let (all, camera) = (observe(std::f64::consts::PI, 1, GateSight::All), observe(std::f64::consts::PI, 1, GateSight::Camera));
         assert_eq!(camera[..28], all[..28]);
         assert!(camera[28..].iter().all(|&v| v == 0.0));
-    }
-
-    #[test]
-    fn corner_sight_drops_each_corner_that_leaves_the_image() {
-        // Gate 0 ahead along +x, gate 1 behind the drone.
-        let gates = vec![Gate::new(Vector3::new(6.0, 0.0, 2.0), 0.0), Gate::new(Vector3::new(-6.0, 0.0, 2.0), std::f64::consts::PI)];
-        let track = Track::new("t", gates, None, Arena::default()).unwrap();
-        let observe = |x: f64, sight: GateSight| {
-            let body = BodyState::at_rest(Vector3::new(x, 0.0, 2.0), 0.0);
-            let layout = ObservationLayout { gate_sight: sight, ..ObservationLayout::spec(ObservationFrame::Heading) };
-            let mut out = [0f32; STATE_OBS_DIM];
-            write_state_observation(&body, &[0.1; 4], &track, None, 0, layout, &mut out);
-            out
-        };
-        // 6 m away every corner of gate 0 is on the image; gate 1's never are.
-        let (all, corners) = (observe(0.0, GateSight::All), observe(0.0, GateSight::Corners));
-        assert_eq!(corners[..NEXT_CORNERS_RANGE.start], all[..NEXT_CORNERS_RANGE.start]);
-        assert!(corners[NEXT_CORNERS_RANGE].iter().all(|&v| v == 0.0));
-        // 0.8 m before it, the camera (tilted up 30°) keeps the upper corners (43° above the
-        // horizon, 13° above its axis) and loses the lower ones (73° below its axis).
-        let (all, corners) = (observe(5.2, GateSight::All), observe(5.2, GateSight::Corners));
-        let mut upper = 0;
-        for c in 0..4 {
-            let t = TARGET_CORNERS_RANGE.start + 3 * c;
-            if all[t + 2] > 0.0 {
-                upper += 1;
-                assert_eq!(corners[t..t + 3], all[t..t + 3], "corner {c} is on the image");
-            } else {
-                assert!(corners[t..t + 3].iter().all(|&v| v == 0.0), "corner {c} is below the image");
-            }
-        }
-        assert_eq!(upper, 2);
-        assert_eq!(corners[..TARGET_CORNERS_RANGE.start], all[..TARGET_CORNERS_RANGE.start]);
     }
 
     /// Wherever the rendered image shows any of a gate, `gate_in_view` says it may be seen.

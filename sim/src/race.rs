@@ -14,7 +14,6 @@ use crate::observation::{
     DEFAULT_LINE_SPACING, DEFAULT_PROXIMITY_RANGE, GateSight, ObservationFrame, ObservationLayout, ObstacleOrder, write_state_observation,
 };
 use crate::params::{QuadrotorParams, RaceParams};
-use crate::perception::GatePerception;
 use crate::quadrotor::{BodyState, Command, Quadrotor};
 use crate::racing_line::RacingLine;
 use crate::randomization::RandomizationParams;
@@ -217,9 +216,6 @@ pub struct RaceEnv {
     filter: ActionFilter,
     last_gate0_pass: Option<f64>,
     stats: EpisodeStats,
-    /// The drifting gate misjudgement of the observation (with `randomization.gate_perception`).
-    #[serde(default)]
-    perception: GatePerception,
     /// The pilot's racing line (line observation); derived from the track on
     /// first use.
     #[serde(skip)]
@@ -246,7 +242,6 @@ impl RaceEnv {
             filter: ActionFilter::default(),
             last_gate0_pass: None,
             stats: EpisodeStats::default(),
-            perception: GatePerception::default(),
             racing_line: OnceLock::new(),
         };
         env.reset();
@@ -257,9 +252,6 @@ impl RaceEnv {
     pub fn reset(&mut self) {
         let c = &self.config;
         let draw = c.randomization.sample(&c.quadrotor, &self.track.start, c.race.substep(), &mut self.rng);
-        if c.randomization.misjudges_gates() {
-            self.perception.restart(&mut self.rng);
-        }
         let model = match c.controller_model {
             ControllerModel::Nominal => c.quadrotor,
             ControllerModel::Compensating => draw.plant,
@@ -334,9 +326,6 @@ impl RaceEnv {
             view_alignment: self.camera_axis().dot(&gate.normal()).max(0.0),
         });
         self.previous_action = action;
-        if self.config.randomization.misjudges_gates() {
-            self.perception.advance(&mut self.rng);
-        }
 
         let terminated = crash.is_some();
         let truncated = !terminated && self.steps >= self.config.race.max_episode_steps;
@@ -412,10 +401,6 @@ impl RaceEnv {
     pub fn observe_in(&self, layout: ObservationLayout, out: &mut [f32]) {
         let line = (layout.line_points > 0).then(|| self.racing_line());
         write_state_observation(&self.quad.body, &self.previous_action, &self.track, line.as_deref(), self.target, layout, out);
-        let r = &self.config.randomization;
-        if r.misjudges_gates() {
-            self.perception.apply(r.gate_perception, r.gate_perception_floor, out);
-        }
     }
 
     /// Renders the camera image of the current state (SPEC §5) into `out` (84×84 bytes).

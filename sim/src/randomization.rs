@@ -33,19 +33,6 @@ pub struct RandomizationParams {
     pub start_attitude: f64,
     /// Start body rates per axis (rad/s). SB 45°/s.
     pub start_body_rates: f64,
-    /// Misjudgement of the gates the observation shows, as a camera would misjudge them: each
-    /// corner moves by `gate_perception · distance` times a slowly drifting standard normal
-    /// (AR(1), ρ = 0.9 a step). One pixel of SPEC §5's camera is 0.019 of the distance
-    /// sideways. Trains a teacher whose vision student sees less exactly than it does; beyond
-    /// SPEC §3, 0 in every profile (docs/notebook/vision.md, "Own flights without their crashes,
-    /// and a teacher that expects to misjudge gates").
-    pub gate_perception: f64,
-    /// Least misjudgement of a seen gate's corners (m per axis), however near: combined with
-    /// `gate_perception · distance` as independent errors (root of the sum of squares). Close
-    /// to a gate the camera shows only part of its frame, and a student's judgement of where
-    /// the corners are stops improving with nearness (docs/notebook/vision.md, "What the
-    /// student's embedding knows of the gates"). 0 in every profile.
-    pub gate_perception_floor: f64,
 }
 
 impl Default for RandomizationParams {
@@ -55,11 +42,6 @@ impl Default for RandomizationParams {
 }
 
 impl RandomizationParams {
-    /// True when the gates an observation shows are misjudged (`gate_perception` or its floor).
-    pub fn misjudges_gates(&self) -> bool {
-        self.gate_perception > 0.0 || self.gate_perception_floor > 0.0
-    }
-
     /// The state-based (SB) training profile.
     pub fn state_based() -> Self {
         Self {
@@ -73,8 +55,6 @@ impl RandomizationParams {
             start_velocity: 0.8,
             start_attitude: 20f64.to_radians(),
             start_body_rates: 45f64.to_radians(),
-            gate_perception: 0.0,
-            gate_perception_floor: 0.0,
         }
     }
 
@@ -91,8 +71,6 @@ impl RandomizationParams {
             start_velocity: 0.4,
             start_attitude: 10f64.to_radians(),
             start_body_rates: 25f64.to_radians(),
-            gate_perception: 0.0,
-            gate_perception_floor: 0.0,
         }
     }
 
@@ -114,8 +92,6 @@ impl RandomizationParams {
             start_velocity: 0.0,
             start_attitude: 0.0,
             start_body_rates: 0.0,
-            gate_perception: 0.0,
-            gate_perception_floor: 0.0,
         }
     }
 }
