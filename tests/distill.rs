@@ -186,33 +186,33 @@ fn teachers_that_observe_racing_line_points_teach_in_their_own_layout() {
         rounds: 2,
         ..tiny_config()
     };
-    config.env.line_points = 4;
+    config.env.observation.line_points = 4;
     let dir = tempfile::tempdir().unwrap();
     let mut d = Distiller::start(config, &dir.path().join("state")).unwrap();
     d.round_step().unwrap();
     d.round_step().unwrap();
     let teacher = d.student();
-    assert_eq!((teacher.architecture.line_points, teacher.architecture.observation_dim), (4, 52));
+    assert_eq!((teacher.architecture.observation.line_points, teacher.architecture.observation_dim), (4, 52));
     let teacher_file = dir.path().join("line-teacher.bin");
     std::fs::write(&teacher_file, teacher.to_bytes()).unwrap();
     // …which teaches a vision student: its environments and data set take the teacher's layout
     // (not the distillation config's default), its critic reads all 52 numbers, and it resumes.
     let config = DistillConfig { teacher: teacher_file, ..tiny_config() };
-    assert_eq!(config.env.line_points, 0);
+    assert_eq!(config.env.observation.line_points, 0);
     let vision_dir = dir.path().join("vision");
     let mut v = Distiller::start(config, &vision_dir).unwrap();
     v.round_step().unwrap();
     v.round_step().unwrap();
     let blob = v.student();
     assert_eq!((blob.architecture.agent, blob.architecture.observation_dim), (policy::Agent::Vision, 52));
-    assert_eq!(blob.architecture.observation_layout(), teacher.architecture.observation_layout());
+    assert_eq!(blob.architecture.observation, teacher.architecture.observation);
     let before = student(&v);
     drop(v);
     let mut v = Distiller::resume(&vision_dir).unwrap();
     assert!(student(&v) == before);
     v.round_step().unwrap();
     let written = DistillConfig::read(&vision_dir.join("config.toml")).unwrap();
-    assert_eq!(written.env.line_points, 4, "the run's config records the layout it flew");
+    assert_eq!(written.env.observation.line_points, 4, "the run's config records the layout it flew");
 }
 
 /// A two-round run in `dir/earlier`, its checkpoint written (what `dataset_from` reads: a run's

@@ -32,7 +32,7 @@ name = "world"
 
 [[variant]]
 name = "heading"
-set = { env.observation_frame = "heading" }
+set = { env.observation.frame = "heading" }
 "#;
 
 /// Runs the experiment, raising the stop flag after `stop_after` iterations (none: to the end).
@@ -128,7 +128,7 @@ fn two_runners_on_one_directory_split_the_grid() {
 fn an_experiment_with_an_unknown_override_key_is_refused_naming_it() {
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("bad.toml");
-    std::fs::write(&file, FILE.replace("env.observation_frame", "env.observation_fram")).unwrap();
+    std::fs::write(&file, FILE.replace("env.observation.frame", "env.observation_fram")).unwrap();
     let o = Command::new(env!("CARGO_BIN_EXE_dronerace"))
         .args(["experiment", "run", file.to_str().unwrap(), "--out", dir.path().join("out").to_str().unwrap()])
         .output()

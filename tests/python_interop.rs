@@ -86,7 +86,7 @@ fn an_exported_onnx_actor_acts_as_dronerace_in_onnxruntime() {
     let arch = Architecture {
         hidden: vec![64, 32],
         negative_slope: 0.2,
-        observation_frame: sim::ObservationFrame::Heading,
+        observation: sim::ObservationLayout::spec(sim::ObservationFrame::Heading),
         ..Architecture::cpu()
     };
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(8);
@@ -130,4 +130,36 @@ fn an_exported_onnx_actor_acts_as_dronerace_in_onnxruntime() {
     std::fs::write(&expected_path, rows(&other, arch.action_dim)).unwrap();
     let (ok, report) = onnx_check(&model_path, &observations_path, &expected_path);
     assert!(!ok, "{report}");
+}
+
+/// A policy file of format 2 (a 6 KB run of the build before format 3, `tests/data`) converts
+/// with `docs/python/upgrade_policy.py`: it reads with its layout in one object and every tensor
+/// as it was; a converted or altered file is refused.
+#[test]
+fn a_format_2_policy_file_upgrades_with_its_tensors_unchanged() {
+    let needs = [Need::Python { modules: &["json"], packages: "" }];
+    if !available("a_format_2_policy_file_upgrades_with_its_tensors_unchanged", &needs) {
+        return;
+    }
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let script = root.join("docs/python/upgrade_policy.py");
+    let old = root.join("tests/data/policy-format2.bin");
+    let dir = tempfile::tempdir().unwrap();
+    let upgrade = |from: &Path, to: &Path| Command::new("python3").arg(&script).arg(from).arg(to).output().expect("python3 runs");
+    let new = dir.path().join("new.bin");
+    let out = upgrade(&old, &new);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(WeightsBlob::from_bytes(&std::fs::read(&old).unwrap()).is_err(), "this build reads format 3 only");
+    let blob = WeightsBlob::from_bytes(&std::fs::read(&new).unwrap()).unwrap();
+    let layout = sim::ObservationLayout { line_points: 2, ..sim::ObservationLayout::spec(sim::ObservationFrame::Heading) };
+    assert_eq!((blob.architecture.observation, blob.architecture.observation_dim, blob.version), (layout, 46, 1));
+    let tensors = |path: &Path| policy::safetensors::TensorFile::from_bytes(&std::fs::read(path).unwrap()).unwrap().tensors;
+    assert_eq!(tensors(&old), tensors(&new), "every tensor as it was");
+    let again = upgrade(&new, &dir.path().join("again.bin"));
+    assert!(!again.status.success() && String::from_utf8_lossy(&again.stderr).contains("format 3, not 2"));
+    let mut altered = std::fs::read(&old).unwrap();
+    *altered.last_mut().unwrap() ^= 1;
+    std::fs::write(dir.path().join("altered.bin"), &altered).unwrap();
+    let refused = upgrade(&dir.path().join("altered.bin"), &dir.path().join("x.bin"));
+    assert!(!refused.status.success() && String::from_utf8_lossy(&refused.stderr).contains("altered"));
 }

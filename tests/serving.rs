@@ -30,7 +30,11 @@ fn with_token<T>(message: T) -> tonic::Request<T> {
 /// A heading-frame policy with a fitted normaliser, and observations of the reference pilot
 /// flying Figure8 with the actions `dronerace eval`'s controller takes on them.
 fn policy_and_flight(dir: &Path) -> (std::path::PathBuf, Vec<Vec<f32>>, Vec<[f32; 4]>) {
-    let arch = Architecture { hidden: vec![32, 32], observation_frame: sim::ObservationFrame::Heading, ..Architecture::cpu() };
+    let arch = Architecture {
+        hidden: vec![32, 32],
+        observation: sim::ObservationLayout::spec(sim::ObservationFrame::Heading),
+        ..Architecture::cpu()
+    };
     let model = ActorCritic::new(&arch, -0.5, 9, &policy::Device::flex());
     let track = Arc::new(racetracks::library_track("Figure8").unwrap().unwrap());
     let mut env = RaceEnv::new(track, EnvConfig::evaluation(), 0, 0);
@@ -38,7 +42,7 @@ fn policy_and_flight(dir: &Path) -> (std::path::PathBuf, Vec<Vec<f32>>, Vec<[f32
     pilot.reset(&env);
     let mut observations = Vec::new();
     for _ in 0..60 {
-        observations.push(env.observation_in(arch.observation_layout()).to_vec());
+        observations.push(env.observation_in(arch.observation).to_vec());
         env.step(&pilot.act(&env));
     }
     let mut normalizer = ObsNormalizer::new(arch.observation_dim);

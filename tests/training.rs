@@ -186,55 +186,38 @@ fn fine_tuning_starts_from_the_given_policy_at_version_zero() {
     let err = Trainer::start(narrow, &dir.path().join("narrow")).err().expect("refused").to_string();
     assert!(err.contains("init_from") && err.contains("cannot widen"), "{err}");
     let mut fewer_points = config;
-    fewer_points.env.line_points = 2;
+    fewer_points.env.observation.line_points = 2;
     let err = Trainer::start(fewer_points, &dir.path().join("fewer-points")).err().expect("refused").to_string();
     assert!(err.contains("init_from") && err.contains("architecture"), "{err}");
 }
 
-/// The tiny run with the two nearest other gates, one proximity reading and two racing-line
-/// points in the observation (40 + 24 + 4 + 6 numbers).
-fn tiny_obstacle_config() -> TrainConfig {
+/// The tiny run with two racing-line points in the observation (40 + 6 numbers).
+fn tiny_line_config() -> TrainConfig {
     let mut config = tiny_config();
-    config.env.obstacle_gates = 2;
-    config.env.proximity_gates = 1;
-    config.env.line_points = 2;
+    config.env.observation.line_points = 2;
     config
 }
 
 #[test]
-fn a_run_with_obstacle_gates_proximity_and_line_points_learns_from_74_numbers_and_resumes_bit_for_bit() {
+fn a_run_with_line_points_learns_from_46_numbers_and_resumes_bit_for_bit() {
     let dir = tempfile::tempdir().unwrap();
-    let (a, b) = straight_and_resumed(tiny_obstacle_config, dir.path());
+    let (a, b) = straight_and_resumed(tiny_line_config, dir.path());
     assert!(weights(&b) == weights(&a), "the next iteration's weights equal an uninterrupted run's");
     let arch = a.learner().weights().architecture;
-    assert_eq!((arch.observation_dim, arch.obstacle_gates, arch.proximity_gates, arch.line_points), (74, 2, 1, 2));
-    assert_eq!(a.learner().weights().normalizer.dim(), 74);
-    // Its policy flies with the observation it learned (74 numbers, not the SPEC's 40).
+    assert_eq!((arch.observation_dim, arch.observation.line_points), (46, 2));
+    assert_eq!(a.learner().weights().normalizer.dim(), 46);
+    // Its policy flies with the observation it learned (46 numbers, not the SPEC's 40).
     let policy = std::sync::Arc::new(policy::Policy::from_blob(&a.learner().weights()).unwrap());
-    assert_eq!(policy.observation_layout().dim(), 74);
-    // A proximity range that is no distance is refused, naming the field.
-    let bad = TrainConfig { env: sim::EnvConfig { proximity_range: -1.0, ..tiny_obstacle_config().env }, ..tiny_obstacle_config() };
-    let err = Trainer::start(bad, &dir.path().join("bad")).err().expect("refused").to_string();
-    assert!(err.contains("env.proximity_range"), "{err}");
-    let bad = TrainConfig { env: sim::EnvConfig { line_spacing: f64::NAN, ..tiny_obstacle_config().env }, ..tiny_obstacle_config() };
+    assert_eq!(policy.observation_layout().dim(), 46);
+    // A line spacing that is no distance is refused, naming the field.
+    let mut bad = tiny_line_config();
+    bad.env.observation.line_spacing = f64::NAN;
     let err = Trainer::start(bad, &dir.path().join("bad-line")).err().expect("refused").to_string();
-    assert!(err.contains("env.line_spacing"), "{err}");
+    assert!(err.contains("env.observation.line_spacing"), "{err}");
     let track = std::sync::Arc::new(racetracks::library_track("Figure8").unwrap().unwrap());
     let config = sim::eval::EvalConfig { runs: 2, steps: 50, ..sim::eval::EvalConfig::default() };
     let report = sim::eval::evaluate("policy", &[track], &|| Box::new(policy::PolicyController::new(policy.clone())), &config);
     assert_eq!(report.outcomes.deployments, 2);
-}
-
-#[test]
-fn a_privileged_critic_reads_74_numbers_its_actor_40_and_the_run_resumes_bit_for_bit() {
-    let dir = tempfile::tempdir().unwrap();
-    let (a, b) = straight_and_resumed(|| TrainConfig { privileged_critic: true, ..tiny_obstacle_config() }, dir.path());
-    assert!(weights(&b) == weights(&a), "the next iteration's weights equal an uninterrupted run's");
-    let blob = a.learner().weights();
-    let critic_first = 2 * (blob.architecture.hidden.len() + 1);
-    assert_eq!((blob.params[0].shape[0], blob.params[critic_first].shape[0]), (40, 74));
-    let policy = policy::Policy::from_blob(&blob).unwrap();
-    assert_eq!(policy.observation_layout().dim(), 74);
 }
 
 #[test]
@@ -375,7 +358,7 @@ fn a_vision_agent_trains_on_its_camera_images_and_resumes_bit_for_bit() {
     // … and a state-based learner refuses images.
     // SPEC §5's 40 numbers, as the vision chunk's rows: only the images are wrong for it.
     let mut spec_config = TrainConfig { hidden: Some(vec![8]), envs: Some(4), ..TrainConfig::default() };
-    spec_config.env.line_points = 0;
+    spec_config.env.observation.line_points = 0;
     let mut state_learner = spec_config.initial_learner().unwrap();
     let err = state_learner.train(std::slice::from_ref(&chunk)).unwrap_err();
     assert!(err.to_string().contains("camera images in a state-based"), "{err}");

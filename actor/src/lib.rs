@@ -100,7 +100,7 @@ impl Actor {
     pub fn set_weights(&mut self, blob: &WeightsBlob) -> Result<(), ActorError> {
         let policy = ActingPolicy::from_blob(blob)?;
         if let Some(env) = self.env.envs().first() {
-            let (reads, writes) = (policy.observation_layout(), env.config().observation_layout());
+            let (reads, writes) = (policy.observation_layout(), env.config().observation);
             if reads != writes {
                 return Err(ActorError::LayoutMismatch { reads, writes });
             }

@@ -6,16 +6,13 @@
 //! run progress) as metadata `section.<name>`, the rest as `U8` tensors `section.<name>`; and
 //! metadata `checkpoint_format` = `dronerace-checkpoint`, `checkpoint_format_version`. So a
 //! checkpoint opens in Python like a policy file, and `WeightsBlob::from_bytes` reads its
-//! policy directly. Checkpoints of the earlier framed layout (`DRCKPT01`) are still read.
+//! policy directly. One layout is read: this build's.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use policy::safetensors::{Tensor, TensorData, TensorFile};
 
-/// Magic of the earlier framed layout: `DRCKPT01`, section count u32, then per section: name
-/// length u32, name, data length u64, data; finally the CRC-32 of everything before it.
-const LEGACY_MAGIC: &[u8; 8] = b"DRCKPT01";
 /// `checkpoint_format` in the metadata.
 const FORMAT_NAME: &str = "dronerace-checkpoint";
 /// `checkpoint_format_version` this build writes and reads.
@@ -105,12 +102,9 @@ impl Checkpoint {
         file.to_bytes()
     }
 
-    /// Decodes and verifies (either layout); `origin` names the source in errors.
+    /// Decodes and verifies; `origin` names the source in errors.
     pub fn from_bytes(bytes: &[u8], origin: &Path) -> Result<Self, CheckpointError> {
         let corrupt = |reason: String| CheckpointError::Corrupt { file: origin.to_path_buf(), reason };
-        if bytes.starts_with(LEGACY_MAGIC) {
-            return Self::from_legacy_bytes(bytes, origin);
-        }
         if !TensorFile::sniff(bytes) {
             return Err(corrupt("not a dronerace checkpoint".into()));
         }
@@ -136,34 +130,6 @@ impl Checkpoint {
         // What remains is the policy file of the `weights` section, bit for bit as it was written.
         if !file.tensors.is_empty() || !file.metadata.is_empty() {
             sections.insert("weights".into(), file.to_bytes());
-        }
-        Ok(Self { sections, origin: origin.to_path_buf() })
-    }
-
-    fn from_legacy_bytes(bytes: &[u8], origin: &Path) -> Result<Self, CheckpointError> {
-        let corrupt = |reason: &str| CheckpointError::Corrupt { file: origin.to_path_buf(), reason: reason.to_owned() };
-        if bytes.len() < LEGACY_MAGIC.len() + 8 {
-            return Err(corrupt("not a dronerace checkpoint"));
-        }
-        let (body, crc) = bytes.split_at(bytes.len() - 4);
-        if crc32fast::hash(body).to_le_bytes() != crc {
-            return Err(corrupt("checksum mismatch (truncated or altered)"));
-        }
-        let mut at = LEGACY_MAGIC.len();
-        let mut take = |n: usize| -> Result<&[u8], CheckpointError> {
-            // A corrupt length may be near usize::MAX: the end is computed without overflow.
-            let end = at.checked_add(n).filter(|&end| end <= body.len()).ok_or_else(|| corrupt("section runs past the end"))?;
-            let slice = &body[at..end];
-            at = end;
-            Ok(slice)
-        };
-        let count = le_u32(take(4)?);
-        let mut sections = BTreeMap::new();
-        for _ in 0..count {
-            let len = le_u32(take(4)?) as usize;
-            let name = String::from_utf8(take(len)?.to_vec()).map_err(|_| corrupt("section name is not UTF-8"))?;
-            let len = le_u64(take(8)?) as usize;
-            sections.insert(name, take(len)?.to_vec());
         }
         Ok(Self { sections, origin: origin.to_path_buf() })
     }
@@ -229,27 +195,12 @@ impl CheckpointDir {
     }
 }
 
-/// A little-endian u32 from exactly 4 bytes.
-fn le_u32(b: &[u8]) -> u32 {
-    u32::from_le_bytes([b[0], b[1], b[2], b[3]])
-}
-
-/// A little-endian u64 from exactly 8 bytes.
-fn le_u64(b: &[u8]) -> u64 {
-    u64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]])
-}
-
 /// The policy in a checkpoint file or a bare weights blob file.
 pub fn read_policy(path: &Path) -> Result<policy::WeightsBlob, CheckpointError> {
     let bytes = std::fs::read(path).map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })?;
-    let corrupt = |reason: String| CheckpointError::Corrupt { file: path.to_path_buf(), reason };
-    if bytes.starts_with(LEGACY_MAGIC) {
-        let checkpoint = Checkpoint::from_bytes(&bytes, path)?;
-        policy::WeightsBlob::from_bytes(checkpoint.get("weights")?).map_err(|e| corrupt(e.to_string()))
-    } else {
-        // A checkpoint is a policy file with more in it: read as one, the rest is ignored.
-        policy::WeightsBlob::from_bytes(&bytes).map_err(|e| corrupt(e.to_string()))
-    }
+    // A checkpoint is a policy file with more in it: read as one, the rest is ignored.
+    policy::WeightsBlob::from_bytes(&bytes)
+        .map_err(|reason| CheckpointError::Corrupt { file: path.to_path_buf(), reason: reason.to_string() })
 }
 
 #[cfg(test)]
@@ -278,29 +229,14 @@ mod tests {
     }
 
     #[test]
-    fn a_checkpoint_of_the_earlier_layout_still_reads_and_converts() {
-        let origin = Path::new("tests/data/checkpoint-format1.bin");
-        let legacy = include_bytes!("../tests/data/checkpoint-format1.bin");
-        let old = Checkpoint::from_bytes(legacy, origin).unwrap();
-        let new = Checkpoint::from_bytes(&old.to_bytes(), origin).unwrap();
-        let weights = new.get("weights").unwrap();
-        assert!(TensorFile::sniff(weights), "the policy was rewritten as a safetensors file");
-        assert_eq!(
-            policy::WeightsBlob::from_bytes(weights).unwrap(),
-            policy::WeightsBlob::from_bytes(old.get("weights").unwrap()).unwrap()
-        );
-        for section in ["optimizer", "learner", "progress", "actor", "taskctl"] {
-            assert_eq!(new.get(section).unwrap(), old.get(section).unwrap(), "{section}");
-        }
-    }
-
-    #[test]
     fn a_checkpoint_holds_its_policy_tensors_and_round_trips_every_section() {
-        let legacy = include_bytes!("../tests/data/checkpoint-format1.bin");
-        let old = Checkpoint::from_bytes(legacy, Path::new("c")).unwrap();
-        let blob = policy::WeightsBlob::from_bytes(old.get("weights").unwrap()).unwrap();
-        let mut c = old.clone();
+        let arch = policy::Architecture { hidden: vec![8], ..policy::Architecture::paper() };
+        let net = policy::ActorCritic::new(&arch, -0.5, 1, &policy::Device::flex());
+        let blob = policy::WeightsBlob::from_model(2, &arch, &policy::ObsNormalizer::new(arch.observation_dim), &net);
+        let mut c = Checkpoint::default();
         c.put("weights", blob.to_bytes());
+        c.put("learner", br#"{"version":2}"#.to_vec());
+        c.put("optimizer", vec![7; 70 << 10]);
         c.put("binary", vec![0xff, 0, 1]);
         let bytes = c.to_bytes();
         assert_eq!(Checkpoint::from_bytes(&bytes, Path::new("c")).unwrap(), Checkpoint { origin: "c".into(), ..c });

@@ -392,8 +392,7 @@ impl Student {
             // its critic becomes the teacher's: a start taught in another layout fits.
             let mut expected = architecture.clone();
             if teacher.is_some() && architecture.agent == Agent::Vision {
-                expected.set_observation_layout(blob.architecture.observation_layout());
-                expected.privileged_critic = blob.architecture.privileged_critic;
+                expected.set_observation_layout(blob.architecture.observation);
             }
             blob.check_architecture(&expected).map_err(start_error)?;
         }
@@ -740,8 +739,7 @@ mod tests {
             let mut image = vec![0u8; IMAGE_PIXELS];
             env.render_camera(&mut image);
             shown.push(image);
-            let labelled =
-                data.label(&env, Some(&camera), &env.observation_in(arch.observation_layout()), &[step as f32 / 24.0, 0.5, 0.0, -0.5]);
+            let labelled = data.label(&env, Some(&camera), &env.observation_in(arch.observation), &[step as f32 / 24.0, 0.5, 0.0, -0.5]);
             data.offer_labelled(labelled, &mut rng);
             env.step(&[0.3, 0.2, -0.1, 0.2]);
             camera.record(CameraPose::of(&env));
@@ -781,7 +779,7 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let mut env = RaceEnv::new(track(), EnvConfig::default(), 1, 0);
         for _ in 0..32 {
-            let state = env.observation_in(arch.observation_layout());
+            let state = env.observation_in(arch.observation);
             // Labels scaled up so that the student's initial near-zero head is far from them.
             let label: Vec<f32> = teacher_policy.deterministic_actions(&state).iter().map(|a| (a * 40.0).clamp(-1.0, 1.0)).collect();
             data.offer(&env, &state, &label, &mut rng);
@@ -825,7 +823,7 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let mut env = RaceEnv::new(track(), EnvConfig::default(), 1, 0);
         for k in 0..32 {
-            data.offer(&env, &env.observation_in(arch.observation_layout()), &label(k), &mut rng);
+            data.offer(&env, &env.observation_in(arch.observation), &label(k), &mut rng);
             env.step(&[0.3, 0.2, -0.1, 0.2]);
         }
         data
@@ -917,7 +915,7 @@ mod tests {
     fn a_vision_student_starts_from_one_taught_in_another_layout_and_takes_the_new_teachers_critic() {
         let arch = Architecture { hidden: vec![16, 16], ..Architecture::paper() };
         let mut line_arch = arch.clone();
-        line_arch.set_observation_layout(sim::ObservationLayout { line_points: 4, ..arch.observation_layout() });
+        line_arch.set_observation_layout(sim::ObservationLayout { line_points: 4, ..arch.observation });
         let teacher_of = |a: &Architecture, seed| {
             let net = policy::ActorCritic::new(a, -0.5, seed, &Device::flex());
             WeightsBlob::from_model(1, a, &ObsNormalizer::new(a.observation_dim), &net)
@@ -933,9 +931,9 @@ mod tests {
         env.render_camera(&mut image);
         let act =
             |blob: &WeightsBlob, layout| policy::VisionPolicy::from_blob(blob).unwrap().mean_actions(&image, &env.observation_in(layout));
-        assert_eq!(act(&first, arch.observation_layout()), act(&second, line_arch.observation_layout()));
+        assert_eq!(act(&first, arch.observation), act(&second, line_arch.observation));
         // The critic is the new teacher's.
-        let states = Tensor::<2>::from_data(TensorData::new(env.observation_in(line_arch.observation_layout()), [1, 52]), &Device::flex());
+        let states = Tensor::<2>::from_data(TensorData::new(env.observation_in(line_arch.observation), [1, 52]), &Device::flex());
         let teacher_value = new_teacher.model(&Device::flex()).unwrap().forward(states.clone()).1.into_data();
         let student_value = second.vision_model(&Device::flex()).unwrap().critic.forward(states).squeeze_dim::<1>(1).into_data();
         assert_eq!(teacher_value, student_value);
@@ -946,7 +944,7 @@ mod tests {
     #[test]
     fn a_state_student_imitates_the_pilot_and_learns_its_normaliser() {
         let arch = Architecture { hidden: vec![32, 32], ..Architecture::paper() };
-        let layout = arch.observation_layout();
+        let layout = arch.observation;
         let mut env = RaceEnv::new(track(), EnvConfig::default(), 1, 0);
         let mut pilot = sim::ReferencePilot::default();
         pilot.reset(&env);

@@ -133,7 +133,8 @@ impl Learner {
         // student's): the environments write that action either way.
         let mut profile = profile;
         profile.architecture.vision_previous_action = blob.architecture.vision_previous_action;
-        let expected = Architecture { gate_sight: blob.architecture.gate_sight, ..profile.architecture.clone() };
+        let mut expected = profile.architecture.clone();
+        expected.observation.gate_sight = blob.architecture.observation.gate_sight;
         blob.check_architecture(&expected).map_err(|e| LearnerError::State(e.to_string()))?;
         let mut learner = Self::new(profile, total_env_steps, seed);
         learner.model = Some(Network::from_blob(blob, &learner.device).map_err(|e| LearnerError::State(e.to_string()))?);
@@ -310,11 +311,13 @@ mod tests {
 
     #[test]
     fn a_fine_tune_may_change_which_gate_corners_are_shown_and_nothing_else() {
-        let camera = Architecture { gate_sight: sim::GateSight::Camera, ..Architecture::cpu() };
+        let mut camera = Architecture::cpu();
+        camera.observation.gate_sight = sim::GateSight::Camera;
         let net = ActorCritic::new(&camera, -0.5, 7, &Device::flex());
         let blob = WeightsBlob::from_model(3, &camera, &ObsNormalizer::new(camera.observation_dim), &net);
         let profile = |architecture: Architecture| Profile { architecture, ..Profile::cpu() };
-        let all = Architecture { gate_sight: sim::GateSight::All, ..camera.clone() };
+        let mut all = camera.clone();
+        all.observation.gate_sight = sim::GateSight::All;
         let learner = Learner::from_policy(profile(all.clone()), 1000, 0, &blob).unwrap();
         let tuned = learner.weights();
         assert_eq!((tuned.architecture, tuned.params.len()), (all, blob.params.len()), "the run's sight, the start's weights");

@@ -77,7 +77,6 @@ fn statistics(blob: &WeightsBlob) -> impl Iterator<Item = (f64, f64)> + '_ {
 /// inputs as the same affine map of raw inputs: `W'ᵢ = Wᵢ / sᵢ`, `b' = b − Σᵢ mᵢ W'ᵢ`.
 fn fold(blob: &WeightsBlob, params: &mut [Vec<f64>], weight: usize, bias: usize) {
     let outputs = params[bias].len();
-    // A layer may read a prefix of the observation (the actor under a privileged critic).
     let inputs = params[weight].len() / outputs;
     for (i, (mean, scale)) in statistics(blob).take(inputs).enumerate() {
         for o in 0..outputs {
@@ -178,15 +177,6 @@ mod tests {
     #[test]
     fn one_function_under_two_normalisers_averages_to_itself() {
         averages_to_itself_under_two_normalisers(&small(vec![16, 16]));
-    }
-
-    #[test]
-    fn an_actor_reading_a_prefix_folds_only_that_prefix() {
-        // Under a privileged critic the actor's first layer reads 40 of the 52 numbers.
-        let mut arch = small(vec![16, 16]);
-        arch.set_observation_layout(sim::ObservationLayout { obstacle_gates: 1, ..arch.observation_layout() });
-        arch.privileged_critic = true;
-        averages_to_itself_under_two_normalisers(&arch);
     }
 
     #[test]

@@ -10,7 +10,8 @@
 //! `format_version`, `policy_version`, `architecture` and `normalizer` (count, clip, epsilon)
 //! as JSON, `param_ids` (burn's parameter ids, so optimiser moments re-attach), `crc32`.
 //!
-//! Blobs of the earlier framed layout (`DRPOLICY`, format 1) are still read.
+//! One format is read: this build's (3). Files of format 2 convert with
+//! `docs/python/upgrade_policy.py` (policies/README.md); the shipped policies were converted so.
 
 use burn::tensor::Device;
 use rand::{Rng, SeedableRng};
@@ -22,16 +23,13 @@ use crate::network::{ActorCritic, ExportedParam};
 use crate::normalizer::ObsNormalizer;
 use crate::safetensors::{Tensor, TensorData, TensorFile, TensorFileError};
 use crate::vision::VisionActorCritic;
-use frames::{Reader, Truncated};
+use frames::Truncated;
 
-/// Magic of the earlier framed layout.
-const LEGACY_MAGIC: &[u8; 8] = b"DRPOLICY";
-/// The framed layout's format number.
-const LEGACY_FORMAT: u32 = 1;
 /// `format` in the metadata of a policy file.
 const FORMAT_NAME: &str = "dronerace-policy";
-/// `format_version` this build writes and reads.
-const FORMAT: u32 = 2;
+/// `format_version` this build writes and reads: 3 holds the observation layout as one object
+/// (`architecture.observation`).
+const FORMAT: u32 = 3;
 
 /// A blob that cannot be used.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -45,10 +43,10 @@ pub enum BlobError {
         at: usize,
     },
     /// Not a weights blob at all.
-    #[error("not a dronerace weights blob (neither a safetensors policy file nor the earlier layout)")]
+    #[error("not a dronerace weights blob (a safetensors policy file)")]
     BadMagic,
     /// Written by another format version.
-    #[error("weights blob format {0}; this build reads format {FORMAT}")]
+    #[error("weights blob format {0}; this build reads format {FORMAT} (format 2 converts with docs/python/upgrade_policy.py)")]
     UnsupportedFormat(u32),
     /// The checksum does not match the contents.
     #[error("weights blob checksum mismatch: the contents were altered")]
@@ -309,15 +307,12 @@ impl WeightsBlob {
         self.to_tensor_file().to_bytes()
     }
 
-    /// Decodes and verifies a blob (either layout).
+    /// Decodes and verifies a blob.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, BlobError> {
-        if bytes.starts_with(LEGACY_MAGIC) {
-            return Self::from_legacy_bytes(bytes);
-        }
         if !TensorFile::sniff(bytes) {
-            // Too short to tell which layout: a prefix of either is truncated, anything else foreign.
+            // Too short to tell: a prefix of a policy file is truncated, anything else foreign.
             let shortest = 8 + crate::safetensors::HEADER_START.len();
-            let prefix = LEGACY_MAGIC.starts_with(bytes) || bytes.len() < 8 || crate::safetensors::HEADER_START.starts_with(&bytes[8..]);
+            let prefix = bytes.len() < 8 || crate::safetensors::HEADER_START.starts_with(&bytes[8..]);
             if bytes.len() < shortest && prefix {
                 return Err(BlobError::Truncated { needed: shortest - bytes.len(), at: bytes.len() });
             }
@@ -390,63 +385,15 @@ impl WeightsBlob {
         }
         Ok(())
     }
-
-    /// Decodes the earlier framed layout: `DRPOLICY`, format u32, version u64, architecture
-    /// (u32 length + JSON), normaliser (dim u32, count, clip, epsilon, mean[dim], var[dim] as
-    /// f64), parameters (count u32; each: id u64, rank u8, dims u32[rank], values f32[numel]),
-    /// CRC-32 of everything before it.
-    fn from_legacy_bytes(bytes: &[u8]) -> Result<Self, BlobError> {
-        if bytes.len() < 16 {
-            return Err(BlobError::Truncated { needed: 16 - bytes.len(), at: bytes.len() });
-        }
-        let (body, crc) = bytes.split_at(bytes.len() - 4);
-        let mut r = Reader::new(body, LEGACY_MAGIC.len());
-        let format = r.u32()?;
-        if format != LEGACY_FORMAT {
-            return Err(BlobError::UnsupportedFormat(format));
-        }
-        if crc32fast::hash(body).to_le_bytes() != crc {
-            return Err(BlobError::Checksum);
-        }
-        let version = r.u64()?;
-        let arch_len = r.u32()? as usize;
-        let architecture: Architecture =
-            serde_json::from_slice(r.take(arch_len)?).map_err(|e| BlobError::Malformed(format!("architecture: {e}")))?;
-        let dim = r.u32()? as usize;
-        let (count, clip, epsilon) = (r.f64()?, r.f64()?, r.f64()?);
-        let mean = (0..dim).map(|_| r.f64()).collect::<Result<_, _>>()?;
-        let var = (0..dim).map(|_| r.f64()).collect::<Result<_, _>>()?;
-        let normalizer = ObsNormalizer { mean, var, count, clip, epsilon };
-        let count = r.u32()? as usize;
-        let mut params = Vec::with_capacity(r.capacity_for(count, 9)); // id u64 + rank u8 at least
-        for _ in 0..count {
-            let id = r.u64()?;
-            let rank = r.u8()? as usize;
-            let shape: Vec<usize> = (0..rank).map(|_| r.u32().map(|d| d as usize)).collect::<Result<_, _>>()?;
-            let numel = shape.iter().try_fold(1usize, |n, &d| n.checked_mul(d));
-            let numel = numel.ok_or_else(|| BlobError::Malformed(format!("parameter {id}: shape {shape:?} overflows")))?;
-            let values = r.f32s(numel)?;
-            params.push(ExportedParam { id, shape, values });
-        }
-        if r.remaining() != 0 {
-            return Err(BlobError::Malformed(format!("{} bytes after the parameters", r.remaining())));
-        }
-        check_observation_lengths(&architecture, &normalizer)?;
-        let blob = Self { version, architecture, normalizer, params };
-        blob.check_parameters()?;
-        Ok(blob)
-    }
 }
 
 /// The observation length must match what the layout holds, and the normaliser must match it.
 fn check_observation_lengths(architecture: &Architecture, normalizer: &ObsNormalizer) -> Result<(), BlobError> {
-    let layout = architecture.observation_layout();
+    let layout = architecture.observation;
     if architecture.observation_dim != layout.dim() {
         return Err(BlobError::Malformed(format!(
-            "observation_dim {} but {} obstacle gates, {} proximity readings and {} racing-line points make {} numbers",
+            "observation_dim {} but SPEC §5's 40 numbers and {} racing-line points make {}",
             architecture.observation_dim,
-            layout.obstacle_gates,
-            layout.proximity_gates,
             layout.line_points,
             layout.dim()
         )));
@@ -526,17 +473,6 @@ mod tests {
     }
 
     #[test]
-    fn a_policy_of_the_earlier_layout_still_reads_and_converts_bit_exactly() {
-        let legacy = include_bytes!("../tests/data/policy-format1.bin");
-        assert!(legacy.starts_with(LEGACY_MAGIC));
-        let blob = WeightsBlob::from_bytes(legacy).unwrap();
-        assert_eq!(WeightsBlob::from_bytes(&blob.to_bytes()).unwrap(), blob);
-        let mut altered = legacy.to_vec();
-        altered[40] ^= 1;
-        assert_eq!(WeightsBlob::from_bytes(&altered), Err(BlobError::Checksum));
-    }
-
-    #[test]
     fn corrupt_truncated_foreign_and_mismatched_blobs_are_refused() {
         let b = blob();
         let bytes = b.to_bytes();
@@ -550,14 +486,14 @@ mod tests {
         assert!(matches!(WeightsBlob::from_bytes(&bytes[..12]), Err(BlobError::Truncated { .. })));
         let e = b.check_architecture(&Architecture::paper()).unwrap_err().to_string();
         let mut other = b.to_tensor_file();
-        other.metadata.insert("format_version".into(), "3".into());
-        assert_eq!(WeightsBlob::from_bytes(&other.to_bytes()), Err(BlobError::UnsupportedFormat(3)));
+        other.metadata.insert("format_version".into(), "2".into());
+        let older = WeightsBlob::from_bytes(&other.to_bytes()).unwrap_err();
+        assert!(older == BlobError::UnsupportedFormat(2) && older.to_string().contains("upgrade_policy.py"), "{older}");
         assert!(e.contains("[8,8]") && e.contains("[512,512]"), "{e}");
     }
 
-    /// A policy with obstacle gates, proximity readings and racing-line points round-trips
-    /// with its wider observation, their order, range and spacing; a blob whose observation length disagrees with its
-    /// layout is refused, naming both.
+    /// A policy with a layout beyond SPEC's round-trips with it; a blob whose observation length
+    /// disagrees with its layout is refused.
     #[test]
     fn a_normaliser_that_would_panic_or_emit_non_finite_values_is_refused_by_field() {
         let refused = |edit: &dyn Fn(&mut WeightsBlob)| {
@@ -580,38 +516,23 @@ mod tests {
 
     #[test]
     fn the_observation_layout_travels_with_the_blob_and_must_match_its_length() {
-        let arch = Architecture {
-            hidden: vec![8, 8],
-            obstacle_gates: 2,
-            obstacle_order: sim::ObstacleOrder::Track,
-            proximity_gates: 1,
-            proximity_range: 3.0,
+        let layout = sim::ObservationLayout {
+            frame: sim::ObservationFrame::Heading,
             line_points: 2,
             line_spacing: 1.5,
-            observation_dim: 74,
-            ..Architecture::paper()
+            gate_sight: sim::GateSight::Camera,
         };
+        let mut arch = Architecture { hidden: vec![8, 8], ..Architecture::paper() };
+        arch.set_observation_layout(layout);
         let model = ActorCritic::new(&arch, -0.5, 1, &Device::flex());
-        let b = WeightsBlob::from_model(3, &arch, &ObsNormalizer::new(74), &model);
+        let b = WeightsBlob::from_model(3, &arch, &ObsNormalizer::new(46), &model);
         let back = WeightsBlob::from_bytes(&b.to_bytes()).unwrap();
-        assert_eq!(
-            back.architecture.observation_layout(),
-            sim::ObservationLayout {
-                frame: sim::ObservationFrame::World,
-                obstacle_gates: 2,
-                obstacle_order: sim::ObstacleOrder::Track,
-                proximity_gates: 1,
-                proximity_range: 3.0,
-                line_points: 2,
-                line_spacing: 1.5,
-                gate_sight: sim::GateSight::All,
-            }
-        );
-        assert_eq!(back.params[0].values.len(), 74 * 8);
-        let wrong = Architecture { obstacle_gates: 1, ..arch.clone() };
-        let e = WeightsBlob::from_bytes(&WeightsBlob::from_model(3, &wrong, &ObsNormalizer::new(74), &model).to_bytes()).unwrap_err();
+        assert_eq!(back.architecture.observation, layout);
+        assert_eq!(back.params[0].values.len(), 46 * 8);
+        let wrong = Architecture { observation: sim::ObservationLayout { line_points: 1, ..layout }, ..arch.clone() };
+        let e = WeightsBlob::from_bytes(&WeightsBlob::from_model(3, &wrong, &ObsNormalizer::new(46), &model).to_bytes()).unwrap_err();
         assert!(
-            matches!(&e, BlobError::Malformed(m) if m.contains("observation_dim 74") && m.contains("1 obstacle gates, 1 proximity readings and 2 racing-line points make 62")),
+            matches!(&e, BlobError::Malformed(m) if m.contains("observation_dim 46") && m.contains("1 racing-line points make 43")),
             "{e}"
         );
     }

@@ -62,7 +62,7 @@ mod tests {
     use sim::{Arena, EnvConfig, Gate, ObservationFrame, Track};
 
     fn blob(seed: u64, frame: ObservationFrame) -> WeightsBlob {
-        let arch = Architecture { hidden: vec![16, 16], observation_frame: frame, ..Architecture::paper() };
+        let arch = Architecture { hidden: vec![16, 16], observation: sim::ObservationLayout::spec(frame), ..Architecture::paper() };
         // Large weights, so the members' actions differ clearly.
         let model = ActorCritic::new(&arch, -0.5, seed, &Device::default());
         let mut blob = WeightsBlob::from_model(seed, &arch, &ObsNormalizer::new(arch.observation_dim), &model);

@@ -58,7 +58,7 @@ impl Policy {
         let device = Device::flex();
         let model = blob.model(&device)?.valid();
         let log_std = blob.params.last().map(|p| p.values.clone()).unwrap_or_default();
-        let layout = blob.architecture.observation_layout();
+        let layout = blob.architecture.observation;
         Ok(Self { model, normalizer: blob.normalizer.clone(), log_std, version: blob.version, layout, device })
     }
 
@@ -163,7 +163,7 @@ impl VisionPolicy {
         let device = Device::flex();
         let model = blob.vision_model(&device)?.valid();
         let log_std = blob.params.last().map(|p| p.values.clone()).unwrap_or_default();
-        let layout = blob.architecture.observation_layout();
+        let layout = blob.architecture.observation;
         let frame_stack = blob.architecture.frame_stack;
         Ok(Self { model, normalizer: blob.normalizer.clone(), log_std, layout, frame_stack, version: blob.version, device })
     }

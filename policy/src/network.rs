@@ -163,13 +163,9 @@ impl ActorCritic {
         (mean, value)
     }
 
-    /// Action means `[batch, action_dim]` of normalised observations: the actor reads the
-    /// prefix it was built for (all of it unless the critic is privileged).
+    /// Action means `[batch, action_dim]` of normalised observations.
     pub fn action_means(&self, observations: Tensor<2>) -> Tensor<2> {
-        let inputs = self.actor.input_dim();
-        let [batch, dim] = observations.dims();
-        let visible = if inputs < dim { observations.slice([0..batch, 0..inputs]) } else { observations };
-        self.actor.forward(visible)
+        self.actor.forward(observations)
     }
 
     /// Every parameter's id and rank, in [`ActorCritic::export`] order, without copying values.
@@ -240,23 +236,6 @@ mod tests {
         let arch = Architecture { hidden: vec![8, 6], ..Architecture::paper() };
         let exported: Vec<Vec<usize>> = ActorCritic::new(&arch, -0.5, 2, &Device::flex()).export().into_iter().map(|p| p.shape).collect();
         assert_eq!(ActorCritic::shapes(&arch), exported);
-    }
-
-    #[test]
-    fn a_privileged_critics_extra_inputs_move_the_value_but_not_the_action() {
-        let mut arch = Architecture { hidden: vec![8], ..Architecture::paper() };
-        arch.set_observation_layout(sim::ObservationLayout { obstacle_gates: 1, ..arch.observation_layout() });
-        arch.privileged_critic = true;
-        let model = ActorCritic::new(&arch, -0.5, 4, &Device::flex());
-        let observation = |extra: f32| {
-            let values: Vec<f32> = (0..arch.observation_dim).map(|i| if i < 40 { 0.05 * i as f32 - 1.0 } else { extra }).collect();
-            Tensor::<2>::from_data(TensorData::new(values, [1, arch.observation_dim]), &Device::flex())
-        };
-        let (mean_a, value_a) = model.forward(observation(0.0));
-        let (mean_b, value_b) = model.forward(observation(2.0));
-        assert_eq!(mean_a.into_data(), mean_b.into_data());
-        assert_ne!(value_a.into_data(), value_b.into_data());
-        assert_eq!(ActorCritic::shapes(&arch)[0], vec![40, 8]);
     }
 
     #[test]

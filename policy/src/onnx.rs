@@ -187,9 +187,7 @@ pub fn actor_model(blob: &WeightsBlob) -> Result<Vec<u8>, BlobError> {
     blob.check_agent(Agent::State)?;
     let arch = &blob.architecture;
     let n = &blob.normalizer;
-    // The actor reads a prefix of the observation (all of it unless the critic is privileged):
-    // the deployed model takes just that.
-    let inputs = arch.actor_input_dim();
+    let inputs = arch.observation_dim;
     let std: Vec<f64> = n.var[..inputs].iter().map(|v| (v + n.epsilon).sqrt()).collect();
     let mut initializer = vec![
         doubles("obs_mean", &[inputs], &n.mean[..inputs]),
@@ -236,7 +234,7 @@ pub fn actor_model(blob: &WeightsBlob) -> Result<Vec<u8>, BlobError> {
         ir_version: IR_VERSION,
         producer_name: "dronerace".into(),
         producer_version: env!("CARGO_PKG_VERSION").into(),
-        doc_string: format!("dronerace policy v{}: {} -> mean action in [-1, 1]", blob.version, arch.actor_observation_layout().describe()),
+        doc_string: format!("dronerace policy v{}: {} -> mean action in [-1, 1]", blob.version, arch.observation.describe()),
         graph: Some(graph),
         opset_import: vec![OperatorSetIdProto { domain: String::new(), version: OPSET }],
     }
@@ -261,12 +259,10 @@ mod tests {
     #[test]
     fn the_model_reads_what_the_actor_reads() {
         let mut arch = Architecture { hidden: vec![8], ..Architecture::paper() };
-        arch.set_observation_layout(sim::ObservationLayout { obstacle_gates: 1, ..arch.observation_layout() });
+        arch.set_observation_layout(sim::ObservationLayout { line_points: 4, ..arch.observation });
         let blob = |arch: &Architecture| {
             WeightsBlob::from_model(1, arch, &ObsNormalizer::new(arch.observation_dim), &ActorCritic::new(arch, -0.5, 1, &Device::flex()))
         };
         assert_eq!(input_widths(&blob(&arch)), (52, vec![52]));
-        arch.privileged_critic = true;
-        assert_eq!(input_widths(&blob(&arch)), (40, vec![40]));
     }
 }

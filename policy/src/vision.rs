@@ -320,7 +320,11 @@ mod tests {
     fn the_vision_controller_renders_the_camera_and_acts_on_it() {
         use crate::{ObsNormalizer, VisionPolicy, VisionPolicyController, WeightsBlob};
         use sim::{Controller, EnvConfig, RaceEnv};
-        let arch = Architecture { hidden: vec![16, 16], observation_frame: sim::ObservationFrame::Heading, ..Architecture::paper() };
+        let arch = Architecture {
+            hidden: vec![16, 16],
+            observation: sim::ObservationLayout::spec(sim::ObservationFrame::Heading),
+            ..Architecture::paper()
+        };
         let device = Device::flex();
         // A policy head with gain 1, so that the image visibly moves the action.
         let mut net = VisionActorCritic::new(&arch, -0.5, 5, &device);
@@ -349,10 +353,10 @@ mod tests {
         let mut image = vec![0u8; sim::camera::IMAGE_PIXELS];
         env.render_camera(&mut image);
         assert!(image.contains(&sim::camera::TARGET_COLOUR), "gate 0 is in view from the start");
-        let by_hand = policy.mean_actions(&image, &env.observation_in(arch.observation_layout()));
+        let by_hand = policy.mean_actions(&image, &env.observation_in(arch.observation));
         assert_eq!(action.to_vec(), by_hand.iter().map(|a| a.clamp(-1.0, 1.0)).collect::<Vec<_>>());
         // A blank image gives another action: the controller really looks.
-        let blank = policy.mean_actions(&vec![0u8; sim::camera::IMAGE_PIXELS], &env.observation_in(arch.observation_layout()));
+        let blank = policy.mean_actions(&vec![0u8; sim::camera::IMAGE_PIXELS], &env.observation_in(arch.observation));
         assert_ne!(blank, by_hand);
     }
 
@@ -514,7 +518,7 @@ mod tests {
         // By hand: the current pose, the one 2 steps before, and 4 steps before.
         let mut frames = vec![0u8; stack.image_len()];
         sim::frame_stack::render_frames(&[poses[5], poses[3], poses[1]], &track, &mut frames);
-        let by_hand = policy.deterministic_actions(&frames, &env.observation_in(arch.observation_layout()));
+        let by_hand = policy.deterministic_actions(&frames, &env.observation_in(arch.observation));
         assert_eq!(action.to_vec(), by_hand);
         let mut history = CameraHistory::new(stack);
         poses.iter().for_each(|p| history.record(*p));

@@ -396,7 +396,7 @@ impl Distiller {
                     bail!("teacher {}: a {} policy; the teacher must be state-based", config.teacher.display(), blob.architecture.agent);
                 }
                 // The teacher's observation is the student's state input and its critic's.
-                config.env.set_observation_layout(blob.architecture.observation_layout());
+                config.env.observation = blob.architecture.observation;
                 Architecture {
                     agent: config.student,
                     vision_previous_action: config.previous_action,
@@ -409,7 +409,7 @@ impl Distiller {
                 if let Some(hidden) = &config.hidden {
                     architecture.hidden = hidden.clone();
                 }
-                architecture.set_observation_layout(config.env.observation_layout());
+                architecture.set_observation_layout(config.env.observation);
                 Architecture {
                     agent: config.student,
                     vision_previous_action: config.previous_action,
@@ -459,7 +459,7 @@ impl Distiller {
             None => DistillDataset::new(config.capacity, architecture.observation_dim, config.frame_stack),
             Some(run) => {
                 let labelled_by = if config.relabel { LabelledBy::Any } else { LabelledBy::Teacher(teacher_bytes.as_deref()) };
-                earlier_dataset(run, labelled_by, architecture.observation_layout(), config.frame_stack)
+                earlier_dataset(run, labelled_by, architecture.observation, config.frame_stack)
                     .with_context(|| format!("dataset_from {}", run.display()))?
             }
         };
@@ -767,10 +767,10 @@ fn earlier_dataset(
     }
     // Its config records the layout its teacher observed: the same numbers may mean other things.
     ensure!(
-        config.env.observation_layout() == layout,
+        config.env.observation == layout,
         "{}: its states are of another observation layout ({:?}; this teacher's: {layout:?})",
         run.display(),
-        config.env.observation_layout()
+        config.env.observation
     );
     let data = DistillDataset::from_bytes(section("dataset")?).with_context(|| format!("{}", path.display()))?;
     ensure!(

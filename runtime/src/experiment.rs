@@ -13,7 +13,7 @@
 //! name = "world"
 //! [[variant]]
 //! name = "heading"
-//! set = { env.observation_frame = "heading" }
+//! set = { env.observation.frame = "heading" }
 //! ```
 
 use std::path::{Path, PathBuf};
@@ -584,7 +584,7 @@ mod tests {
         name = "world"
         [[variant]]
         name = "body"
-        set = { env.observation_frame = "body", ppo.batch_size = 64 }
+        set = { env.observation.frame = "body", ppo.batch_size = 64 }
     "#;
 
     #[test]
@@ -620,8 +620,8 @@ mod tests {
         let world = e.config(&e.variants[0], 1).unwrap();
         let body = e.config(&e.variants[1], 0).unwrap();
         assert_eq!((world.seed, world.total_env_steps, world.ppo.unwrap().n_epochs), (1, 1000, 3));
-        assert_eq!(world.env.observation_frame, sim::EnvConfig::default().observation_frame, "no override: the default");
-        assert_eq!(body.env.observation_frame, sim::ObservationFrame::Body);
+        assert_eq!(world.env.observation.frame, sim::EnvConfig::default().observation.frame, "no override: the default");
+        assert_eq!(body.env.observation.frame, sim::ObservationFrame::Body);
         // The nested override kept the base's sibling key.
         assert_eq!((body.ppo.unwrap().n_epochs, body.ppo.unwrap().batch_size), (3, 64));
         assert_eq!(body.name, "body-seed-0");

@@ -12,8 +12,13 @@ use serde::de::DeserializeOwned;
 /// Options removed from the core: the dotted key, the value (TOML) every run had while it
 /// existed — `None` when any value was a choice — and the last commit that has the option
 /// (docs/notebook/generalist-rejected.md, "Options removed from the core").
-const RETIRED: [(&str, Option<&str>, &str); 6] = [
+const RETIRED: [(&str, Option<&str>, &str); 11] = [
     ("warm_start", None, "9b48c91"),
+    ("privileged_critic", Some("false"), "4f9e33d"),
+    ("env.obstacle_gates", Some("0"), "4f9e33d"),
+    ("env.obstacle_order", Some("\"nearest\""), "4f9e33d"),
+    ("env.proximity_gates", Some("0"), "4f9e33d"),
+    ("env.proximity_range", Some("4.0"), "4f9e33d"),
     ("env.start_gate", Some("\"first\""), "8941555"),
     ("env.reward.progress_speed_cap", None, "8941555"),
     ("ppo.mirror_coef", Some("0.0"), "8941555"),
@@ -21,11 +26,29 @@ const RETIRED: [(&str, Option<&str>, &str); 6] = [
     ("env.randomization.gate_perception_floor", Some("0.0"), "7da1853"),
 ];
 
+/// Keys of `[env]` that moved into `[env.observation]` (the one observation layout), with their
+/// new names there.
+const MOVED: [(&str, &str); 4] =
+    [("observation_frame", "frame"), ("line_points", "line_points"), ("line_spacing", "line_spacing"), ("gate_sight", "gate_sight")];
+
 /// `text` without the removed options it holds at the value every run had (a run directory's
-/// saved config holds them so); a removed option set to anything else is refused by name.
+/// saved config holds them so), and with `[env]`'s observation keys under `[env.observation]`;
+/// a removed option set to anything else is refused by name.
 pub fn retire(text: &str) -> Result<Cow<'_, str>, String> {
     let mut table: toml::Table = toml::from_str(text).map_err(|e| e.to_string())?;
     let mut removed = false;
+    if let Some(env) = table.get_mut("env").and_then(toml::Value::as_table_mut) {
+        for (old, new) in MOVED {
+            if let Some(value) = env.remove(old) {
+                let observation = env.entry("observation").or_insert_with(|| toml::Value::Table(toml::Table::new()));
+                let Some(observation) = observation.as_table_mut() else { return Err("env.observation must be a table".into()) };
+                if observation.insert(new.to_string(), value).is_some() {
+                    return Err(format!("env.{old} and env.observation.{new} are one setting: keep env.observation.{new}"));
+                }
+                removed = true;
+            }
+        }
+    }
     for (key, kept, commit) in RETIRED {
         let (parents, last) = key.rsplit_once('.').map_or((None, key), |(p, l)| (Some(p), l));
         let mut section = Some(&mut table);
@@ -97,5 +120,11 @@ mod tests {
         assert!(err.contains("env.start_gate") && err.contains("8941555"), "{err}");
         assert!(retire("[warm_start]\nrounds = 3\n").unwrap_err().contains("warm_start"));
         assert!(matches!(retire("seed = 1\n").unwrap(), Cow::Borrowed(_)), "a file without them is read as written");
+        // The observation keys a saved config holds under [env] read as [env.observation]'s.
+        let saved = "[env]\nobservation_frame = \"body\"\nline_points = 2\nobstacle_gates = 0\n";
+        let config = parse_over(&DistillConfig::default(), saved).unwrap();
+        assert_eq!((config.env.observation.frame, config.env.observation.line_points), (sim::ObservationFrame::Body, 2));
+        let both = "[env]\nline_points = 2\n[env.observation]\nline_points = 3\n";
+        assert!(parse_over(&DistillConfig::default(), both).unwrap_err().contains("one setting"));
     }
 }

@@ -8,7 +8,7 @@ use std::sync::Arc;
 use policy::{Agent, RolloutChunk};
 use racetracks::TrackGenerator;
 use serde::{Deserialize, Serialize};
-use sim::EnvConfig;
+use sim::{EnvConfig, ObservationLayout};
 use taskctl::{SwitchParams, TaskController};
 
 use crate::metrics::{MetricsRow, MetricsWriter};
@@ -84,10 +84,6 @@ pub struct TrainConfig {
     pub envs: Option<usize>,
     /// Hidden layer widths of actor and critic (default: the profile's, e.g. `[256, 256]`).
     pub hidden: Option<Vec<usize>>,
-    /// Show the observation's numbers beyond SPEC §5's 40 (`env.obstacle_gates`,
-    /// `env.proximity_gates`, `env.line_points`) to the critic only: the actor flies on SPEC's
-    /// observation.
-    pub privileged_critic: bool,
     /// PPO settings over the profile's: a config file's `[ppo]` table sets the fields it
     /// names, the rest keep the profile's values.
     pub ppo: Option<PpoConfig>,
@@ -135,7 +131,6 @@ impl Default for TrainConfig {
             seed: 0,
             envs: None,
             hidden: None,
-            privileged_critic: false,
             ppo: None,
             tracks: TrackSource::Generated,
             generator: TrackGenerator::default(),
@@ -143,7 +138,10 @@ impl Default for TrainConfig {
             // Four points of the pilot's racing line in the observation (12 numbers after
             // SPEC §5's 40): chosen on 100 validation tracks over proxy seeds
             // (docs/notebook/generalist.md, the racing line in the observation).
-            env: EnvConfig { line_points: 4, ..EnvConfig::default() },
+            env: EnvConfig {
+                observation: ObservationLayout { line_points: 4, ..EnvConfig::default().observation },
+                ..EnvConfig::default()
+            },
             checkpoint_every: 10,
             keep_checkpoints: 3,
             learner: Default::default(),
@@ -167,7 +165,7 @@ impl TrainConfig {
         config.env.reward = sim::RewardParams::vision_based();
         config.switching.alpha = 100.0;
         // The camera is what a vision agent sees: its state input is SPEC §5's alone.
-        config.env.line_points = 0;
+        config.env.observation.line_points = 0;
         // Its validation renders and runs the CNN: 20 tracks keep it to minutes.
         config.eval = crate::validation::EvalSettings::default();
         config
@@ -251,27 +249,12 @@ impl TrainConfig {
             return Err(TrainError::Config(format!("learner.rollout_memory_mib: {memory} must be 1 to 1048576 (1 TiB)")));
         }
         // The network reads the observations the environments write.
-        let range = self.env.proximity_range;
-        if self.env.proximity_gates > 0 && !(range.is_finite() && range > 0.0) {
-            return Err(TrainError::Config(format!("env.proximity_range: {range} m must be a positive distance")));
+        let spacing = self.env.observation.line_spacing;
+        if self.env.observation.line_points > 0 && !(spacing.is_finite() && spacing >= 0.0) {
+            return Err(TrainError::Config(format!("env.observation.line_spacing: {spacing} m must be a distance ≥ 0")));
         }
-        let spacing = self.env.line_spacing;
-        if self.env.line_points > 0 && !(spacing.is_finite() && spacing >= 0.0) {
-            return Err(TrainError::Config(format!("env.line_spacing: {spacing} m must be a distance ≥ 0")));
-        }
-        profile.architecture.set_observation_layout(self.env.observation_layout());
+        profile.architecture.set_observation_layout(self.env.observation);
         profile.architecture.agent = self.agent;
-        if self.privileged_critic {
-            if self.agent != Agent::State {
-                return Err(TrainError::Config("privileged_critic: only the state-based agent's actor reads the state observation".into()));
-            }
-            if profile.architecture.observation_dim <= sim::STATE_OBS_DIM {
-                return Err(TrainError::Config(
-                    "privileged_critic: the observation has nothing beyond SPEC §5's 40 numbers to keep from the actor; set env.obstacle_gates, env.proximity_gates or env.line_points".into(),
-                ));
-            }
-            profile.architecture.privileged_critic = true;
-        }
         if !profile.ppo.frozen.is_nothing() && self.agent != Agent::Vision {
             return Err(TrainError::Config("ppo.frozen: only the vision agent has image layers to freeze (agent = \"vision\")".into()));
         }
@@ -740,17 +723,6 @@ mod tests {
             assert!(error.contains(field), "{text:?}: {error}");
         }
         assert!(TrainConfig::default().resolved_profile().is_ok());
-    }
-
-    #[test]
-    fn a_privileged_critic_needs_extra_inputs_and_a_state_based_agent() {
-        let refused = |text: &str| TrainConfig::from_toml(text).unwrap().resolved_profile().unwrap_err().to_string();
-        assert!(refused("privileged_critic = true\n[env]\nline_points = 0\n").contains("nothing beyond SPEC §5's 40"));
-        let vision = "agent = \"vision\"\nprivileged_critic = true\n[env]\nobstacle_gates = 1\n";
-        assert!(refused(vision).contains("only the state-based"), "{}", refused(vision));
-        let text = "privileged_critic = true\n[env]\nline_points = 0\nobstacle_gates = 2\nobstacle_order = \"track\"\n";
-        let arch = TrainConfig::from_toml(text).unwrap().resolved_profile().unwrap().architecture;
-        assert_eq!((arch.observation_dim, arch.actor_input_dim(), arch.privileged_critic), (64, 40, true));
     }
 
     #[test]

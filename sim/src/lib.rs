@@ -21,8 +21,8 @@ pub mod vec_env;
 pub use frame_stack::{CameraHistory, CameraPose, FrameStack};
 pub use nalgebra;
 pub use observation::{
-    DEFAULT_LINE_SPACING, DEFAULT_PROXIMITY_RANGE, GateSight, LINE_POINT_DIM, NEXT_CORNERS_RANGE, OBSTACLE_GATE_DIM, ObservationFrame,
-    ObservationLayout, ObstacleOrder, PREVIOUS_ACTION_RANGE, PROXIMITY_DIM, STATE_OBS_DIM, TARGET_CORNERS_RANGE,
+    DEFAULT_LINE_SPACING, GateSight, LINE_POINT_DIM, NEXT_CORNERS_RANGE, ObservationFrame, ObservationLayout, PREVIOUS_ACTION_RANGE,
+    STATE_OBS_DIM, TARGET_CORNERS_RANGE,
 };
 pub use params::{GRAVITY, QuadrotorParams, RaceParams};
 pub use pilot::{Controller, PilotMemory, PilotParams, ReferencePilot};

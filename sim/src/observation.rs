@@ -1,6 +1,5 @@
 //! The 40-dimensional state observation (SPEC §5, §12.9), in a choice of reference frames,
-//! optionally followed by the corners of other gates of the track, by proximity readings of
-//! their frames, or by points of the reference pilot's racing line ahead.
+//! optionally followed by points of the reference pilot's racing line ahead.
 //!
 //! Observations are written raw (un-normalised) into caller-owned f32 rows; normalisation
 //! belongs to the policy, which owns the running statistics.
@@ -24,17 +23,6 @@ pub const TARGET_CORNERS_RANGE: std::ops::Range<usize> = 16..28;
 
 /// Where δp2 sits: the next gate's 4 corners relative to the target gate's.
 pub const NEXT_CORNERS_RANGE: std::ops::Range<usize> = 28..STATE_OBS_DIM;
-
-/// Numbers each observed obstacle gate adds: its 4 inner corners relative to the drone.
-pub const OBSTACLE_GATE_DIM: usize = 12;
-
-/// Numbers each proximity reading adds: `w·u` (3) and `w`, for the direction `u` to the
-/// nearest frame point and the closeness `w = 1 − d / range` (zero beyond the range).
-pub const PROXIMITY_DIM: usize = 4;
-
-/// Default proximity range (m): at the ~8–10 m/s of a generalist's laps, about half a second
-/// of warning, in which the drone can move sideways by more than a gate's width.
-pub const DEFAULT_PROXIMITY_RANGE: f64 = 4.0;
 
 /// Numbers each racing-line point adds: its position relative to the drone.
 pub const LINE_POINT_DIM: usize = 3;
@@ -83,24 +71,6 @@ impl ObservationFrame {
     }
 }
 
-/// Which other gates fill the observation's obstacle slots, and in what order.
-///
-/// `Nearest` sorts by distance, so two gates swap slots whenever their distances cross: the
-/// input jumps while the drone flies smoothly. `Track` takes the gates that follow the one after
-/// the target in the order they are raced (target + 2, + 3, …, wrapping round), so slots change
-/// only when the target does, as δp1 and δp2 already do; with as many slots as the track has
-/// other gates (4 on a generated 6-gate track) the policy sees the whole track, including the
-/// gate it has just passed.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ObstacleOrder {
-    /// The nearest other gates by centre, nearest first.
-    #[default]
-    Nearest,
-    /// The gates after the target's successor, in racing order.
-    Track,
-}
-
 /// Which of the target and next gates the observation's δp1 and δp2 show.
 ///
 /// SPEC §5 shows both wherever they are. A vision policy sees a gate only while it is in the
@@ -121,38 +91,22 @@ pub enum GateSight {
     Camera,
 }
 
-/// What a state observation holds: SPEC §5's 40 numbers in `frame`, then the corners of
-/// `obstacle_gates` gates other than the target and the one after it, chosen by `obstacle_order`,
-/// then `proximity_gates` proximity readings of the nearest gate frames other than the target's.
+/// What a state observation holds: SPEC §5's 40 numbers in `frame` (with the target and next
+/// gates shown as `gate_sight` says), then `line_points` points of the reference pilot's racing
+/// line, `line_spacing` metres of arc apart.
 ///
-/// SPEC §5 shows the policy two gates only, so a gate of the same track that stands in the way
-/// between them is invisible to it: on the test set a third of the default generalist's
-/// gate-frame crashes were on such gates, on tracks the pilot flies
-/// (docs/notebook/generalist-rejected.md, "Blind to the other gates"). The obstacle gates are an
-/// option beyond the thesis; 0 is SPEC §5 and the default, because in proxy runs both orders did
-/// worse, on those very crashes too.
-///
-/// Proximity readings are the compact alternative: 4 numbers per gate, all zero unless a frame
-/// is within `proximity_range`, so they stay silent on the stretches where SPEC §5's 40 numbers
-/// are all the policy needs, and what they say when they speak is "a frame, this close, that way".
-///
-/// Racing-line points come last: the reference pilot's line (which keeps clear of every frame,
+/// The racing-line points are the pilot's line (which keeps clear of every frame,
 /// [`RacingLine`]) from the point nearest the drone on the leg into the target gate, then every
 /// `line_spacing` metres of arc ahead. They show the policy a way round the gates it cannot
 /// see, in numbers whose meaning does not depend on the track's layout. Beyond the thesis.
-#[derive(Clone, Copy, Debug, PartialEq)]
+///
+/// The one description of the layout: a run's `[env.observation]` and a policy file's
+/// architecture hold it as it is.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct ObservationLayout {
     /// Frame of the vectors.
     pub frame: ObservationFrame,
-    /// How many other gates follow the SPEC's 40 numbers.
-    pub obstacle_gates: usize,
-    /// Which other gates those are.
-    pub obstacle_order: ObstacleOrder,
-    /// How many proximity readings follow: the nearest gate frames other than the target's,
-    /// nearest first.
-    pub proximity_gates: usize,
-    /// Distance (m) at which a proximity reading starts to rise from zero.
-    pub proximity_range: f64,
     /// How many racing-line points follow, the first the nearest on the line.
     pub line_points: usize,
     /// Arc length between them (m).
@@ -164,16 +118,7 @@ pub struct ObservationLayout {
 impl Default for ObservationLayout {
     /// SPEC §5's 40 numbers in the world frame (SPEC §5 as written).
     fn default() -> Self {
-        Self {
-            frame: ObservationFrame::World,
-            obstacle_gates: 0,
-            obstacle_order: ObstacleOrder::Nearest,
-            proximity_gates: 0,
-            proximity_range: DEFAULT_PROXIMITY_RANGE,
-            line_points: 0,
-            line_spacing: DEFAULT_LINE_SPACING,
-            gate_sight: GateSight::All,
-        }
+        Self { frame: ObservationFrame::World, line_points: 0, line_spacing: DEFAULT_LINE_SPACING, gate_sight: GateSight::All }
     }
 }
 
@@ -185,26 +130,12 @@ impl ObservationLayout {
 
     /// Length of an observation row.
     pub fn dim(self) -> usize {
-        STATE_OBS_DIM + OBSTACLE_GATE_DIM * self.obstacle_gates + PROXIMITY_DIM * self.proximity_gates + LINE_POINT_DIM * self.line_points
+        STATE_OBS_DIM + LINE_POINT_DIM * self.line_points
     }
 
     /// What a row holds, in words, for a flight stack that must write it (an exported model's
     /// doc string, a served policy's description).
     pub fn describe(self) -> String {
-        let obstacles = match self.obstacle_gates {
-            0 => String::new(),
-            k => {
-                let which = match self.obstacle_order {
-                    ObstacleOrder::Nearest => "nearest other gates",
-                    ObstacleOrder::Track => "gates after the next (racing order)",
-                };
-                format!(" with the corners of the {k} {which} after SPEC §5's 40")
-            }
-        };
-        let proximity = match self.proximity_gates {
-            0 => String::new(),
-            k => format!(", then {k} proximity readings [w*u, w] of the nearest gate frames (w = 1 - d / {} m)", self.proximity_range),
-        };
         let line = match self.line_points {
             0 => String::new(),
             k => format!(
@@ -216,7 +147,7 @@ impl ObservationLayout {
             GateSight::All => "",
             GateSight::Camera => ", the two gates' corners zero while the camera cannot see them",
         };
-        format!("raw {}-number state observation in the {} frame{sight}{obstacles}{proximity}{line}", self.dim(), self.frame.name())
+        format!("raw {}-number state observation in the {} frame{sight}{line}", self.dim(), self.frame.name())
     }
 }
 
@@ -225,25 +156,12 @@ fn heading_from_world(body: &BodyState) -> Matrix3<f64> {
     Rotation3::from_axis_angle(&Vector3::z_axis(), -body.yaw()).into_inner()
 }
 
-/// Writes `[R col 0, col 1, v, w, a_prev, δp1, δp2, obstacles…]` into `out` (length
+/// Writes `[R col 0, col 1, v, w, a_prev, δp1, δp2, line points…]` into `out` (length
 /// `layout.dim()`), with R, v and the relative positions in `layout.frame`.
 ///
-/// Obstacles are `layout.obstacle_gates` gates among all but the target and the gate after it,
-/// each as its 4 corners minus the drone position (like δp1): with [`ObstacleOrder::Nearest`]
-/// the nearest to the drone (by centre), nearest first, and where the track has fewer such gates
-/// the gate after the target fills the remaining slots (a gate the policy already sees, so a
-/// missing obstacle adds nothing new); with [`ObstacleOrder::Track`] the gates that follow the
-/// target's successor in racing order (target + 2, target + 3, …), wrapping round the track (so
-/// on a short track a slot may repeat a gate the policy already sees, for the same reason).
-///
-/// Proximity readings come last: for the `layout.proximity_gates` gates (other than the target)
-/// whose frames are nearest to the drone, nearest first, `[w·u, w]` with `u` the unit vector to
-/// the nearest frame point in `layout.frame` and `w = max(0, 1 − d / proximity_range)`; a
-/// reading with no gate left, or beyond the range, is all zeros.
-///
-/// Then `layout.line_points` points of `line` (required when there are any), each minus the
-/// drone position in `layout.frame`: the sample nearest to the drone on the leg into the target
-/// gate, and the points `k · line_spacing` metres of arc after it.
+/// The line points are `layout.line_points` points of `line` (required when there are any),
+/// each minus the drone position in `layout.frame`: the sample nearest to the drone on the leg
+/// into the target gate, and the points `k · line_spacing` metres of arc after it.
 pub fn write_state_observation(
     body: &BodyState,
     previous_action: &[f64; 4],
@@ -292,12 +210,9 @@ pub fn write_state_observation(
     for (o, v) in out.iter_mut().zip(values) {
         *o = v as f32;
     }
-    write_obstacle_corners(body, track, target, layout, to_frame, &mut out[STATE_OBS_DIM..]);
-    let proximity_start = STATE_OBS_DIM + OBSTACLE_GATE_DIM * layout.obstacle_gates;
-    write_proximity(body, track, target, layout, to_frame, &mut out[proximity_start..]);
     if layout.line_points > 0 {
         let Some(line) = line else { panic!("a layout with racing-line points needs the racing line") };
-        write_line_ahead(body, line, target, layout, to_frame, &mut out[proximity_start + PROXIMITY_DIM * layout.proximity_gates..]);
+        write_line_ahead(body, line, target, layout, to_frame, &mut out[STATE_OBS_DIM..]);
     }
 }
 
@@ -316,74 +231,6 @@ fn write_line_ahead(
         for (o, v) in row.iter_mut().zip(relative.iter()) {
             *o = *v as f32;
         }
-    }
-}
-
-/// The obstacle-gate corners of [`write_state_observation`] into `out`.
-fn write_obstacle_corners(
-    body: &BodyState,
-    track: &Track,
-    target: usize,
-    layout: ObservationLayout,
-    to_frame: Matrix3<f64>,
-    out: &mut [f32],
-) {
-    if layout.obstacle_gates == 0 {
-        return;
-    }
-    let next = track.next_index(target);
-    // Only the nearest-first order needs the other gates sorted (an empty Vec does not allocate).
-    let mut nearest: Vec<(f64, usize)> = Vec::new();
-    if layout.obstacle_order == ObstacleOrder::Nearest {
-        nearest.extend(
-            (0..track.gates.len())
-                .filter(|&g| g != target && g != next)
-                .map(|g| ((track.gates[g].position - body.position).norm_squared(), g)),
-        );
-        nearest.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-    }
-    for slot in 0..layout.obstacle_gates {
-        let gate = match layout.obstacle_order {
-            ObstacleOrder::Nearest => nearest.get(slot).map_or(next, |&(_, g)| g),
-            ObstacleOrder::Track => (target + 2 + slot) % track.gates.len(),
-        };
-        let row = &mut out[OBSTACLE_GATE_DIM * slot..OBSTACLE_GATE_DIM * (slot + 1)];
-        for (c, corner) in track.gates[gate].corners().iter().enumerate() {
-            let relative = to_frame * (corner - body.position);
-            for k in 0..3 {
-                row[3 * c + k] = relative[k] as f32;
-            }
-        }
-    }
-}
-
-/// The proximity readings of [`write_state_observation`] into `out`.
-fn write_proximity(body: &BodyState, track: &Track, target: usize, layout: ObservationLayout, to_frame: Matrix3<f64>, out: &mut [f32]) {
-    out[..PROXIMITY_DIM * layout.proximity_gates].fill(0.0);
-    // (distance, gate, drone → nearest frame point) of every gate but the target.
-    let others = || {
-        (0..track.gates.len()).filter(|&g| g != target).map(|g| {
-            let towards = track.gates[g].nearest_frame_point(&body.position) - body.position;
-            (towards.norm(), g, towards)
-        })
-    };
-    // k is small (1–2): pick the next nearest k times instead of sorting into a per-step Vec.
-    let mut previous: Option<(f64, usize)> = None;
-    for slot in 0..layout.proximity_gates {
-        let nearest =
-            others().filter(|&(d, g, _)| previous.is_none_or(|p| (d, g) > p)).min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let Some((distance, gate, towards)) = nearest else { break };
-        previous = Some((distance, gate));
-        let closeness = 1.0 - distance / layout.proximity_range;
-        if closeness <= 0.0 {
-            break;
-        }
-        let direction = if distance > 0.0 { to_frame * towards / distance } else { Vector3::zeros() };
-        let row = &mut out[PROXIMITY_DIM * slot..PROXIMITY_DIM * (slot + 1)];
-        for k in 0..3 {
-            row[k] = (closeness * direction[k]) as f32;
-        }
-        row[3] = closeness as f32;
     }
 }
 
@@ -518,109 +365,6 @@ mod tests {
         assert!((out[0] - 1.0).abs() < 1e-6 && (out[4] - 1.0).abs() < 1e-6);
     }
 
-    /// The obstacle slots hold the nearest gates other than the target and the one after it,
-    /// nearest first, as corners relative to the drone; a track without enough such gates fills
-    /// the rest with the gate after the target.
-    #[test]
-    fn obstacle_slots_show_the_nearest_other_gates_and_pad_with_the_next_gate() {
-        let gates = vec![
-            Gate::new(Vector3::new(0.0, 0.0, 2.0), 0.0),
-            Gate::new(Vector3::new(10.0, 0.0, 2.0), 0.0),
-            Gate::new(Vector3::new(10.0, 10.0, 2.0), 0.0),
-            Gate::new(Vector3::new(3.0, 4.0, 2.0), 0.0),
-        ];
-        let track = Track::new("t", gates.clone(), None, Arena::default()).unwrap();
-        let body = BodyState::at_rest(Vector3::new(1.0, 1.0, 2.0), 0.0);
-        let layout = ObservationLayout { frame: ObservationFrame::World, obstacle_gates: 2, ..Default::default() };
-        assert_eq!(layout.dim(), 64);
-        let mut out = vec![0f32; layout.dim()];
-        // Target 0, next 1: the others are gate 3 (3.6 m away) then gate 2 (12.7 m).
-        write_state_observation(&body, &[0.0; 4], &track, None, 0, layout, &mut out);
-        let expected = |g: usize| corners_from(&gates[g], &body);
-        assert_eq!((slot(&out, 0), slot(&out, 1)), (expected(3), expected(2)));
-        // The SPEC's 40 numbers do not change with the obstacle slots.
-        let mut spec = [0f32; STATE_OBS_DIM];
-        write_state_observation(&body, &[0.0; 4], &track, None, 0, ObservationLayout::spec(ObservationFrame::World), &mut spec);
-        assert_eq!(&out[..STATE_OBS_DIM], &spec[..]);
-        // Target 2, next 3: the others are gate 0 (1.4 m) then gate 1 (9.1 m).
-        write_state_observation(&body, &[0.0; 4], &track, None, 2, layout, &mut out);
-        assert_eq!((slot(&out, 0), slot(&out, 1)), (expected(0), expected(1)));
-        // A two-gate track has no other gate: both slots show the gate after the target.
-        let two = Track::new("two", gates[..2].to_vec(), None, Arena::default()).unwrap();
-        write_state_observation(&body, &[0.0; 4], &two, None, 0, layout, &mut out);
-        assert_eq!((slot(&out, 0), slot(&out, 1)), (expected(1), expected(1)));
-    }
-
-    /// In track order the slots hold target + 2, + 3, … wrapping round the track, wherever the
-    /// drone is: the slots do not reorder as it flies, only when the target changes.
-    #[test]
-    fn obstacle_slots_in_track_order_follow_the_racing_order_and_wrap() {
-        let gates: Vec<Gate> = (0..6).map(|g| Gate::new(Vector3::new(3.0 * g as f64 - 7.0, (g % 2) as f64, 2.0), 0.0)).collect();
-        let track = Track::new("t", gates.clone(), None, Arena::default()).unwrap();
-        let layout = ObservationLayout {
-            frame: ObservationFrame::Heading,
-            obstacle_gates: 4,
-            obstacle_order: ObstacleOrder::Track,
-            ..Default::default()
-        };
-        assert_eq!(layout.dim(), 88);
-        // Yaw 0: the heading frame is the world frame, so slots are plain corner offsets.
-        let mut out = vec![0f32; layout.dim()];
-        for position in [Vector3::new(-9.0, 0.0, 2.0), Vector3::new(6.0, 1.0, 2.0)] {
-            let body = BodyState::at_rest(position, 0.0);
-            // Target 4, next 5: then 0, 1, 2, 3 — gate 3 is the one just passed.
-            write_state_observation(&body, &[0.0; 4], &track, None, 4, layout, &mut out);
-            let slots: Vec<Vec<f32>> = (0..4).map(|s| slot(&out, s)).collect();
-            assert_eq!(slots, (0..4).map(|g| corners_from(&gates[g], &body)).collect::<Vec<_>>(), "drone at {position:?}");
-        }
-        // A three-gate track wraps: target 0, next 1, then 2, 0, 1, 2.
-        let three = Track::new("three", gates[..3].to_vec(), None, Arena::default()).unwrap();
-        let body = BodyState::at_rest(Vector3::new(-3.0, 0.0, 2.0), 0.0);
-        write_state_observation(&body, &[0.0; 4], &three, None, 0, layout, &mut out);
-        let slots: Vec<Vec<f32>> = (0..4).map(|s| slot(&out, s)).collect();
-        assert_eq!(slots, [2, 0, 1, 2].map(|g| corners_from(&gates[g], &body)));
-    }
-
-    /// Proximity readings: the nearest frames other than the target's, nearest first, as
-    /// `[w·u, w]` in the observation frame, silent beyond the range.
-    #[test]
-    fn proximity_readings_point_at_the_nearest_other_frames_and_fade_with_distance() {
-        let gates = vec![
-            Gate::new(Vector3::new(0.0, 0.0, 2.0), 0.0),
-            Gate::new(Vector3::new(10.0, 0.0, 2.0), std::f64::consts::FRAC_PI_2),
-            Gate::new(Vector3::new(3.0, 3.0, 2.0), 0.0),
-        ];
-        let track = Track::new("t", gates, None, Arena::default()).unwrap();
-        // Facing +y, 1.5 m beside gate 2's centre along its plane: 0.5 m from its side bar, in
-        // world +y, which the heading frame (yaw 90°) calls +x.
-        let body = BodyState::at_rest(Vector3::new(3.0, 1.5, 2.0), std::f64::consts::FRAC_PI_2);
-        let layout = ObservationLayout { frame: ObservationFrame::Heading, proximity_gates: 2, proximity_range: 4.0, ..Default::default() };
-        assert_eq!(layout.dim(), 48);
-        let mut out = vec![f32::NAN; layout.dim()];
-        let reading = |out: &[f32], s: usize| out[STATE_OBS_DIM + PROXIMITY_DIM * s..][..PROXIMITY_DIM].to_vec();
-        let close = |a: Vec<f32>, b: [f64; 4]| a.iter().zip(b).all(|(x, y)| (f64::from(*x) - y).abs() < 1e-6);
-        // Target 0 (2.99 m away) is not read; gate 2 is, gate 1 (6.2 m) is beyond the range.
-        write_state_observation(&body, &[0.0; 4], &track, None, 0, layout, &mut out);
-        let w = 1.0 - 0.5 / 4.0;
-        assert!(close(reading(&out, 0), [w, 0.0, 0.0, w]), "{:?}", reading(&out, 0));
-        assert!(close(reading(&out, 1), [0.0; 4]), "{:?}", reading(&out, 1));
-        // Target 2: now gate 0's frame (nearest point (0.05, 1, 2)) is the nearest other one.
-        write_state_observation(&body, &[0.0; 4], &track, None, 2, layout, &mut out);
-        let d = 2.95f64.hypot(0.5);
-        let w = 1.0 - d / 4.0;
-        // World (−2.95, −0.5, 0) / d; the heading frame maps world (x, y) to (y, −x).
-        assert!(close(reading(&out, 0), [w * -0.5 / d, w * 2.95 / d, 0.0, w]), "{:?}", reading(&out, 0));
-        // A longer range reaches gate 1 too, second: 1.45 m along its normal, 6 m beside it.
-        let far = ObservationLayout { proximity_range: 10.0, ..layout };
-        write_state_observation(&body, &[0.0; 4], &track, None, 0, far, &mut out);
-        assert!((f64::from(reading(&out, 0)[3]) - 0.95).abs() < 1e-6);
-        assert!((f64::from(reading(&out, 1)[3]) - (1.0 - 1.45f64.hypot(6.0) / 10.0)).abs() < 1e-6);
-        // The SPEC's 40 numbers do not change with the readings.
-        let mut spec = [0f32; STATE_OBS_DIM];
-        write_state_observation(&body, &[0.0; 4], &track, None, 0, ObservationLayout::spec(ObservationFrame::Heading), &mut spec);
-        assert_eq!(&out[..STATE_OBS_DIM], &spec[..]);
-    }
-
     #[test]
     fn line_points_follow_the_racing_line_from_its_nearest_point_on_the_target_leg() {
         let gates = (0..4)
@@ -651,16 +395,5 @@ mod tests {
         let mut spec = [0f32; STATE_OBS_DIM];
         write_state_observation(&body, &[0.0; 4], &track, None, 2, ObservationLayout::spec(ObservationFrame::Heading), &mut spec);
         assert_eq!(&out[..STATE_OBS_DIM], &spec[..]);
-    }
-
-    /// The 12 numbers of obstacle slot `s` of an observation row.
-    fn slot(out: &[f32], s: usize) -> Vec<f32> {
-        out[STATE_OBS_DIM + OBSTACLE_GATE_DIM * s..][..OBSTACLE_GATE_DIM].to_vec()
-    }
-
-    /// A gate's 4 corners minus the drone's position, as an obstacle slot holds them in the
-    /// world frame.
-    fn corners_from(gate: &Gate, body: &BodyState) -> Vec<f32> {
-        gate.corners().iter().flat_map(|c| (c - body.position).iter().map(|&v| v as f32).collect::<Vec<_>>()).collect()
     }
 }

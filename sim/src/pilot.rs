@@ -212,17 +212,8 @@ fn wrap_angle(a: f64) -> f64 {
 mod tests {
     use super::*;
     use crate::race::EnvConfig;
+    use crate::racing_line::tests::oval;
     use crate::randomization::RandomizationParams;
-    use crate::track::{Arena, Gate};
-    use std::sync::Arc;
-
-    fn oval() -> Arc<Track> {
-        let g = |x, y, yaw_deg: f64| Gate::new(Vector3::new(x, y, 2.5), yaw_deg.to_radians());
-        Arc::new(
-            Track::new("oval", vec![g(0.0, -6.0, 0.0), g(9.0, 0.0, 90.0), g(0.0, 6.0, 180.0), g(-9.0, 0.0, -90.0)], None, Arena::default())
-                .unwrap(),
-        )
-    }
 
     #[test]
     fn the_pilot_laps_an_oval_without_crashing() {

@@ -10,9 +10,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::observation::{
-    DEFAULT_LINE_SPACING, DEFAULT_PROXIMITY_RANGE, GateSight, ObservationFrame, ObservationLayout, ObstacleOrder, write_state_observation,
-};
+use crate::observation::{ObservationFrame, ObservationLayout, write_state_observation};
 use crate::params::{QuadrotorParams, RaceParams};
 use crate::quadrotor::{BodyState, Command, Quadrotor};
 use crate::racing_line::RacingLine;
@@ -42,28 +40,10 @@ pub struct EnvConfig {
     pub quadrotor: QuadrotorParams,
     /// What the low-level controller believes under randomisation. Default nominal.
     pub controller_model: ControllerModel,
-    /// Frame of the observation's vectors. Default heading: on the test set it beat SPEC §5's
-    /// world frame fourfold (docs/notebook/generalist.md, "Observation frame").
-    pub observation_frame: ObservationFrame,
-    /// How many of the nearest other gates the observation shows after SPEC §5's 40 numbers
-    /// ([`ObservationLayout`]). Default 0 (SPEC §5).
-    pub obstacle_gates: usize,
-    /// Which other gates those are: the nearest, or the next ones in racing order. Default
-    /// nearest.
-    pub obstacle_order: ObstacleOrder,
-    /// How many proximity readings of the nearest gate frames (other than the target's) the
-    /// observation ends with ([`ObservationLayout`]). Default 0 (SPEC §5).
-    pub proximity_gates: usize,
-    /// Distance (m) within which a gate frame registers in a proximity reading. Default 4.
-    pub proximity_range: f64,
-    /// How many points of the reference pilot's racing line, ahead of the drone, the
-    /// observation ends with ([`ObservationLayout`]). Default 0 (SPEC §5).
-    pub line_points: usize,
-    /// Arc length (m) between those points. Default 2.5.
-    pub line_spacing: f64,
-    /// Which of the target and next gates the observation shows: `all` (SPEC §5, default) or
-    /// `camera` (only while the camera could see them: a teacher for a vision student).
-    pub gate_sight: GateSight,
+    /// What the observation holds (`[env.observation]`). Default: SPEC §5's 40 numbers in the
+    /// heading frame, which on the test set beat SPEC §5's world frame fourfold
+    /// (docs/notebook/generalist.md, "Observation frame").
+    pub observation: ObservationLayout,
     /// Per-episode randomisation around the nominal vehicle and start pose.
     pub randomization: RandomizationParams,
     /// Timing and episode length.
@@ -77,14 +57,7 @@ impl Default for EnvConfig {
         Self {
             quadrotor: QuadrotorParams::default(),
             controller_model: ControllerModel::default(),
-            observation_frame: ObservationFrame::Heading,
-            obstacle_gates: 0,
-            obstacle_order: ObstacleOrder::Nearest,
-            proximity_gates: 0,
-            proximity_range: DEFAULT_PROXIMITY_RANGE,
-            line_points: 0,
-            line_spacing: DEFAULT_LINE_SPACING,
-            gate_sight: GateSight::All,
+            observation: ObservationLayout::spec(ObservationFrame::Heading),
             randomization: RandomizationParams::default(),
             race: RaceParams::default(),
             // Chosen on 100 validation tracks over four proxy seeds (docs/notebook/generalist.md,
@@ -95,32 +68,6 @@ impl Default for EnvConfig {
 }
 
 impl EnvConfig {
-    /// What this configuration's observations hold.
-    pub fn observation_layout(&self) -> ObservationLayout {
-        ObservationLayout {
-            frame: self.observation_frame,
-            obstacle_gates: self.obstacle_gates,
-            obstacle_order: self.obstacle_order,
-            proximity_gates: self.proximity_gates,
-            proximity_range: self.proximity_range,
-            line_points: self.line_points,
-            line_spacing: self.line_spacing,
-            gate_sight: self.gate_sight,
-        }
-    }
-
-    /// Makes the observations of `layout`: the inverse of `observation_layout`.
-    pub fn set_observation_layout(&mut self, layout: ObservationLayout) {
-        self.observation_frame = layout.frame;
-        self.obstacle_gates = layout.obstacle_gates;
-        self.obstacle_order = layout.obstacle_order;
-        self.proximity_gates = layout.proximity_gates;
-        self.proximity_range = layout.proximity_range;
-        self.line_points = layout.line_points;
-        self.line_spacing = layout.line_spacing;
-        self.gate_sight = layout.gate_sight;
-    }
-
     /// The evaluation setting of SPEC §9: nominal dynamics, 1000-step episodes.
     pub fn evaluation() -> Self {
         Self {
@@ -394,7 +341,7 @@ impl RaceEnv {
 
     /// Writes the state observation of the configured layout into `out` (its `dim()` long).
     pub fn observe(&self, out: &mut [f32]) {
-        self.observe_in(self.config.observation_layout(), out);
+        self.observe_in(self.config.observation, out);
     }
 
     /// Writes the state observation in `layout` (a policy evaluates in the layout it learned).

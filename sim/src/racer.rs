@@ -93,7 +93,7 @@ mod tests {
         let mut config = EnvConfig::evaluation();
         config.race.max_episode_steps = 2000;
         let mut env = RaceEnv::new(track.clone(), config, 0, 3);
-        let layout = env.config().observation_layout();
+        let layout = env.config().observation;
         let mut racer = Racer::new(track, layout);
         let mut pilot = ReferencePilot::default();
         pilot.reset(&env);

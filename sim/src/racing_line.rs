@@ -305,12 +305,13 @@ impl RacingLine {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::track::Gate;
     use std::sync::Arc;
 
-    fn oval() -> Arc<Track> {
+    /// A four-gate oval (the pilot's tests fly it too).
+    pub(crate) fn oval() -> Arc<Track> {
         let g = |x, y, yaw_deg: f64| Gate::new(Vector3::new(x, y, 2.5), yaw_deg.to_radians());
         Arc::new(
             Track::new("oval", vec![g(0.0, -6.0, 0.0), g(9.0, 0.0, 90.0), g(0.0, 6.0, 180.0), g(-9.0, 0.0, -90.0)], None, Arena::default())

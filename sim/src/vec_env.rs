@@ -184,8 +184,8 @@ impl VecEnv {
     /// must share one observation layout.
     pub fn from_envs(envs: Vec<RaceEnv>) -> Self {
         let n = envs.len();
-        let layout = envs.first().map(|e| e.config().observation_layout()).unwrap_or_default();
-        assert!(envs.iter().all(|e| e.config().observation_layout() == layout), "environments of one VecEnv share an observation layout");
+        let layout = envs.first().map(|e| e.config().observation).unwrap_or_default();
+        assert!(envs.iter().all(|e| e.config().observation == layout), "environments of one VecEnv share an observation layout");
         let observation_dim = layout.dim();
         let mut v = Self {
             envs,

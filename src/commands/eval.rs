@@ -201,7 +201,7 @@ pub fn export(args: ExportArgs) -> anyhow::Result<()> {
             args.out.display(),
             blob.version,
             blob.architecture.observation_dim,
-            blob.architecture.observation_frame.name(),
+            blob.architecture.observation.frame.name(),
             blob.architecture.action_dim,
             bytes.len()
         ),
