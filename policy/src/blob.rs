@@ -14,9 +14,6 @@
 //! `docs/python/upgrade_policy.py` (policies/README.md); the shipped policies were converted so.
 
 use burn::tensor::Device;
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
-use serde::{Deserialize, Serialize};
 
 use crate::architecture::{Agent, Architecture};
 use crate::network::{ActorCritic, ExportedParam};
@@ -119,128 +116,8 @@ impl WeightsBlob {
         VisionActorCritic::import(&self.architecture, &self.params, device).map_err(BlobError::Malformed)
     }
 
-    /// This vision policy with an actor that also reads its previous action
-    /// ([`Architecture::vision_previous_action`]): the actor's first layer gains zero weights
-    /// for the new inputs, so it acts exactly as before until it is trained further.
-    pub fn with_vision_previous_action(&self) -> Result<Self, BlobError> {
-        self.check_agent(Agent::Vision)?;
-        let mut widened = self.clone();
-        if widened.architecture.vision_previous_action {
-            return Ok(widened);
-        }
-        widened.architecture.vision_previous_action = true;
-        // Convolutions and the embedding (weight and bias each), then the actor's first weight,
-        // `[inputs, outputs]` row-major: the new inputs are rows appended at the end.
-        let first_actor_weight = 2 * VisionActorCritic::CONVOLUTION_COUNT + 2;
-        let weight = widened
-            .params
-            .get_mut(first_actor_weight)
-            .ok_or_else(|| BlobError::Malformed(format!("{} parameters; the actor's first weight is missing", self.params.len())))?;
-        let &[inputs, outputs] = weight.shape.as_slice() else {
-            return Err(BlobError::Malformed(format!("actor's first weight has shape {:?}", weight.shape)));
-        };
-        weight.values.resize((inputs + sim::ACTION_DIM) * outputs, 0.0);
-        weight.shape = vec![inputs + sim::ACTION_DIM, outputs];
-        crate::network::check_shapes(&Self::shapes(&widened.architecture), &widened.params).map_err(BlobError::Malformed)?;
-        Ok(widened)
-    }
-
-    /// This policy with its log standard deviation (the last parameter, one per action
-    /// dimension) set to `log_std` everywhere: a distilled student's exploration noise is not
-    /// what regression trained, so PPO from it chooses the noise it starts with.
-    pub fn with_log_std(&self, log_std: f32) -> Result<Self, BlobError> {
-        let mut changed = self.clone();
-        let last = changed.params.last_mut().ok_or_else(|| BlobError::Malformed("no parameters".into()))?;
-        if last.shape != [self.architecture.action_dim] {
-            return Err(BlobError::Malformed(format!("the last parameter has shape {:?}, not a log std's", last.shape)));
-        }
-        last.values.fill(log_std);
-        Ok(changed)
-    }
-
-    /// This policy with wider hidden layers (`hidden`: as many layers as it has, none
-    /// narrower), acting and valuing exactly as before: each new unit gets fresh random
-    /// incoming weights (He's scale √(2 / inputs), seeded) and zero outgoing ones, and no old
-    /// unit reads a new one. PPO from it keeps the policy and gains capacity: gradients reach
-    /// the new units' outgoing weights at once, and their incoming ones once those move.
-    pub fn with_hidden(&self, hidden: &[usize], seed: u64) -> Result<Self, BlobError> {
-        let old = &self.architecture.hidden;
-        if hidden.len() != old.len() || hidden.iter().zip(old).any(|(new, old)| new < old) {
-            return Err(BlobError::Malformed(format!("hidden layers {old:?} cannot widen to {hidden:?} (same depth, none narrower)")));
-        }
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let mut widened = self.clone();
-        widened.architecture.hidden = hidden.to_vec();
-        // The actor's and the critic's layers (weight `[in, out]`, bias) sit before the log std.
-        let layers = old.len() + 1;
-        let mlps_start = self.params.len().checked_sub(4 * layers + 1).ok_or_else(|| BlobError::Malformed("too few parameters".into()))?;
-        for mlp in 0..2 {
-            for layer in 0..layers {
-                let weight = mlps_start + 2 * (mlp * layers + layer);
-                let bias = weight + 1;
-                let [old_in, old_out] = self.params[weight].shape[..] else {
-                    return Err(BlobError::Malformed(format!("parameter {weight} is not a dense layer's weight")));
-                };
-                let new_in = if layer == 0 { old_in } else { hidden[layer - 1] };
-                let new_out = if layer == old.len() { old_out } else { hidden[layer] };
-                let scale = (2.0 / new_in as f64).sqrt();
-                let mut values = vec![0f32; new_in * new_out];
-                for (i, row) in values.chunks_exact_mut(new_out).enumerate() {
-                    for (j, value) in row.iter_mut().enumerate() {
-                        *value = match (i < old_in, j < old_out) {
-                            (true, true) => self.params[weight].values[i * old_out + j],
-                            // An old unit never reads a new one.
-                            (false, true) => 0.0,
-                            _ => (scale * rng.sample::<f64, _>(rand_distr::StandardNormal)) as f32,
-                        };
-                    }
-                }
-                widened.params[weight].shape = vec![new_in, new_out];
-                widened.params[weight].values = values;
-                widened.params[bias].shape = vec![new_out];
-                widened.params[bias].values.resize(new_out, 0.0);
-            }
-        }
-        crate::network::check_shapes(&Self::shapes(&widened.architecture), &widened.params).map_err(BlobError::Malformed)?;
-        Ok(widened)
-    }
-
-    /// This single-frame vision policy seeing the frames of `stack`
-    /// ([`Architecture::frame_stack`]): the first convolution gains weights for the earlier
-    /// frames as `widening` says.
-    pub fn with_frame_stack(&self, stack: sim::FrameStack, widening: FrameWidening) -> Result<Self, BlobError> {
-        self.check_agent(Agent::Vision)?;
-        let found = self.architecture.frame_stack;
-        if found == stack {
-            return Ok(self.clone());
-        }
-        if !found.is_single() {
-            return Err(BlobError::Malformed(format!("a policy seeing {} frames cannot be made to see {}", found.frames, stack.frames)));
-        }
-        let mut widened = self.clone();
-        widened.architecture.frame_stack = stack;
-        // The first parameter is the first convolution's weight, `[out, 1, k, k]` row-major:
-        // each output channel's kernel becomes `frames` kernels, the current frame's first.
-        let weight = widened.params.first_mut().ok_or_else(|| BlobError::Malformed("no parameters".into()))?;
-        let &[out, 1, k, k2] = weight.shape.as_slice() else {
-            return Err(BlobError::Malformed(format!("first convolution's weight has shape {:?}", weight.shape)));
-        };
-        let (kernel, frames) = (k * k2, stack.frames);
-        weight.values = weight
-            .values
-            .chunks_exact(kernel)
-            .flat_map(|w| match widening {
-                FrameWidening::Zero => w.iter().copied().chain(std::iter::repeat_n(0.0, (frames - 1) * kernel)).collect::<Vec<f32>>(),
-                FrameWidening::Inflate => w.iter().map(|v| v / frames as f32).cycle().take(frames * kernel).collect(),
-            })
-            .collect();
-        weight.shape = vec![out, stack.frames, k, k2];
-        crate::network::check_shapes(&Self::shapes(&widened.architecture), &widened.params).map_err(BlobError::Malformed)?;
-        Ok(widened)
-    }
-
     /// Parameter shapes of `architecture`, in export order.
-    fn shapes(architecture: &Architecture) -> Vec<Vec<usize>> {
+    pub(crate) fn shapes(architecture: &Architecture) -> Vec<Vec<usize>> {
         match architecture.agent {
             Agent::State => ActorCritic::shapes(architecture),
             Agent::Vision => VisionActorCritic::shapes(architecture),
@@ -432,19 +309,6 @@ impl From<Truncated> for BlobError {
     fn from(t: Truncated) -> Self {
         Self::Truncated { needed: t.needed, at: t.at }
     }
-}
-
-/// How a single-frame vision policy's first convolution is widened to see stacked frames.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum FrameWidening {
-    /// Zero kernels for the earlier frames: it acts exactly as before until trained further.
-    #[default]
-    Zero,
-    /// Every frame gets the current frame's kernel ÷ frames (the inflation of Carreira and
-    /// Zisserman's I3D): it acts as before on a still scene, and every frame's kernel starts
-    /// where gradients reach it at full strength.
-    Inflate,
 }
 
 #[cfg(test)]

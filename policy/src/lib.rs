@@ -15,10 +15,11 @@ pub mod onnx;
 pub mod rollout;
 pub mod run_length;
 pub mod safetensors;
+pub mod surgery;
 pub mod vision;
 
 pub use architecture::{Agent, Architecture};
-pub use blob::{BlobError, FrameWidening, WeightsBlob};
+pub use blob::{BlobError, WeightsBlob};
 /// The burn device networks are built on (the CPU).
 pub use burn::tensor::Device;
 pub use ensemble::EnsembleController;
@@ -29,4 +30,5 @@ pub use inference::{
 pub use network::ActorCritic;
 pub use normalizer::ObsNormalizer;
 pub use rollout::{ChunkLimits, EpisodeRecord, RolloutChunk, RolloutWireError};
+pub use surgery::FrameWidening;
 pub use vision::{VisionActorCritic, pixels_to_unit};
