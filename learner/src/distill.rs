@@ -1,7 +1,7 @@
 //! Teacher–student distillation by DAgger (Ross, Gordon and Bagnell 2011): the aggregated data
 //! set of visited states, each labelled with the teacher's action (a state-based policy's mean,
 //! or the reference pilot's), and the student's supervised regression on it — a vision student,
-//! or a state-based one (imitation of the pilot as a warm start for PPO). The loop that flies the student and
+//! or a state-based one (imitation of the pilot). The loop that flies the student and
 //! fills the data set is `runtime::distill`.
 //!
 //! A sample keeps the camera's pose (track, target gate, position, attitude), not its image:

@@ -2,7 +2,7 @@
 //! computers that run ONNX Runtime or TensorRT instead of dronerace.
 //!
 //! The graph takes `observation` `[batch, n]` in raw units (the policy's observation frame;
-//! n = SPEC §5's 40 plus whatever else the actor reads, nothing else under a privileged critic)
+//! n = SPEC §5's 40 plus the racing-line points the policy reads)
 //! and returns `action` `[batch, 4]`: the normaliser in double precision exactly as
 //! [`ObsNormalizer::normalize`](crate::ObsNormalizer::normalize) computes it (cast, subtract
 //! the mean, divide by `sqrt(var + epsilon)`, clip, cast back), then the actor's layers as `Gemm`

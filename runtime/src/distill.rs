@@ -1,6 +1,5 @@
 //! `dronerace distill`: a student learns to race from a teacher by DAgger — a vision student
-//! from a state-based policy, or a state-based student from the reference pilot (the warm
-//! start of `train`'s `[warm_start]`). Each round the environments fly `steps_per_round` steps
+//! from a state-based policy, or a state-based student from the reference pilot. Each round the environments fly `steps_per_round` steps
 //! — every step by the teacher with probability β = `teacher_decay`^round, else by the student
 //! (round 0: the teacher alone), and with `takeover` set by the teacher also wherever the
 //! student's action strays further than that from the teacher's —

@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use anyhow::Context;
 
 /// The process's stop flag, raised by SIGINT/SIGTERM. The handler is installed by the first
-/// call; later calls (a warm start, then the training it precedes) share the same flag.
+/// call; later calls share the same flag.
 pub fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
     static STOP: std::sync::Mutex<Option<Arc<AtomicBool>>> = std::sync::Mutex::new(None);
     let mut installed = STOP.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
