@@ -21,12 +21,12 @@ use rayon::prelude::*;
 /// The autodiff flex backend that training runs on.
 type Tracked = Autodiff<Flex, NoCheckpointing>;
 
-/// Rows per parallel chunk of the element-wise passes. Fixed, so that the bias gradient's partial
-/// sums are added in the same order whatever the thread count (exact resume relies on it).
-const CHUNK_ROWS: usize = 64;
-
-/// Products with fewer multiply-adds than this run on one thread (burn-flex's threshold).
-const PARALLEL_MACS: usize = 192 * 192 * 192;
+/// Rows per part of a layer's pass. Each pass is one parallel region over parts of this many
+/// rows, a part's products and element-wise work on one thread: per product and pass, waking
+/// the other thread cost more than its share of a product at 4,000 rows
+/// (docs/notebook/throughput.md). Fixed, so that the weight and bias gradients' partial sums are
+/// added in the same order whatever the thread count (exact resume relies on it).
+const PART_ROWS: usize = 1024;
 
 /// `activation(x · weight + bias)` for `x: [batch, in]`, `weight: [in, out]`, `bias: [out]`;
 /// `leaky_slope` `Some(s)` applies LeakyReLU with negative slope `s`, `None` none.
@@ -123,15 +123,22 @@ fn tensor(values: Vec<f32>, shape: &[usize]) -> FlexTensor {
 fn forward(x: &FlexTensor, weight: &FlexTensor, bias: &FlexTensor, slope: Option<f32>) -> FlexTensor {
     let ((x, xs), (w, ws), (b, _)) = (values(x), values(weight), values(bias));
     let (rows, inputs, outputs) = (xs[0], xs[1], ws[1]);
-    // y = x · w: all row-major (column stride 1, row stride the width).
-    let mut y = product(rows, outputs, inputs, (&x, 1, inputs as isize), (&w, 1, outputs as isize));
     // Slope 1 is the identity: one branch-free loop (a vector blend) serves both kinds of layer.
     let s = slope.unwrap_or(1.0);
-    y.par_chunks_mut(CHUNK_ROWS * outputs).for_each(|chunk| {
-        for row in chunk.chunks_exact_mut(outputs) {
-            bias_and_activation(row, &b, s);
-        }
-    });
+    let mut y = Vec::with_capacity(rows * outputs);
+    if outputs > 0 {
+        y.spare_capacity_mut()[..rows * outputs].par_chunks_mut(PART_ROWS * outputs).enumerate().for_each(|(p, y)| {
+            let part = y.len() / outputs;
+            let x = &x[p * PART_ROWS * inputs..][..part * inputs];
+            // y = x · w: all row-major (column stride 1, row stride the width).
+            let y = product_into(y, part, outputs, inputs, (x, 1, inputs as isize), (&w, 1, outputs as isize));
+            for row in y.chunks_exact_mut(outputs) {
+                bias_and_activation(row, &b, s);
+            }
+        });
+    }
+    // SAFETY: the parts cover all rows × outputs values and `product_into` wrote each of them.
+    unsafe { y.set_len(rows * outputs) };
     tensor(y, &[rows, outputs])
 }
 
@@ -162,65 +169,121 @@ fn activation_gradient(dz: &mut [MaybeUninit<f32>], dy: &[f32], y: &[f32], sum: 
 fn backward(saved: &Saved, dy: &FlexTensor, input_gradient: bool) -> (Option<FlexTensor>, FlexTensor, FlexTensor) {
     let ((x, xs), (w, ws), (y, _), (dy, _)) = (values(&saved.x), values(&saved.weight), values(&saved.y), values(dy));
     let (rows, inputs, outputs) = (xs[0], xs[1], ws[1]);
-    // dz = dy ⊙ activation'(z) and the bias gradient Σ_rows dz, in one pass; partial sums per
-    // fixed chunk, added in chunk order.
     assert!(dy.len() == rows * outputs && y.len() == rows * outputs, "output and its gradient are {rows}×{outputs}");
+    if outputs == 0 {
+        // Nothing flows back through a layer without outputs.
+        let dx = input_gradient.then(|| tensor(vec![0.0; rows * inputs], &[rows, inputs]));
+        return (dx, tensor(vec![0.0; inputs * outputs], &[inputs, outputs]), tensor(Vec::new(), &[0]));
+    }
     let s = saved.slope.unwrap_or(1.0);
-    let mut dz = Vec::with_capacity(rows * outputs);
-    let partials: Vec<Vec<f32>> = dz.spare_capacity_mut()[..rows * outputs]
-        .par_chunks_mut(CHUNK_ROWS * outputs)
-        .zip(dy.par_chunks(CHUNK_ROWS * outputs))
-        .zip(y.par_chunks(CHUNK_ROWS * outputs))
-        .map(|((dz, dy), y)| {
-            let mut sum = vec![0.0f32; outputs];
-            for ((dz, dy), y) in dz.chunks_exact_mut(outputs).zip(dy.chunks_exact(outputs)).zip(y.chunks_exact(outputs)) {
-                activation_gradient(dz, dy, y, &mut sum, s);
+    let (mut dz, mut dx) = (Vec::with_capacity(rows * outputs), Vec::with_capacity(if input_gradient { rows * inputs } else { 0 }));
+    let mut dx_parts: Vec<Option<&mut [MaybeUninit<f32>]>> = Vec::new();
+    if input_gradient && inputs > 0 {
+        dx_parts.extend(dx.spare_capacity_mut()[..rows * inputs].chunks_mut(PART_ROWS * inputs).map(Some));
+    }
+    dx_parts.resize_with(rows.div_ceil(PART_ROWS), || None);
+    // Per part of the rows, on one thread: dz = dy ⊙ activation'(z), the part's bias and weight
+    // gradients (Σ_rows dz, xᵀ·dz) and its rows of the input gradient (dz · wᵀ).
+    let partials: Vec<(Vec<f32>, Vec<f32>)> = dz.spare_capacity_mut()[..rows * outputs]
+        .par_chunks_mut(PART_ROWS * outputs)
+        .zip(dx_parts)
+        .enumerate()
+        .map(|(p, (dz, dx))| {
+            let part = dz.len() / outputs;
+            let (start, end) = (p * PART_ROWS, p * PART_ROWS + part);
+            let mut db = vec![0.0f32; outputs];
+            for ((dz, dy), y) in dz
+                .chunks_exact_mut(outputs)
+                .zip(dy[start * outputs..end * outputs].chunks_exact(outputs))
+                .zip(y[start * outputs..end * outputs].chunks_exact(outputs))
+            {
+                activation_gradient(dz, dy, y, &mut db, s);
             }
-            sum
+            // SAFETY: `activation_gradient` wrote every element of every row of the part.
+            let dz = unsafe { assume_init(dz) };
+            let x = &x[start * inputs..end * inputs];
+            // xᵀ read from x's storage with its strides swapped.
+            let dw = product(inputs, outputs, part, (x, inputs as isize, 1), (dz, 1, outputs as isize));
+            if let Some(dx) = dx {
+                product_into(dx, part, inputs, outputs, (dz, 1, outputs as isize), (&w, outputs as isize, 1));
+            }
+            (db, dw)
         })
         .collect();
-    // SAFETY: dy and y hold rows × outputs values (asserted), so the zipped chunks above cover
-    // all of dz's, and `activation_gradient` writes every element of its row.
-    unsafe { dz.set_len(rows * outputs) };
-    let mut db = vec![0.0f32; outputs];
-    for partial in &partials {
-        for (b, p) in db.iter_mut().zip(partial) {
-            *b += p;
+    // SAFETY: the parts cover all rows and wrote every value of dz, and of dx when it is asked.
+    unsafe {
+        dz.set_len(rows * outputs);
+        if input_gradient && inputs > 0 {
+            dx.set_len(rows * inputs);
         }
     }
-    // dw = xᵀ · dz: xᵀ read from x's storage with its strides swapped.
-    let dw = product(inputs, outputs, rows, (&x, inputs as isize, 1), (&dz, 1, outputs as isize));
-    let dx = input_gradient.then(|| {
-        // dx = dz · wᵀ.
-        let dx = product(rows, inputs, outputs, (&dz, 1, outputs as isize), (&w, outputs as isize, 1));
-        tensor(dx, &[rows, inputs])
-    });
+    // Partial sums added in part order.
+    let (mut db, mut dw) = (vec![0.0f32; outputs], vec![0.0f32; inputs * outputs]);
+    for (pdb, pdw) in &partials {
+        add(&mut db, pdb);
+        add(&mut dw, pdw);
+    }
+    let dx = input_gradient.then(|| tensor(dx, &[rows, inputs]));
     (dx, tensor(dw, &[inputs, outputs]), tensor(db, &[outputs]))
 }
 
+/// `sum += part`, element by element.
+fn add(sum: &mut [f32], part: &[f32]) {
+    for (s, p) in sum.iter_mut().zip(part) {
+        *s += p;
+    }
+}
+
+/// The values of a slice every element of which has been written.
+///
+/// # Safety
+/// Every element of `values` must be initialised.
+unsafe fn assume_init(values: &mut [MaybeUninit<f32>]) -> &mut [f32] {
+    // SAFETY: MaybeUninit<f32> has f32's layout, and the caller vouches for every element.
+    unsafe { std::slice::from_raw_parts_mut(values.as_mut_ptr().cast::<f32>(), values.len()) }
+}
+
 /// `lhs[m × k] · rhs[k × n]`, row-major, each operand given as (values, column stride, row
-/// stride). The result is not zeroed first: gemm writes every element (a memset of every
-/// activation and gradient was 3–5 % of the step).
+/// stride), on the calling thread.
 fn product(m: usize, n: usize, k: usize, lhs: (&[f32], isize, isize), rhs: (&[f32], isize, isize)) -> Vec<f32> {
+    let mut dst = Vec::with_capacity(m * n);
+    product_into(&mut dst.spare_capacity_mut()[..m * n], m, n, k, lhs, rhs);
+    // SAFETY: `product_into` wrote all m × n values.
+    unsafe { dst.set_len(m * n) };
+    dst
+}
+
+/// [`product`] written into `dst` (m × n values at row stride n), which it returns initialised.
+/// `dst` is not zeroed first: gemm writes every element (a memset of every activation and
+/// gradient was 3–5 % of the step).
+fn product_into<'a>(
+    dst: &'a mut [MaybeUninit<f32>],
+    m: usize,
+    n: usize,
+    k: usize,
+    lhs: (&[f32], isize, isize),
+    rhs: (&[f32], isize, isize),
+) -> &'a mut [f32] {
     let reach = |(values, cs, rs): (&[f32], isize, isize), rows: usize, cols: usize| {
         rows == 0 || cols == 0 || (rows - 1) * (rs as usize) + (cols - 1) * (cs as usize) < values.len()
     };
-    assert!(reach(lhs, m, k) && reach(rhs, k, n), "operands hold {m}×{k} and {k}×{n} values");
+    assert!(reach(lhs, m, k) && reach(rhs, k, n) && dst.len() == m * n, "operands hold {m}×{k} and {k}×{n} values, the result {m}×{n}");
     if k == 0 {
-        return vec![0.0; m * n];
+        for v in dst.iter_mut() {
+            v.write(0.0);
+        }
+        // SAFETY: every element was just written.
+        return unsafe { assume_init(dst) };
     }
-    let parallelism =
-        if m.saturating_mul(n).saturating_mul(k) >= PARALLEL_MACS { gemm::Parallelism::Rayon(0) } else { gemm::Parallelism::None };
-    let mut dst = Vec::with_capacity(m * n);
-    // SAFETY: the assertion keeps every index the strides reach inside the operands; `dst` has
-    // room for m × n values at row stride n and aliases nothing; with `read_dst` false and
-    // k ≥ 1 gemm writes every element of it, which `set_len` then declares initialised.
+    // SAFETY: the assertion keeps every index the strides reach inside the operands; `dst` holds
+    // m × n values at row stride n and aliases nothing; with `read_dst` false and k ≥ 1 gemm
+    // writes every element of it.
     unsafe {
         gemm::gemm(
             m,
             n,
             k,
-            dst.as_mut_ptr(),
+            dst.as_mut_ptr().cast::<f32>(),
             1,
             n as isize,
             false,
@@ -235,11 +298,10 @@ fn product(m: usize, n: usize, k: usize, lhs: (&[f32], isize, isize), rhs: (&[f3
             false,
             false,
             false,
-            parallelism,
+            gemm::Parallelism::None,
         );
-        dst.set_len(m * n);
+        assume_init(dst)
     }
-    dst
 }
 
 #[cfg(test)]
@@ -261,12 +323,13 @@ mod tests {
     }
 
     /// Value and every gradient of a two-layer stack (the input tracked too) agree with burn's
-    /// own ops, for shapes that are not multiples of the chunk or kernel sizes.
+    /// own ops, for shapes that are not multiples of the part or kernel sizes (three parts, the
+    /// last short, so the partial gradients are summed).
     #[test]
     fn fused_layers_match_burns_ops_in_value_and_gradients() {
         let device = Device::flex().autodiff();
         let mut rng = ChaCha8Rng::seed_from_u64(3);
-        let (rows, inputs, hidden, outputs) = (203, 7, 33, 5);
+        let (rows, inputs, hidden, outputs) = (2 * PART_ROWS + 203, 7, 33, 5);
         let leaf = |v: Vec<f32>, shape: [usize; 2]| Tensor::<2>::from_data(TensorData::new(v, shape), &device).require_grad();
         let x = leaf(random(rows, inputs, &mut rng), [rows, inputs]);
         let w1 = leaf(random(inputs, hidden, &mut rng), [inputs, hidden]);
