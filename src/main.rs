@@ -5,6 +5,7 @@
 
 mod commands;
 mod plot;
+mod signal;
 
 use clap::{Parser, Subcommand};
 

@@ -257,10 +257,10 @@ fn every_mutated_rollout_with_camera_images_is_refused_and_none_panics_the_parse
 
 #[test]
 fn every_mutated_distillation_data_set_is_refused_and_none_panics_the_parser() {
-    use learner::distill::DistillDataset;
+    use distill::DistillDataset;
     let track = std::sync::Arc::new(racetracks::library_track("Figure8").unwrap().unwrap());
     let mut env = sim::RaceEnv::new(track, sim::EnvConfig::default(), 1, 0);
-    let mut data = DistillDataset::new(8, sim::STATE_OBS_DIM, sim::FrameStack::default());
+    let mut data = DistillDataset::new(8, sim::STATE_OBS_DIM);
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     for i in 0..8 {
         env.step(&[0.3, 0.0, 0.1, 0.0]);

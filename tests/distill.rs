@@ -8,9 +8,9 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use distill::{DistillConfig, Distiller};
 use policy::WeightsBlob;
 use runtime::EvalSettings;
-use runtime::distill::{DistillConfig, Distiller};
 
 /// The shipped generalist: a real teacher, so the student sees real flights.
 fn teacher() -> PathBuf {
@@ -49,10 +49,8 @@ fn an_interrupted_distillation_resumes_bit_for_bit() {
     std::fs::create_dir_all(&straight).unwrap();
     std::fs::create_dir_all(&resumed).unwrap();
 
-    // With a gate head, whose weights and moments the checkpoint must carry too, and stacked
-    // camera frames, whose histories it must carry.
-    let stack = sim::FrameStack { frames: 2, stride: 3 };
-    let config = || DistillConfig { gate_loss_weight: 0.5, frame_stack: stack, ..tiny_config() };
+    // A student that reads its previous action, which the checkpoint's architecture must keep.
+    let config = || DistillConfig { previous_action: true, ..tiny_config() };
     let mut a = Distiller::start(config(), &straight).unwrap();
     let shares: Vec<f64> = (0..4).map(|_| a.round_step().unwrap().teacher_share).collect();
     // β = 0.5^round of 64 steps per round: all of round 0, then about half, a quarter, an eighth.
@@ -70,38 +68,16 @@ fn an_interrupted_distillation_resumes_bit_for_bit() {
     b.round_step().unwrap();
     let last = b.round_step().unwrap();
     assert_eq!(last.samples_seen, 4 * 4 * 16);
-    assert!(last.gate_loss.is_finite(), "the gate head's loss is reported");
-    let err = Distiller::start(DistillConfig { gate_loss_weight: -1.0, ..tiny_config() }, &dir.path().join("negative")).err().unwrap();
-    assert!(format!("{err:#}").contains("gate_loss_weight"), "{err:#}");
+    assert!(last.loss.is_finite(), "the regression's loss is reported");
+    let err = Distiller::start(DistillConfig { takeover: Some(-1.0), ..tiny_config() }, &dir.path().join("negative")).err().unwrap();
+    assert!(format!("{err:#}").contains("takeover"), "{err:#}");
     assert!(student(&b) == student(&a), "data set, environments, curriculum and optimiser continue exactly");
     assert!(b.finished());
     // A row per round in metrics.csv, and the validated student kept as best.bin.
     let rows = std::fs::read_to_string(resumed.join("metrics.csv")).unwrap().lines().count();
     assert_eq!(rows, 1 + 4);
     let best = learner::checkpoint::read_policy(&resumed.join("checkpoints/best.bin")).unwrap();
-    assert_eq!((best.architecture.agent, best.architecture.frame_stack), (policy::Agent::Vision, stack));
-}
-
-#[test]
-fn a_frozen_encoder_keeps_the_starts_cnn_through_rounds_and_a_resume() {
-    let dir = tempfile::tempdir().unwrap();
-    let start = dir.path().join("start.bin");
-    std::fs::write(&start, Distiller::start(tiny_config(), &dir.path().join("first")).unwrap().student().to_bytes()).unwrap();
-    let config = || DistillConfig { frozen_encoder: true, init_from: Some(start.clone()), ..tiny_config() };
-    let run = dir.path().join("frozen");
-    let mut d = Distiller::start(config(), &run).unwrap();
-    d.round_step().unwrap();
-    d.round_step().unwrap(); // the checkpoint of round 2 is written here
-    drop(d);
-    let mut d = Distiller::resume(&run).unwrap();
-    d.round_step().unwrap();
-    // The convolutions and the embedding layer (the first 8 parameters) are the start's; the actor learned.
-    let values = |blob: &WeightsBlob| blob.params.iter().map(|p| p.values.clone()).collect::<Vec<_>>();
-    let (before, after) = (values(&WeightsBlob::from_bytes(&std::fs::read(&start).unwrap()).unwrap()), values(&d.student()));
-    assert_eq!(after[..8], before[..8]);
-    assert_ne!(after[8..14], before[8..14]);
-    let err = Distiller::start(DistillConfig { frozen_encoder: true, ..tiny_config() }, &dir.path().join("no-start")).err().unwrap();
-    assert!(format!("{err:#}").contains("frozen_encoder"), "{err:#}");
+    assert_eq!((best.architecture.agent, best.architecture.vision_previous_action), (policy::Agent::Vision, true));
 }
 
 #[test]
@@ -123,34 +99,9 @@ fn takeover_hands_the_steps_a_student_strays_on_back_to_the_teacher() {
 }
 
 #[test]
-fn a_crash_margin_drops_the_run_up_to_each_crash_and_nothing_else() {
-    // A fresh student flies from round 1 on and crashes within seconds.
-    let config = |crash_margin| DistillConfig { teacher_decay: 0.0, steps_per_round: 100, crash_margin, ..tiny_config() };
-    let rounds = |crash_margin| {
-        let dir = tempfile::tempdir().unwrap();
-        let mut d = Distiller::start(config(crash_margin), dir.path()).unwrap();
-        (0..2).map(|_| d.round_step().unwrap()).collect::<Vec<_>>()
-    };
-    let (plain, margin) = (rounds(0), rounds(10));
-    let mut dropped = 0;
-    for (p, m) in plain.iter().zip(&margin) {
-        assert_eq!(p.dropped, 0);
-        let crashes =
-            |r: &runtime::distill::RoundSummary| if r.episodes == 0 { 0 } else { (r.crash_rate * r.episodes as f64).round() as usize };
-        assert_eq!((p.episodes, crashes(p)), (m.episodes, crashes(m)), "holding states back does not change the flights");
-        let crashes = crashes(m);
-        // Each crash drops its own step's state and at most the nine before it.
-        assert!(m.dropped >= crashes && m.dropped <= 10 * crashes, "{} dropped for {crashes} crashes", m.dropped);
-        dropped += m.dropped as u64;
-        assert_eq!(m.samples_seen + dropped, p.samples_seen, "every other state is offered");
-    }
-    assert!(dropped > 0, "the fresh student crashed: {margin:?}");
-}
-
-#[test]
 fn a_state_student_of_the_pilot_resumes_bit_for_bit_with_its_pilots_mid_flight() {
     let config = || DistillConfig {
-        teacher: runtime::distill::PILOT_TEACHER.into(),
+        teacher: distill::PILOT_TEACHER.into(),
         student: policy::Agent::State,
         hidden: Some(vec![16, 16]),
         envs: 3,
@@ -180,7 +131,7 @@ fn a_state_student_of_the_pilot_resumes_bit_for_bit_with_its_pilots_mid_flight()
 fn teachers_that_observe_racing_line_points_teach_in_their_own_layout() {
     // The pilot teaches a state student that sees 4 line points (40 + 4 × 3 numbers)…
     let mut config = DistillConfig {
-        teacher: runtime::distill::PILOT_TEACHER.into(),
+        teacher: distill::PILOT_TEACHER.into(),
         student: policy::Agent::State,
         hidden: Some(vec![16, 16]),
         rounds: 2,
@@ -215,91 +166,28 @@ fn teachers_that_observe_racing_line_points_teach_in_their_own_layout() {
     assert_eq!(written.env.observation.line_points, 4, "the run's config records the layout it flew");
 }
 
-/// A two-round run in `dir/earlier`, its checkpoint written (what `dataset_from` reads: a run's
-/// newest checkpoint); the run and its last round.
-fn earlier_run(dir: &Path) -> (PathBuf, Distiller, runtime::distill::RoundSummary) {
-    let earlier = dir.join("earlier");
-    let mut a = Distiller::start(DistillConfig { rounds: 2, ..tiny_config() }, &earlier).unwrap();
-    a.round_step().unwrap();
-    let last = a.round_step().unwrap();
-    a.checkpoint().unwrap();
-    (earlier, a, last)
-}
-
 #[test]
-fn a_student_that_reads_its_previous_action_continues_an_earlier_runs_data_set() {
+fn a_student_started_from_one_blind_to_its_previous_action_learns_to_read_it() {
     let dir = tempfile::tempdir().unwrap();
-    let (earlier, a, held) = earlier_run(dir.path());
-    let start = dir.path().join("earlier-student.bin");
-    std::fs::write(&start, a.student().to_bytes()).unwrap();
+    let start = dir.path().join("start.bin");
+    let first = Distiller::start(DistillConfig { rounds: 2, ..tiny_config() }, &dir.path().join("first")).unwrap().student();
+    std::fs::write(&start, first.to_bytes()).unwrap();
+    assert!(!first.architecture.vision_previous_action);
 
-    let config =
-        || DistillConfig { init_from: Some(start.clone()), dataset_from: Some(earlier.clone()), previous_action: true, ..tiny_config() };
+    let config = || DistillConfig { init_from: Some(start.clone()), previous_action: true, ..tiny_config() };
     let later = dir.path().join("later");
     let mut b = Distiller::start(config(), &later).unwrap();
     assert!(b.student().architecture.vision_previous_action, "the start is widened to read the previous action");
-    let first = b.round_step().unwrap();
-    assert_eq!(first.samples_seen, held.samples_seen + 4 * 16, "the earlier run's samples, then this round's");
-    assert_eq!(first.dataset, held.dataset + 4 * 16);
+    b.round_step().unwrap();
     b.round_step().unwrap();
     drop(b);
     let b = Distiller::resume(&later).unwrap();
     assert!(b.student().architecture.vision_previous_action, "and resumes as it was");
-
-    // Labels of another teacher are refused, naming the run; so is a state student reading more.
-    let other_teacher = Path::new(env!("CARGO_MANIFEST_DIR")).join("policies/camera-teacher.bin");
-    let err = Distiller::start(DistillConfig { teacher: other_teacher, ..config() }, &dir.path().join("other")).err().unwrap();
-    let err = format!("{err:#}");
-    assert!(err.contains("dataset_from") && err.contains("earlier") && err.contains("another teacher"), "{err}");
+    // A state student reads the whole observation: the option is refused by name.
     let err = Distiller::start(DistillConfig { student: policy::Agent::State, init_from: None, ..config() }, &dir.path().join("state"))
         .err()
         .unwrap();
     assert!(format!("{err:#}").contains("previous_action"), "{err:#}");
-
-    // A student seeing stacked frames starts from the single-frame one, but cannot learn from
-    // samples that hold one frame.
-    let stack = sim::FrameStack { frames: 3, stride: 4 };
-    let err = Distiller::start(DistillConfig { frame_stack: stack, ..config() }, &dir.path().join("stacked")).err().unwrap();
-    assert!(format!("{err:#}").contains("camera frames"), "{err:#}");
-    let stacked =
-        Distiller::start(DistillConfig { frame_stack: stack, dataset_from: None, ..config() }, &dir.path().join("stacked-new")).unwrap();
-    assert_eq!(stacked.student().architecture.frame_stack, stack, "the single-frame start is widened");
-}
-
-#[test]
-fn a_new_teacher_relabels_an_earlier_runs_states_of_its_own_layout_only() {
-    let dir = tempfile::tempdir().unwrap();
-    let (earlier, _, _) = earlier_run(dir.path());
-    // Another teacher of the same layout: the generalist with its action head halved.
-    let mut other = learner::checkpoint::read_policy(&teacher()).unwrap();
-    let names = policy::WeightsBlob::tensor_names(&other.architecture);
-    let head = names.iter().position(|n| *n == format!("actor.{}.weight", other.architecture.hidden.len())).unwrap();
-    other.params[head].values.iter_mut().for_each(|v| *v *= 0.5);
-    let other_file = dir.path().join("other-teacher.bin");
-    std::fs::write(&other_file, other.to_bytes()).unwrap();
-    let config = |teacher: PathBuf, relabel| DistillConfig { teacher, dataset_from: Some(earlier.clone()), relabel, ..tiny_config() };
-
-    let err = Distiller::start(config(other_file.clone(), false), &dir.path().join("kept")).err().unwrap();
-    assert!(format!("{err:#}").contains("another teacher"), "{err:#}");
-    let later = dir.path().join("later");
-    let mut b = Distiller::start(config(other_file, true), &later).unwrap();
-    let path = b.checkpoint().unwrap();
-    let checkpoint = learner::checkpoint::Checkpoint::read(&path).unwrap();
-    let data = learner::distill::DistillDataset::from_bytes(checkpoint.get("dataset").unwrap()).unwrap();
-    let rows: Vec<usize> = (0..data.len()).collect();
-    assert_eq!(data.len(), 4 * 16 * 2);
-    let expected = policy::Policy::from_blob(&other).unwrap().deterministic_actions(&data.states(&rows));
-    assert_eq!(data.labels(&rows), expected, "every state carries the new teacher's label");
-    let original = policy::Policy::from_blob(&learner::checkpoint::read_policy(&teacher()).unwrap()).unwrap();
-    assert_ne!(data.labels(&rows), original.deterministic_actions(&data.states(&rows)));
-
-    // A teacher that observes other things in the same 40 numbers (the camera-sight teacher) may not.
-    let camera = Path::new(env!("CARGO_MANIFEST_DIR")).join("policies/camera-teacher.bin");
-    let err = Distiller::start(config(camera, true), &dir.path().join("camera")).err().unwrap();
-    assert!(format!("{err:#}").contains("observation layout"), "{err:#}");
-    // Nor is relabel meaningful without an earlier data set.
-    let err = Distiller::start(DistillConfig { relabel: true, ..tiny_config() }, &dir.path().join("alone")).err().unwrap();
-    assert!(format!("{err:#}").contains("relabel"), "{err:#}");
 }
 
 fn dronerace(args: &[&str]) -> std::process::Output {

@@ -166,7 +166,7 @@ fn every_documented_run_config_resolves() {
             if path.extension().is_some_and(|e| e == "toml") {
                 let text = std::fs::read_to_string(&path).unwrap();
                 if text.lines().any(|line| line.starts_with("teacher =")) {
-                    runtime::distill::DistillConfig::read(&path).unwrap_or_else(|e| panic!("{e:#}"));
+                    distill::DistillConfig::read(&path).unwrap_or_else(|e| panic!("{e:#}"));
                     continue;
                 }
                 let config = runtime::TrainConfig::read(&path).unwrap_or_else(|e| panic!("{e}"));

@@ -106,7 +106,7 @@ impl Actor {
             }
         }
         if policy.sees_images() {
-            self.env.enable_images(sim::FrameStack::default());
+            self.env.enable_images();
         }
         self.policy = Some(policy);
         Ok(())

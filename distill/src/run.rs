@@ -1,38 +1,37 @@
-//! `dronerace distill`: a student learns to race from a teacher by DAgger — a vision student
-//! from a state-based policy, or a state-based student from the reference pilot. Each round the environments fly `steps_per_round` steps
-//! — every step by the teacher with probability β = `teacher_decay`^round, else by the student
-//! (round 0: the teacher alone), and with `takeover` set by the teacher also wherever the
-//! student's action strays further than that from the teacher's —
-//! while the teacher labels every visited state with its action; the labelled states join
-//! the data set (`learner::distill`), the task controller switches tracks on the round's
-//! rewards as in training, and the student takes `updates_per_round` regression steps on
-//! minibatches drawn from the whole data set. Like `train`: a progress line and `train.log`,
-//! `metrics.csv` and TensorBoard events, validation on the held-out validation tracks
-//! (`best.bin`), periodic checkpoints holding everything (teacher, student, optimiser, data set,
-//! environments, curriculum, random state), and resume that continues bit for bit.
+//! A distillation run (`dronerace distill`): each round the environments fly `steps_per_round`
+//! steps — every step by the teacher with probability β = `teacher_decay`^round, else by the
+//! student (round 0: the teacher alone), and with `takeover` set by the teacher also wherever
+//! the student's action strays further than that from the teacher's — while the teacher labels
+//! every visited state with its action; the labelled states join the data set
+//! ([`crate::dataset`]), the task controller switches tracks on the round's rewards as in
+//! training, and the student takes `updates_per_round` regression steps on minibatches drawn
+//! from the whole data set. Like `train`: `metrics.csv` and TensorBoard events, validation on
+//! the held-out validation tracks (`best.bin`), periodic checkpoints holding everything
+//! (teacher, student, optimiser, data set, environments, curriculum, random state), and resume
+//! that continues bit for bit.
 
-use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail, ensure};
 use learner::checkpoint::{Checkpoint, CheckpointDir, read_policy};
-use learner::distill::{DistillDataset, LabelledState, Student};
-use policy::{ActingPolicy, Agent, Architecture, FrameWidening, Policy, WeightsBlob};
+use policy::{ActingPolicy, Agent, Architecture, Policy, WeightsBlob};
 use racetracks::TrackGenerator;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sim::{
-    ACTION_DIM, CameraHistory, Controller, EnvConfig, FrameStack, ObservationLayout, PilotMemory, PilotParams, RaceEnv,
-    RandomizationParams, ReferencePilot, RewardParams, VecEnv,
+    ACTION_DIM, Controller, EnvConfig, PilotMemory, PilotParams, RaceEnv, RandomizationParams, ReferencePilot, RewardParams, VecEnv,
 };
 use taskctl::{LocalTasks, SwitchParams, TaskController, TaskService};
 
-use crate::TrackSource;
-use crate::metrics::{MetricsWriter, append_validation};
-use crate::validation::{EvalSettings, Validator};
+use runtime::TrackSource;
+use runtime::metrics::{MetricsWriter, append_validation};
+use runtime::validation::{EvalSettings, Validator};
+
+use crate::dataset::DistillDataset;
+use crate::student::Student;
 
 /// The student's name in the task controller.
 const ACTOR: &str = "distill";
@@ -68,11 +67,6 @@ pub struct DistillConfig {
     /// set holds states it can recover from rather than the run-up to its crashes. Default
     /// none (pure DAgger).
     pub takeover: Option<f64>,
-    /// Drop the labelled states of the last `crash_margin` steps before a crash: from there
-    /// even the teacher cannot recover, and its extreme labels would fill the data set of a
-    /// student that crashes often (docs/notebook/vision.md, "Own flights without their crashes"). The
-    /// states of a round's last steps are kept, since the round cannot tell yet. Default 0.
-    pub crash_margin: usize,
     /// Samples the data set keeps (reservoir sampling beyond). Default 1,000,000 (~250 MB).
     pub capacity: usize,
     /// Regression steps per round. Default 160.
@@ -82,47 +76,17 @@ pub struct DistillConfig {
     pub minibatch: usize,
     /// Adam's learning rate, constant. Default 5e-4.
     pub learning_rate: f64,
-    /// Weight of an auxiliary loss on a vision student's CNN embedding: a training-only head
-    /// predicts where the target and next gates are (`policy::gate_head`), a dense signal of
-    /// exactly what the teacher acts on, added to the imitation loss at this weight. Default 0
-    /// (no head).
-    pub gate_loss_weight: f64,
-    /// The vision student's CNN and embedding layer keep the weights of `init_from`; only its
-    /// actor (and a gate head) learn. For a start whose CNN was trained apart to place the
-    /// gates (docs/notebook/vision.md, "A CNN trained to place them"): imitation then fits an actor to that
-    /// perception instead of reshaping it. Default false.
-    pub frozen_encoder: bool,
     /// The vision student's actor also reads its previous action (beyond SPEC §5's VB actor
     /// input). The teacher's observation holds the previous action and its labels depend on
     /// it as much as they depend on anything the image shows (docs/notebook/vision.md, "The
     /// teacher's previous action"), so a student without it cannot copy them. A start (`init_from`)
     /// without it is widened with zero weights. Default false.
     pub previous_action: bool,
-    /// The camera frames the vision student sees: the current one and `frames − 1` earlier
-    /// ones, `stride` steps apart (beyond SPEC §5's one: a memory of gates that left the image;
-    /// docs/notebook/vision.md, "Stacked camera frames"). A single-frame start (`init_from`) is widened
-    /// as `frame_widening` says. Default one frame.
-    pub frame_stack: FrameStack,
-    /// How a single-frame start (`init_from`) is widened to `frame_stack`: `zero` kernels for
-    /// the earlier frames (it acts exactly as before), or `inflate`d — each frame the current
-    /// one's kernel ÷ frames (it acts as before on a still scene, and its earlier-frame
-    /// kernels start at full size). Default zero.
-    pub frame_widening: FrameWidening,
     /// The student's log standard deviation, for vision PPO started from it (SPEC §10 VB: 0).
     pub initial_log_std: f64,
     /// Start the student's CNN and actor from this vision policy (checkpoint or blob of the
     /// teacher's shape; e.g. a student distilled on one track) instead of a fresh network.
     pub init_from: Option<PathBuf>,
-    /// Start with the data set of this earlier distillation (a run directory: its newest
-    /// checkpoint) instead of an empty one. Its teacher must be this run's, so every label
-    /// stays the teacher's; the samples hold whole state observations, so a student of another
-    /// shape (e.g. one that reads the previous action) learns from them too. Default none.
-    pub dataset_from: Option<PathBuf>,
-    /// With `dataset_from`: the earlier run may have had another teacher (of the same
-    /// observation layout), and every state of its data set is labelled again by this run's
-    /// teacher, so a new teacher reuses the states an earlier distillation paid to visit. Not
-    /// with the pilot, whose action depends on its memory of the flight. Default false.
-    pub relabel: bool,
     /// Tracks the student flies (default generated, as in training).
     pub tracks: TrackSource,
     /// Track generator.
@@ -155,20 +119,13 @@ impl Default for DistillConfig {
             rounds: 60,
             teacher_decay: 0.8,
             takeover: None,
-            crash_margin: 0,
             capacity: 1_000_000,
             updates_per_round: 160,
             minibatch: 64,
             previous_action: false,
-            frame_stack: FrameStack::default(),
-            frame_widening: FrameWidening::Zero,
             learning_rate: 5e-4,
             initial_log_std: 0.0,
             init_from: None,
-            dataset_from: None,
-            relabel: false,
-            gate_loss_weight: 0.0,
-            frozen_encoder: false,
             tracks: TrackSource::Generated,
             generator: TrackGenerator::default(),
             switching: SwitchParams { window: 5, alpha: 100.0, ..SwitchParams::default() },
@@ -204,8 +161,8 @@ impl DistillConfig {
     pub fn read(path: &Path) -> anyhow::Result<Self> {
         let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
         let error = |e: String| anyhow::anyhow!("{}: {e}", path.display());
-        let student = crate::overrides::parse_over(&Self::default(), &text).map_err(error)?.student;
-        crate::overrides::parse_over(&Self::defaults_for(student), &text).map_err(error)
+        let student = runtime::overrides::parse_over(&Self::default(), &text).map_err(error)?.student;
+        runtime::overrides::parse_over(&Self::defaults_for(student), &text).map_err(error)
     }
 
     /// Writes the config as TOML, atomically.
@@ -237,23 +194,9 @@ impl DistillConfig {
             ensure!(t >= 0.0, "takeover: {t} must be ≥ 0 (the largest allowed difference from the teacher's action)");
         }
         ensure!(self.learning_rate > 0.0, "learning_rate: {} must be positive", self.learning_rate);
-        ensure!(self.gate_loss_weight >= 0.0, "gate_loss_weight: {} must be ≥ 0 (0: no gate head)", self.gate_loss_weight);
-        ensure!(
-            !self.relabel || (self.dataset_from.is_some() && !self.pilot_teaches()),
-            "relabel: needs dataset_from, and a policy as teacher (the pilot's action depends on its memory of the flight)"
-        );
         ensure!(
             !self.previous_action || self.student == Agent::Vision,
             "previous_action: only a vision student's actor is limited to proprioception; a state student reads the whole observation"
-        );
-        ensure!(
-            !self.frozen_encoder || (self.student == Agent::Vision && self.init_from.is_some()),
-            "frozen_encoder: needs a vision student and the start (init_from) whose CNN stays as it is"
-        );
-        self.frame_stack.check().map_err(anyhow::Error::msg)?;
-        ensure!(
-            self.frame_stack.is_single() || self.student == Agent::Vision,
-            "frame_stack: only a vision student sees camera frames; a state student reads the whole observation"
         );
         Ok(())
     }
@@ -272,16 +215,12 @@ pub struct RoundSummary {
     pub dataset: usize,
     /// Mean regression loss of the round's steps (NaN when none were taken).
     pub loss: f64,
-    /// Mean gate-head loss of the round's steps (NaN without a head).
-    pub gate_loss: f64,
     /// Episodes that ended this round.
     pub episodes: usize,
     /// Their mean completed laps.
     pub laps_per_episode: f64,
     /// Fraction of them that crashed.
     pub crash_rate: f64,
-    /// Labelled states dropped as the run-up to a crash.
-    pub dropped: usize,
     /// Seconds flying (and rendering, labelling) and regressing.
     pub fly_seconds: f64,
     /// Seconds of the regression steps.
@@ -297,8 +236,6 @@ struct Flight {
     laps: u64,
     crashes: usize,
     teacher_steps: usize,
-    /// Labelled states dropped as the run-up to a crash (`crash_margin`).
-    dropped: usize,
 }
 
 /// Counters and random state saved in the checkpoint's `distiller` section.
@@ -313,10 +250,6 @@ struct Progress {
     /// The pilots' memories when the pilot teaches (one per environment).
     #[serde(default)]
     pilots: Vec<Option<PilotMemory>>,
-    /// The environments' camera histories (none for a state student, nor in checkpoints
-    /// written before frame stacks).
-    #[serde(default)]
-    cameras: Vec<CameraHistory>,
 }
 
 /// Who labels the visited states.
@@ -361,7 +294,7 @@ pub struct Distiller {
 
 /// `metrics.csv` columns after `iteration,env_steps,wall_seconds` (iteration = round,
 /// env_steps = samples seen).
-const COLUMNS: [&str; 10] = [
+const COLUMNS: [&str; 9] = [
     "distill/loss",
     "distill/teacher_share",
     "distill/dataset",
@@ -371,7 +304,6 @@ const COLUMNS: [&str; 10] = [
     "eval/success",
     "eval/mean_lap",
     "eval/seconds",
-    "distill/gate_loss",
 ];
 
 impl Distiller {
@@ -396,12 +328,7 @@ impl Distiller {
                 }
                 // The teacher's observation is the student's state input and its critic's.
                 config.env.observation = blob.architecture.observation;
-                Architecture {
-                    agent: config.student,
-                    vision_previous_action: config.previous_action,
-                    frame_stack: config.frame_stack,
-                    ..blob.architecture.clone()
-                }
+                Architecture { agent: config.student, vision_previous_action: config.previous_action, ..blob.architecture.clone() }
             }
             None => {
                 let mut architecture = learner::config::Profile::cpu().architecture;
@@ -409,12 +336,7 @@ impl Distiller {
                     architecture.hidden = hidden.clone();
                 }
                 architecture.set_observation_layout(config.env.observation);
-                Architecture {
-                    agent: config.student,
-                    vision_previous_action: config.previous_action,
-                    frame_stack: config.frame_stack,
-                    ..architecture
-                }
+                Architecture { agent: config.student, vision_previous_action: config.previous_action, ..architecture }
             }
         };
         config.write(&dir.join("config.toml"))?;
@@ -422,27 +344,11 @@ impl Distiller {
         let registration = tasks.register(ACTOR, config.envs)?;
         let env = with_images(VecEnv::new(registration.tracks, config.env, config.seed), &config);
         let start = match &config.init_from {
-            Some(path) => {
-                let blob = read_policy(path).with_context(|| format!("init_from {}", path.display()))?;
-                // A vision start sees the student's frames, widened as `frame_widening` says
-                // (nothing to do when it sees them already).
-                Some(match blob.architecture.agent {
-                    Agent::Vision => blob
-                        .with_frame_stack(config.frame_stack, config.frame_widening)
-                        .with_context(|| format!("init_from {}", path.display()))?,
-                    Agent::State => blob,
-                })
-            }
+            Some(path) => Some(read_policy(path).with_context(|| format!("init_from {}", path.display()))?),
             None => None,
         };
-        let mut student = Student::new(&architecture, teacher_blob.as_ref(), start.as_ref(), config.initial_log_std, config.seed)
+        let student = Student::new(&architecture, teacher_blob.as_ref(), start.as_ref(), config.initial_log_std, config.seed)
             .with_context(|| config.init_from.as_ref().map_or(String::new(), |p| format!("init_from {}", p.display())))?;
-        if config.gate_loss_weight > 0.0 {
-            student = student.with_gate_head(config.gate_loss_weight, None, config.seed).context("gate_loss_weight")?;
-        }
-        if config.frozen_encoder {
-            student = student.with_frozen_encoder().context("frozen_encoder")?;
-        }
         let progress = Progress {
             round: 0,
             rollout: registration.next_rollout,
@@ -451,24 +357,13 @@ impl Distiller {
             rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0xDA66_E400),
             envs: Vec::new(),
             pilots: Vec::new(),
-            cameras: Vec::new(),
         };
         let teacher_bytes = teacher_blob.as_ref().map(WeightsBlob::to_bytes);
-        let mut data = match &config.dataset_from {
-            None => DistillDataset::new(config.capacity, architecture.observation_dim, config.frame_stack),
-            Some(run) => {
-                let labelled_by = if config.relabel { LabelledBy::Any } else { LabelledBy::Teacher(teacher_bytes.as_deref()) };
-                earlier_dataset(run, labelled_by, architecture.observation, config.frame_stack)
-                    .with_context(|| format!("dataset_from {}", run.display()))?
-            }
-        };
+        let data = DistillDataset::new(config.capacity, architecture.observation_dim);
         let mut teacher = match teacher_blob.zip(teacher_bytes) {
             Some((blob, bytes)) => Teacher::Policy(Box::new(Policy::from_blob(&blob)?), bytes),
             None => Teacher::Pilot(vec![ReferencePilot::new(PilotParams::default()); env.len()]),
         };
-        if let (true, Teacher::Policy(policy, _)) = (config.relabel, &teacher) {
-            data.relabel(|states| policy.deterministic_actions(states));
-        }
         for i in 0..env.len() {
             teacher.episode_started(i, &env);
         }
@@ -481,27 +376,13 @@ impl Distiller {
     pub fn resume(dir: &Path) -> anyhow::Result<Self> {
         let (config, checkpoints, path, c) = newest_checkpoint(dir)?;
         let section = |name: &str| c.get(name).with_context(|| format!("{}", path.display()));
-        let mut student = Student::restore(section("weights")?, section("optimizer")?, config.pilot_teaches())
+        let student = Student::restore(section("weights")?, section("optimizer")?, config.pilot_teaches())
             .with_context(|| format!("{}", path.display()))?;
-        if config.gate_loss_weight > 0.0 {
-            student = student
-                .with_gate_head(config.gate_loss_weight, Some(section("gate_head")?), config.seed)
-                .with_context(|| format!("{}", path.display()))?;
-        }
-        if config.frozen_encoder {
-            student = student.with_frozen_encoder().context("frozen_encoder")?;
-        }
         let data = DistillDataset::from_bytes(section("dataset")?).with_context(|| format!("{}", path.display()))?;
         let mut progress: Progress =
             serde_json::from_slice(section("distiller")?).with_context(|| format!("{}: distiller section", path.display()))?;
         let tasks = LocalTasks::new(TaskController::from_snapshot_bytes(section("taskctl")?, &path)?, None);
-        let mut env = with_images(VecEnv::from_envs(std::mem::take(&mut progress.envs)), &config);
-        // Checkpoints written before frame stacks have no histories: single frames, which the
-        // environments' states give again.
-        let cameras = std::mem::take(&mut progress.cameras);
-        if !cameras.is_empty() {
-            env.restore_cameras(cameras).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        }
+        let env = with_images(VecEnv::from_envs(std::mem::take(&mut progress.envs)), &config);
         let teacher = match config.pilot_teaches() {
             false => {
                 let bytes = section("teacher")?.to_vec();
@@ -569,7 +450,7 @@ impl Distiller {
         let flight = self.fly()?;
         let fly_seconds = started.elapsed().as_secs_f64();
         let fit_started = Instant::now();
-        let (loss, gate_loss) = self.regress();
+        let loss = self.regress();
         let fit_seconds = fit_started.elapsed().as_secs_f64();
         self.progress.round += 1;
         let round = self.progress.round;
@@ -595,16 +476,14 @@ impl Distiller {
             samples_seen: self.data.seen(),
             dataset: self.data.len(),
             loss,
-            gate_loss,
             episodes: flight.episodes,
             laps_per_episode: per_episode(flight.laps as f64),
             crash_rate: per_episode(flight.crashes as f64),
-            dropped: flight.dropped,
             fly_seconds,
             fit_seconds,
             validation: validation.as_ref().map(|v| (v.report.s_pw, v.report.success_rate)),
         };
-        let eval = |f: &dyn Fn(&crate::Validation) -> f64| validation.as_ref().map_or(f64::NAN, f);
+        let eval = |f: &dyn Fn(&runtime::Validation) -> f64| validation.as_ref().map_or(f64::NAN, f);
         let values = [
             summary.loss,
             summary.teacher_share,
@@ -615,7 +494,6 @@ impl Distiller {
             eval(&|v| v.report.success_rate),
             eval(&|v| v.report.mean_lap.unwrap_or(f64::NAN)),
             eval(&|v| v.seconds),
-            summary.gate_loss,
         ];
         let row: Vec<(&str, f64)> = COLUMNS.iter().copied().zip(values).collect();
         self.metrics.write_columns(round, summary.samples_seen, self.progress.wall_seconds, &row)?;
@@ -627,10 +505,8 @@ impl Distiller {
 
     /// Flies every environment `steps_per_round` steps — each step by the teacher with
     /// probability β = decay^round, else by the student unless `takeover` hands it back to
-    /// the teacher — offering every visited state with the
-    /// teacher's label to the data set (held back `crash_margin` steps, and dropped if a crash
-    /// comes within them); then reports the round's rewards to the task controller
-    /// and applies its switches.
+    /// the teacher — offering every visited state with the teacher's label to the data set;
+    /// then reports the round's rewards to the task controller and applies its switches.
     fn fly(&mut self) -> anyhow::Result<Flight> {
         let beta = self.config.teacher_decay.powi(self.progress.round.min(i32::MAX as u64) as i32);
         // Round 0 is the teacher's alone: the student's actions would not be used.
@@ -639,20 +515,15 @@ impl Distiller {
         let dim = self.env.observation_dim();
         let mut rewards = vec![0.0f64; n];
         let mut flight = Flight::default();
-        let margin = self.config.crash_margin;
-        let mut held: Vec<VecDeque<LabelledState>> = (0..n).map(|_| VecDeque::with_capacity(margin + 1)).collect();
         for _ in 0..self.config.steps_per_round {
             let labels = self.teacher.labels(&self.env);
             let student_actions = student.as_ref().map(|s| s.deterministic_actions(&self.env.observations, &self.env.images));
             self.student.observe(&self.env.observations);
             let mut actions = labels.clone();
-            for (i, held) in held.iter_mut().enumerate() {
+            for i in 0..n {
                 let state = &self.env.observations[i * dim..(i + 1) * dim];
                 let rows = i * ACTION_DIM..(i + 1) * ACTION_DIM;
-                held.push_back(self.data.label(&self.env.envs()[i], self.env.cameras().get(i), state, &labels[rows.clone()]));
-                if held.len() > margin {
-                    self.data.offer_labelled(held.pop_front().context("one state held at least")?, &mut self.progress.rng);
-                }
+                self.data.offer(&self.env.envs()[i], state, &labels[rows.clone()], &mut self.progress.rng);
                 let student_flies = student_actions.as_ref().is_some_and(|s| {
                     self.progress.rng.random::<f64>() >= beta
                         && self
@@ -674,14 +545,7 @@ impl Distiller {
                 flight.episodes += 1;
                 flight.laps += u64::from(f.stats.laps);
                 flight.crashes += usize::from(f.stats.crash.is_some());
-                if f.stats.crash.is_some() {
-                    flight.dropped += held[f.env].len();
-                    held[f.env].clear();
-                }
             }
-        }
-        for labelled in held.into_iter().flatten() {
-            self.data.offer_labelled(labelled, &mut self.progress.rng);
         }
         for (env, track) in self.tasks.report(ACTOR, self.progress.rollout, &rewards)? {
             self.env.set_track(env, track);
@@ -692,18 +556,15 @@ impl Distiller {
     }
 
     /// The round's regression steps on minibatches drawn from the whole data set; their mean
-    /// imitation and gate-head losses (NaN when there are none).
-    fn regress(&mut self) -> (f64, f64) {
+    /// loss (NaN when there are none).
+    fn regress(&mut self) -> f64 {
         let batch = self.config.minibatch.min(self.data.len());
-        let (mut imitation, mut gate) = (0.0, 0.0);
+        let mut loss = 0.0;
         for _ in 0..self.config.updates_per_round {
             let rows = rand::seq::index::sample(&mut self.progress.rng, self.data.len(), batch).into_vec();
-            let loss = self.student.train_step(&self.data, &rows, self.config.learning_rate);
-            imitation += loss.imitation;
-            gate += loss.gate.unwrap_or(f64::NAN);
+            loss += self.student.train_step(&self.data, &rows, self.config.learning_rate);
         }
-        let steps = self.config.updates_per_round as f64;
-        if self.config.updates_per_round > 0 { (imitation / steps, gate / steps) } else { (f64::NAN, f64::NAN) }
+        if self.config.updates_per_round > 0 { loss / self.config.updates_per_round as f64 } else { f64::NAN }
     }
 
     /// Writes a periodic checkpoint of everything.
@@ -716,16 +577,11 @@ impl Distiller {
         }
         c.put("weights", self.student.weights().to_bytes());
         c.put("optimizer", self.student.optimizer_state());
-        if let Some(head) = self.student.gate_head_bytes() {
-            c.put("gate_head", head);
-        }
         c.put("dataset", self.data.to_bytes());
         c.put("taskctl", self.tasks.read(TaskController::to_snapshot_bytes));
         self.progress.envs = self.env.envs().to_vec();
-        self.progress.cameras = self.env.cameras().to_vec();
         c.put("distiller", serde_json::to_vec(&self.progress).expect("environments and counters serialise"));
         self.progress.envs.clear();
-        self.progress.cameras.clear();
         self.progress.pilots.clear();
         Ok(self.checkpoints.save(&c, self.progress.round)?)
     }
@@ -741,56 +597,10 @@ fn newest_checkpoint(dir: &Path) -> anyhow::Result<(DistillConfig, CheckpointDir
     Ok((config, checkpoints, path, checkpoint))
 }
 
-/// Whose labels an earlier data set must hold.
-enum LabelledBy<'a> {
-    /// This teacher's: the policy's blob, `None` for the pilot.
-    Teacher(Option<&'a [u8]>),
-    /// Anyone's: they will be labelled again.
-    Any,
-}
-
-/// The data set of the distillation run in `run` (its newest checkpoint), checked to hold
-/// labels as `labelled_by` asks on states of `layout` and the camera frames of `frame_stack`.
-fn earlier_dataset(
-    run: &Path,
-    labelled_by: LabelledBy,
-    layout: ObservationLayout,
-    frame_stack: FrameStack,
-) -> anyhow::Result<DistillDataset> {
-    let (config, _, path, c) = newest_checkpoint(run)?;
-    let state_dim = layout.dim();
-    let section = |name: &str| c.get(name).with_context(|| format!("{}", path.display()));
-    if let LabelledBy::Teacher(teacher) = labelled_by {
-        let earlier = if config.pilot_teaches() { None } else { Some(section("teacher")?) };
-        ensure!(earlier == teacher, "{}: its labels are another teacher's ({})", path.display(), config.teacher.display());
-    }
-    // Its config records the layout its teacher observed: the same numbers may mean other things.
-    ensure!(
-        config.env.observation == layout,
-        "{}: its states are of another observation layout ({:?}; this teacher's: {layout:?})",
-        run.display(),
-        config.env.observation
-    );
-    let data = DistillDataset::from_bytes(section("dataset")?).with_context(|| format!("{}", path.display()))?;
-    ensure!(
-        data.state_dim() == state_dim,
-        "{}: states of {} numbers; this teacher's observation has {state_dim}",
-        path.display(),
-        data.state_dim()
-    );
-    ensure!(
-        data.frame_stack() == frame_stack,
-        "{}: its samples hold the camera frames of {:?}; this student sees {frame_stack:?}",
-        path.display(),
-        data.frame_stack()
-    );
-    Ok(data)
-}
-
-/// `env`, rendering the camera frames the student sees when it sees them.
+/// `env`, rendering the camera images when the student sees them.
 fn with_images(env: VecEnv, config: &DistillConfig) -> VecEnv {
     match config.student {
-        Agent::Vision => env.with_frame_stack(config.frame_stack),
+        Agent::Vision => env.with_images(),
         Agent::State => env,
     }
 }
@@ -803,10 +613,8 @@ pub fn progress_line(s: &RoundSummary, rounds: u64) -> String {
         0 => "no episode ended".to_string(),
         n => format!("{n} episodes: laps/ep {:.2}, crashed {:.0} %", s.laps_per_episode, 100.0 * s.crash_rate),
     };
-    let dropped = if s.dropped > 0 { format!(" | dropped {} run-up states", s.dropped) } else { String::new() };
-    let gate = if s.gate_loss.is_nan() { String::new() } else { format!(" (gates {:.4})", s.gate_loss) };
     format!(
-        "round {:>4}/{rounds} | {:>9} samples (kept {:>8}) | teacher {:>3.0} % | loss {:.4}{gate} | {episodes} | fly {:.1} s, fit {:.1} s{dropped}{validation}",
+        "round {:>4}/{rounds} | {:>9} samples (kept {:>8}) | teacher {:>3.0} % | loss {:.4} | {episodes} | fly {:.1} s, fit {:.1} s{validation}",
         s.round,
         s.samples_seen,
         s.dataset,

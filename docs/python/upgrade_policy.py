@@ -66,10 +66,12 @@ def upgrade_architecture(old):
             layout[key] = old[key]
     new["observation"] = layout
     new["agent"] = old.get("agent", "state")
-    for key in ("vision_previous_action", "frame_stack"):
-        if key in old:
-            new[key] = old[key]
-    known = set(new) | set(REMOVED_OFF) | set(DROPPED) | {"observation_frame", "line_points", "line_spacing", "gate_sight"}
+    if "vision_previous_action" in old:
+        new["vision_previous_action"] = old["vision_previous_action"]
+    frames = old.get("frame_stack", {}).get("frames", 1)
+    if frames != 1:
+        raise ValueError(f"architecture.frame_stack sees {frames} frames: an option removed from dronerace; this policy needs the commit 2482eeb")
+    known = set(new) | set(REMOVED_OFF) | set(DROPPED) | {"observation_frame", "line_points", "line_spacing", "gate_sight", "frame_stack"}
     unknown = set(old) - known
     if unknown:
         raise ValueError(f"architecture fields {sorted(unknown)} are not format 2's")

@@ -57,17 +57,19 @@ struct Counters {
     rng: ChaCha8Rng,
 }
 
-/// The network being trained, whichever agent (by PPO here, by regression in `distill`).
-/// Cloning is cheap: burn's tensors are reference-counted and copied on write.
+/// The network being trained, whichever agent (by PPO here, by regression in the `distill`
+/// crate). Cloning is cheap: burn's tensors are reference-counted and copied on write.
 #[derive(Clone)]
-pub(crate) enum Network {
+pub enum Network {
+    /// The state-based actor-critic.
     State(ActorCritic),
+    /// The vision actor-critic.
     Vision(VisionActorCritic),
 }
 
 impl Network {
     /// A fresh network of `arch`'s agent (seeded, log std `initial_log_std`).
-    pub(crate) fn new(arch: &Architecture, initial_log_std: f64, seed: u64, device: &Device) -> Self {
+    pub fn new(arch: &Architecture, initial_log_std: f64, seed: u64, device: &Device) -> Self {
         match arch.agent {
             Agent::State => Self::State(ActorCritic::new(arch, initial_log_std, seed, device)),
             Agent::Vision => Self::Vision(VisionActorCritic::new(arch, initial_log_std, seed, device)),
@@ -75,7 +77,7 @@ impl Network {
     }
 
     /// The network in `blob`, in training mode.
-    pub(crate) fn from_blob(blob: &WeightsBlob, device: &Device) -> Result<Self, policy::BlobError> {
+    pub fn from_blob(blob: &WeightsBlob, device: &Device) -> Result<Self, policy::BlobError> {
         Ok(match blob.architecture.agent {
             Agent::State => Self::State(blob.model(device)?.train()),
             Agent::Vision => Self::Vision(blob.vision_model(device)?.train()),
@@ -83,7 +85,7 @@ impl Network {
     }
 
     /// The network as a weights blob of its agent.
-    pub(crate) fn blob(&self, version: u64, arch: &Architecture, normalizer: &ObsNormalizer) -> WeightsBlob {
+    pub fn blob(&self, version: u64, arch: &Architecture, normalizer: &ObsNormalizer) -> WeightsBlob {
         match self {
             Network::State(m) => WeightsBlob::from_model(version, arch, normalizer, m),
             Network::Vision(m) => WeightsBlob::from_vision_model(version, arch, normalizer, m),
@@ -122,13 +124,6 @@ impl Learner {
     /// fine-tune may change `gate_sight`: the gate corners mean the same, only when they are
     /// shown changes. A vision actor that reads its previous action keeps reading it.
     pub fn from_policy(profile: Profile, total_env_steps: u64, seed: u64, blob: &WeightsBlob) -> Result<Self, LearnerError> {
-        if !blob.architecture.frame_stack.is_single() {
-            // PPO's actors send one camera image a step; stacked frames are distillation's.
-            return Err(LearnerError::State(format!(
-                "the policy sees {} camera frames; PPO trains policies that see one (stacked frames are for distillation)",
-                blob.architecture.frame_stack.frames
-            )));
-        }
         // Whether a vision actor reads its previous action is the policy's own (a distilled
         // student's): the environments write that action either way.
         let mut profile = profile;
@@ -324,18 +319,6 @@ mod tests {
         assert!(tuned.params.iter().zip(&blob.params).all(|(a, b)| a.values == b.values));
         let wider = Architecture { hidden: vec![64, 64], ..camera };
         assert!(Learner::from_policy(profile(wider), 1000, 0, &blob).is_err(), "other shapes are still refused");
-    }
-
-    #[test]
-    fn ppo_refuses_a_policy_that_sees_stacked_frames_naming_them() {
-        let vision = Architecture { agent: Agent::Vision, ..Architecture::cpu() };
-        let net = policy::vision::VisionActorCritic::new(&vision, 0.0, 1, &Device::flex());
-        let single = WeightsBlob::from_vision_model(1, &vision, &ObsNormalizer::new(vision.observation_dim), &net);
-        let profile = Profile { architecture: vision, ..Profile::cpu() };
-        assert!(Learner::from_policy(profile.clone(), 1000, 0, &single).is_ok());
-        let stacked = single.with_frame_stack(sim::FrameStack { frames: 4, stride: 8 }, policy::FrameWidening::Zero).unwrap();
-        let err = Learner::from_policy(profile, 1000, 0, &stacked).err().unwrap().to_string();
-        assert!(err.contains("4 camera frames"), "{err}");
     }
 
     /// PPO from a distilled student: its actor keeps reading the previous action though the

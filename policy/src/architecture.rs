@@ -44,10 +44,6 @@ pub struct Architecture {
     /// depend on the previous action its observation holds. Left out of blobs when false.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub vision_previous_action: bool,
-    /// The camera frames a vision actor sees (beyond SPEC §5's one: earlier frames too, so it
-    /// remembers gates that left the image). Left out of blobs when it is the single frame.
-    #[serde(default, skip_serializing_if = "sim::FrameStack::is_single")]
-    pub frame_stack: sim::FrameStack,
 }
 
 impl Architecture {
@@ -61,7 +57,6 @@ impl Architecture {
             observation: sim::ObservationLayout::default(),
             agent: Agent::State,
             vision_previous_action: false,
-            frame_stack: sim::FrameStack::default(),
         }
     }
 

@@ -7,7 +7,8 @@ use burn::module::Module;
 use burn::tensor::{Device, Tensor, TensorData};
 use rand::Rng;
 use rand_distr::StandardNormal;
-use sim::{CameraHistory, CameraPose, Controller, RaceEnv};
+use sim::camera::IMAGE_PIXELS;
+use sim::{Controller, RaceEnv};
 
 use crate::blob::{BlobError, WeightsBlob};
 use crate::network::ActorCritic;
@@ -151,8 +152,6 @@ pub struct VisionPolicy {
     normalizer: ObsNormalizer,
     log_std: Vec<f32>,
     layout: sim::ObservationLayout,
-    /// The camera frames it sees.
-    frame_stack: sim::FrameStack,
     version: u64,
     device: Device,
 }
@@ -164,8 +163,7 @@ impl VisionPolicy {
         let model = blob.vision_model(&device)?.valid();
         let log_std = blob.params.last().map(|p| p.values.clone()).unwrap_or_default();
         let layout = blob.architecture.observation;
-        let frame_stack = blob.architecture.frame_stack;
-        Ok(Self { model, normalizer: blob.normalizer.clone(), log_std, layout, frame_stack, version: blob.version, device })
+        Ok(Self { model, normalizer: blob.normalizer.clone(), log_std, layout, version: blob.version, device })
     }
 
     /// Policy version this was built from.
@@ -178,13 +176,8 @@ impl VisionPolicy {
         self.layout
     }
 
-    /// The camera frames it sees: each of its observations is that many images.
-    pub fn frame_stack(&self) -> sim::FrameStack {
-        self.frame_stack
-    }
-
-    /// Action means of a batch: `n` camera observations (`n × frames × 84 × 84` bytes, as the
-    /// renderer writes them, current frame first) and their raw state observations (`n × 40`,
+    /// Action means of a batch: `n` camera images (`n × 84 × 84` bytes, as the renderer writes
+    /// them) and their raw state observations (`n × 40`,
     /// in the policy's frame; their proprioceptive part feeds the actor), one row of means per
     /// observation.
     #[allow(clippy::expect_used, reason = "float outputs")]
@@ -223,11 +216,11 @@ impl VisionPolicy {
         Tensor::<2>::from_data(TensorData::new(states, [raw_states.len() / dim, dim]), &self.device)
     }
 
-    /// The network's inputs: images `[n, frames, 84, 84]` in [0, 1] and normalised states.
+    /// The network's inputs: images `[n, 1, 84, 84]` in [0, 1] and normalised states.
     fn inputs(&self, images: &[u8], raw_states: &[f32]) -> (Tensor<4>, Tensor<2>) {
         let n = raw_states.len() / self.normalizer.dim();
-        assert_eq!(images.len(), n * self.frame_stack.image_len(), "one camera observation per state row");
-        (image_tensor(images, self.frame_stack.frames, &self.device), self.states(raw_states))
+        assert_eq!(images.len(), n * IMAGE_PIXELS, "one camera image per state row");
+        (image_tensor(images, &self.device), self.states(raw_states))
     }
 }
 
@@ -300,30 +293,24 @@ impl ActingPolicy {
 }
 
 /// Flies a [`RaceEnv`] with a vision policy's deterministic mean action: renders the camera
-/// every step (SPEC §5), as evaluation of a vision agent needs, and the earlier frames a
-/// stacked-frame policy sees from the poses it remembers.
+/// every step (SPEC §5), as evaluation of a vision agent needs.
 pub struct VisionPolicyController {
     policy: Arc<VisionPolicy>,
-    camera: CameraHistory,
     image: Vec<u8>,
 }
 
 impl VisionPolicyController {
     /// A controller sharing `policy`.
     pub fn new(policy: Arc<VisionPolicy>) -> Self {
-        let stack = policy.frame_stack();
-        Self { policy, camera: CameraHistory::new(stack), image: vec![0; stack.image_len()] }
+        Self { policy, image: vec![0; IMAGE_PIXELS] }
     }
 }
 
 impl Controller for VisionPolicyController {
-    fn reset(&mut self, env: &RaceEnv) {
-        self.camera.restart(CameraPose::of(env));
-    }
+    fn reset(&mut self, _: &RaceEnv) {}
 
     fn act(&mut self, env: &RaceEnv) -> [f32; 4] {
-        self.camera.record(CameraPose::of(env));
-        self.camera.render(env.track(), &mut self.image);
+        env.render_camera(&mut self.image);
         let action = self.policy.deterministic_actions(&self.image, &env.observation_in(self.policy.layout));
         std::array::from_fn(|i| action[i])
     }

@@ -7,7 +7,6 @@ pub mod averaging;
 pub mod blob;
 pub mod dense;
 pub mod ensemble;
-pub mod gate_head;
 pub mod inference;
 pub mod network;
 pub mod normalizer;
@@ -30,5 +29,4 @@ pub use inference::{
 pub use network::ActorCritic;
 pub use normalizer::ObsNormalizer;
 pub use rollout::{ChunkLimits, EpisodeRecord, RolloutChunk, RolloutWireError};
-pub use surgery::FrameWidening;
 pub use vision::{VisionActorCritic, pixels_to_unit};

@@ -1,28 +1,14 @@
 //! Policy-file surgery: a trained policy rewritten into another that acts exactly as it did
 //! until trained further — a vision actor that also reads its previous action, wider hidden
-//! layers, stacked camera frames — or with a chosen exploration noise. Each checks the shapes it
-//! produces against the architecture it declares.
+//! layers — or with a chosen exploration noise. Each checks the shapes it produces against the
+//! architecture it declares.
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use serde::{Deserialize, Serialize};
 
 use crate::architecture::Agent;
 use crate::blob::{BlobError, WeightsBlob};
 use crate::vision::VisionActorCritic;
-
-/// How a single-frame vision policy's first convolution is widened to see stacked frames.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum FrameWidening {
-    /// Zero kernels for the earlier frames: it acts exactly as before until trained further.
-    #[default]
-    Zero,
-    /// Every frame gets the current frame's kernel ÷ frames (the inflation of Carreira and
-    /// Zisserman's I3D): it acts as before on a still scene, and every frame's kernel starts
-    /// where gradients reach it at full strength.
-    Inflate,
-}
 
 impl WeightsBlob {
     /// This vision policy with an actor that also reads its previous action
@@ -107,40 +93,6 @@ impl WeightsBlob {
                 widened.params[bias].values.resize(new_out, 0.0);
             }
         }
-        crate::network::check_shapes(&Self::shapes(&widened.architecture), &widened.params).map_err(BlobError::Malformed)?;
-        Ok(widened)
-    }
-
-    /// This single-frame vision policy seeing the frames of `stack`
-    /// ([`Architecture::frame_stack`]): the first convolution gains weights for the earlier
-    /// frames as `widening` says.
-    pub fn with_frame_stack(&self, stack: sim::FrameStack, widening: FrameWidening) -> Result<Self, BlobError> {
-        self.check_agent(Agent::Vision)?;
-        let found = self.architecture.frame_stack;
-        if found == stack {
-            return Ok(self.clone());
-        }
-        if !found.is_single() {
-            return Err(BlobError::Malformed(format!("a policy seeing {} frames cannot be made to see {}", found.frames, stack.frames)));
-        }
-        let mut widened = self.clone();
-        widened.architecture.frame_stack = stack;
-        // The first parameter is the first convolution's weight, `[out, 1, k, k]` row-major:
-        // each output channel's kernel becomes `frames` kernels, the current frame's first.
-        let weight = widened.params.first_mut().ok_or_else(|| BlobError::Malformed("no parameters".into()))?;
-        let &[out, 1, k, k2] = weight.shape.as_slice() else {
-            return Err(BlobError::Malformed(format!("first convolution's weight has shape {:?}", weight.shape)));
-        };
-        let (kernel, frames) = (k * k2, stack.frames);
-        weight.values = weight
-            .values
-            .chunks_exact(kernel)
-            .flat_map(|w| match widening {
-                FrameWidening::Zero => w.iter().copied().chain(std::iter::repeat_n(0.0, (frames - 1) * kernel)).collect::<Vec<f32>>(),
-                FrameWidening::Inflate => w.iter().map(|v| v / frames as f32).cycle().take(frames * kernel).collect(),
-            })
-            .collect();
-        weight.shape = vec![out, stack.frames, k, k2];
         crate::network::check_shapes(&Self::shapes(&widened.architecture), &widened.params).map_err(BlobError::Malformed)?;
         Ok(widened)
     }

@@ -10,6 +10,7 @@ use burn::nn::conv::Conv2d;
 use burn::tensor::{Device, Tensor, TensorData};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use sim::camera::IMAGE_PIXELS;
 
 use crate::architecture::Architecture;
 use crate::dense::{dense, leaky_relu};
@@ -36,13 +37,12 @@ pub fn pixels_to_unit(image: &[u8]) -> Vec<f32> {
     image.iter().map(|&p| f32::from(p) / 255.0).collect()
 }
 
-/// Camera images as the CNN reads them: `n` observations of `frames` 84×84 images each
-/// (bytes, current frame first) → `[n, frames, 84, 84]` scaled to [0, 1].
-pub fn image_tensor(pixels: &[u8], frames: usize, device: &Device) -> Tensor<4> {
-    let observation = frames * IMAGE_SIDE * IMAGE_SIDE;
-    let n = pixels.len() / observation;
-    assert_eq!(pixels.len(), n * observation, "whole observations of {frames} frames");
-    Tensor::<4>::from_data(TensorData::new(pixels_to_unit(pixels), [n, frames, IMAGE_SIDE, IMAGE_SIDE]), device)
+/// Camera images as the CNN reads them: `n` 84×84 images (bytes) → `[n, 1, 84, 84]` scaled to
+/// [0, 1].
+pub fn image_tensor(pixels: &[u8], device: &Device) -> Tensor<4> {
+    let n = pixels.len() / IMAGE_PIXELS;
+    assert_eq!(pixels.len(), n * IMAGE_PIXELS, "whole 84×84 images");
+    Tensor::<4>::from_data(TensorData::new(pixels_to_unit(pixels), [n, 1, IMAGE_SIDE, IMAGE_SIDE]), device)
 }
 
 /// The three convolutions: (output channels, kernel, stride).
@@ -75,7 +75,7 @@ impl VisionActorCritic {
     pub fn new(arch: &Architecture, initial_log_std: f64, seed: u64, device: &Device) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let gain = std::f64::consts::SQRT_2;
-        let mut channels = arch.frame_stack.frames;
+        let mut channels = 1;
         let convolutions = CONVOLUTIONS
             .iter()
             .map(|&(out, kernel, stride)| {
@@ -109,13 +109,7 @@ impl VisionActorCritic {
         }
     }
 
-    /// Camera frames per observation (the first convolution's input channels).
-    pub fn frames(&self) -> usize {
-        self.convolutions.first().map_or(1, |conv| conv.weight.dims()[1])
-    }
-
-    /// Embeddings `[batch, 128]` of images `[batch, frames, 84, 84]` scaled to [0, 1] (one
-    /// channel per frame of the architecture's frame stack, the current one first).
+    /// Embeddings `[batch, 128]` of images `[batch, 1, 84, 84]` scaled to [0, 1].
     pub fn embed(&self, images: Tensor<4>) -> Tensor<2> {
         self.embed_convolved(self.convolve(images))
     }
@@ -137,7 +131,7 @@ impl VisionActorCritic {
         dense(convolved, self.embedding.weight.val(), bias, Some(self.negative_slope))
     }
 
-    /// Action means `[batch, action_dim]` and values `[batch]` from images `[batch, frames, 84, 84]`
+    /// Action means `[batch, action_dim]` and values `[batch]` from images `[batch, 1, 84, 84]`
     /// in [0, 1] and normalised state observations `[batch, 40]`: the actor reads the image and
     /// the state's first 12 numbers (its proprioception; 16 with the previous action), the
     /// critic the whole state.
@@ -195,7 +189,7 @@ impl VisionActorCritic {
     /// Parameter shapes of a vision agent of `arch`, in export order.
     pub fn shapes(arch: &Architecture) -> Vec<Vec<usize>> {
         let mut shapes = Vec::new();
-        let mut channels = arch.frame_stack.frames;
+        let mut channels = 1;
         for (out, kernel, _) in CONVOLUTIONS {
             shapes.push(vec![out, channels, kernel, kernel]);
             shapes.push(vec![out]);
@@ -242,7 +236,7 @@ impl VisionActorCritic {
 
     /// Multiply-adds of one forward pass of one sample (convolutions, embedding, both MLPs).
     pub fn macs_per_sample(arch: &Architecture) -> usize {
-        let (mut side, mut channels, mut macs) = (IMAGE_SIDE, arch.frame_stack.frames, 0);
+        let (mut side, mut channels, mut macs) = (IMAGE_SIDE, 1, 0);
         for (out, kernel, stride) in CONVOLUTIONS {
             side = (side - kernel) / stride + 1;
             macs += side * side * out * channels * kernel * kernel;
@@ -455,73 +449,5 @@ mod tests {
         assert_ne!(run(&trained).0, after.0, "the new units feed the actor once their weights move");
         assert!(narrow.with_hidden(&[4, 6], 3).is_err(), "narrower");
         assert!(narrow.with_hidden(&[8, 6, 6], 3).is_err(), "deeper");
-    }
-
-    /// A single-frame policy widened to stacked frames acts as before whatever the earlier
-    /// frames show, until its new weights move; the controller then feeds it the frames of
-    /// the steps its stack names.
-    #[test]
-    fn a_policy_widened_to_stacked_frames_acts_as_before_and_its_controller_shows_it_earlier_frames() {
-        use crate::{ObsNormalizer, VisionPolicy, VisionPolicyController, WeightsBlob};
-        use sim::{CameraHistory, CameraPose, Controller, EnvConfig, FrameStack, RaceEnv};
-        let arch = Architecture { hidden: vec![16, 16], ..Architecture::paper() };
-        let device = Device::flex();
-        let mut params = VisionActorCritic::new(&arch, -0.5, 4, &device).export();
-        let head = 2 * VisionActorCritic::CONVOLUTION_COUNT + 2 + 2 * arch.hidden.len();
-        params[head].values.iter_mut().for_each(|v| *v *= 100.0);
-        let single = WeightsBlob::from_vision_model(
-            1,
-            &arch,
-            &ObsNormalizer::new(arch.observation_dim),
-            &VisionActorCritic::import(&arch, &params, &device).unwrap(),
-        );
-        let stack = FrameStack { frames: 3, stride: 2 };
-        let stacked = WeightsBlob::from_bytes(&single.with_frame_stack(stack, crate::FrameWidening::Zero).unwrap().to_bytes()).unwrap();
-        assert_eq!(stacked.architecture.frame_stack, stack, "the stack round-trips in the blob");
-        assert_eq!(stacked.params[0].shape, vec![32, 3, 8, 8]);
-        let image: Vec<u8> = (0..IMAGE_SIDE * IMAGE_SIDE).map(|i| (i * 7 % 256) as u8).collect();
-        let earlier: Vec<u8> = (0..2 * IMAGE_SIDE * IMAGE_SIDE).map(|i| (i * 13 % 256) as u8).collect();
-        let state: Vec<f32> = (0..arch.observation_dim).map(|i| (i as f32 * 0.37).sin()).collect();
-        let act = |blob: &WeightsBlob, frames: &[u8]| VisionPolicy::from_blob(blob).unwrap().mean_actions(frames, &state);
-        let with_earlier = [image.clone(), earlier.clone()].concat();
-        assert_eq!(act(&stacked, &with_earlier), act(&single, &image), "zero weights for the earlier frames: the same actions");
-        let mut trained = stacked.clone();
-        trained.params[0].values.iter_mut().for_each(|w| *w += 0.01);
-        assert_ne!(act(&trained, &with_earlier), act(&trained, &[image.clone(), vec![0; 2 * IMAGE_SIDE * IMAGE_SIDE]].concat()));
-        assert!(
-            trained.with_frame_stack(FrameStack { frames: 2, stride: 1 }, crate::FrameWidening::Zero).is_err(),
-            "a stacked policy is not restacked"
-        );
-        // Inflated: each frame the current kernel ÷ 3, so a still scene gives the same actions.
-        let inflated = single.with_frame_stack(stack, crate::FrameWidening::Inflate).unwrap();
-        let still = [image.clone(), image.clone(), image.clone()].concat();
-        let (a, b) = (act(&inflated, &still), act(&single, &image));
-        assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-4), "{a:?} {b:?}");
-        assert_ne!(act(&inflated, &with_earlier), b, "and it sees the earlier frames from the start");
-
-        let policy = std::sync::Arc::new(VisionPolicy::from_blob(&trained).unwrap());
-        let gates = vec![
-            sim::Gate::new(sim::nalgebra::Vector3::new(4.0, 0.0, 2.0), 0.0),
-            sim::Gate::new(sim::nalgebra::Vector3::new(-4.0, 0.0, 2.0), 3.0),
-        ];
-        let track = std::sync::Arc::new(sim::Track::new("two", gates, None, sim::Arena::default()).unwrap());
-        let mut env = RaceEnv::new(track.clone(), EnvConfig::evaluation(), 0, 0);
-        let mut controller = VisionPolicyController::new(policy.clone());
-        controller.reset(&env);
-        let mut poses = vec![CameraPose::of(&env)];
-        for _ in 0..5 {
-            let action = controller.act(&env);
-            env.step(&action);
-            poses.push(CameraPose::of(&env));
-        }
-        let action = controller.act(&env);
-        // By hand: the current pose, the one 2 steps before, and 4 steps before.
-        let mut frames = vec![0u8; stack.image_len()];
-        sim::frame_stack::render_frames(&[poses[5], poses[3], poses[1]], &track, &mut frames);
-        let by_hand = policy.deterministic_actions(&frames, &env.observation_in(arch.observation));
-        assert_eq!(action.to_vec(), by_hand);
-        let mut history = CameraHistory::new(stack);
-        poses.iter().for_each(|p| history.record(*p));
-        assert_eq!(history.frames(), vec![poses[5], poses[3], poses[1]]);
     }
 }

@@ -120,18 +120,19 @@ impl Experiment {
         Ok(experiment)
     }
 
-    fn check(&self) -> Result<(), String> {
+    fn check(&self) -> Result<(), ExperimentError> {
+        let invalid = |message: String| Err(ExperimentError::Invalid(message));
         if self.seeds.is_empty() || self.variants.is_empty() {
-            return Err("name at least one seed and one [[variant]]".into());
+            return invalid("name at least one seed and one [[variant]]".into());
         }
         let mut names = std::collections::BTreeSet::new();
         for v in &self.variants {
             let safe = !v.name.is_empty() && v.name.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_');
             if !safe {
-                return Err(format!("variant name {:?}: use letters, digits, '-' and '_'", v.name));
+                return invalid(format!("variant name {:?}: use letters, digits, '-' and '_'", v.name));
             }
             if !names.insert(&v.name) {
-                return Err(format!("variant name {:?} appears twice", v.name));
+                return invalid(format!("variant name {:?} appears twice", v.name));
             }
             self.config(v, self.seeds[0])?;
         }
@@ -164,15 +165,16 @@ impl Experiment {
 
     /// The run config of `variant` with `seed`: the defaults, then `base`, then the variant's
     /// overrides. Unknown keys are refused, named with the variant.
-    pub fn config(&self, variant: &Variant, seed: u64) -> Result<TrainConfig, String> {
+    pub fn config(&self, variant: &Variant, seed: u64) -> Result<TrainConfig, ExperimentError> {
+        let invalid = |e: String| ExperimentError::Invalid(format!("variant {:?}: {e}", variant.name));
         let mut table = self.base.clone();
         merge(&mut table, &variant.set);
         table.insert("seed".into(), toml::Value::Integer(seed as i64));
         table.insert("name".into(), toml::Value::String(format!("{}-seed-{seed}", variant.name)));
         // Through text, so that toml's error shows the offending line and key.
-        let text = toml::to_string(&table).map_err(|e| format!("variant {:?}: {e}", variant.name))?;
-        let config = TrainConfig::from_toml(&text).map_err(|e| format!("variant {:?}: {e}", variant.name))?;
-        config.resolved_profile().map_err(|e| format!("variant {:?}: {e}", variant.name))?;
+        let text = toml::to_string(&table).map_err(|e| invalid(e.to_string()))?;
+        let config = TrainConfig::from_toml(&text).map_err(|e| invalid(e.to_string()))?;
+        config.resolved_profile().map_err(|e| invalid(e.to_string()))?;
         Ok(config)
     }
 
@@ -276,7 +278,7 @@ pub fn run_experiment(
                 log.skipped.push(dir);
                 continue;
             }
-            let mut config = experiment.config(variant, seed).map_err(ExperimentError::Invalid)?;
+            let mut config = experiment.config(variant, seed)?;
             if experiment.sequential && stage > 0 {
                 // The previous stage is done (stages run in order): start from where it ended.
                 let previous = Experiment::run_dir(out, &experiment.variants[stage - 1].name, seed);
@@ -631,13 +633,13 @@ mod tests {
     fn unknown_override_keys_are_refused_by_name() {
         let mut e: Experiment = toml::from_str(FILE).unwrap();
         e.variants[1].set = toml::from_str("env = { observation_fram = \"heading\" }").unwrap();
-        let error = e.check().unwrap_err();
+        let error = e.check().unwrap_err().to_string();
         assert!(error.contains("observation_fram") && error.contains("body"), "{error}");
         e.variants[1].set = toml::from_str("learning_rate = 0.1").unwrap();
-        let error = e.check().unwrap_err();
+        let error = e.check().unwrap_err().to_string();
         assert!(error.contains("learning_rate"), "{error}");
         e.variants[1].set = toml::from_str("profile = \"gpu\"").unwrap();
-        assert!(e.check().unwrap_err().contains("gpu"));
+        assert!(e.check().unwrap_err().to_string().contains("gpu"));
     }
 
     #[test]

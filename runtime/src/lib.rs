@@ -3,12 +3,11 @@
 //! process loops (`actor_process`, `learner_process`), training in one process by turns of
 //! those same loops over an in-memory link (`trainer`), experiment files (`experiment`), config
 //! files as overrides of a config's own defaults (`overrides`), the progress line (`progress`),
-//! the process's stop flag (`signal`), a trained policy serving actions without a transport
-//! (`pilot`) and distillation by DAgger (`distill`). The processes' commands, their servers and the supervisor are the
-//! binary's (`src/commands`).
+//! and a trained policy serving actions without a
+//! transport (`pilot`). The processes' commands, their servers, the supervisor and the
+//! stop flag that SIGINT and SIGTERM raise are the binary's (`src/commands`, `src/signal.rs`).
 
 pub mod actor_process;
-pub mod distill;
 pub mod experiment;
 pub mod learner_process;
 pub mod metrics;
@@ -17,7 +16,6 @@ pub mod pilot;
 pub mod progress;
 pub mod run;
 pub mod run_lock;
-pub mod signal;
 pub mod trainer;
 pub mod validation;
 

@@ -11,8 +11,9 @@ use serde::de::DeserializeOwned;
 
 /// Options removed from the core: the dotted key, the value (TOML) every run had while it
 /// existed — `None` when any value was a choice — and the last commit that has the option
-/// (docs/notebook/generalist-rejected.md, "Options removed from the core").
-const RETIRED: [(&str, Option<&str>, &str); 11] = [
+/// (docs/notebook/generalist-rejected.md, "Options removed from the core"; the distillation's
+/// top-level ones: docs/notebook/vision.md).
+const RETIRED: [(&str, Option<&str>, &str); 18] = [
     ("warm_start", None, "9b48c91"),
     ("privileged_critic", Some("false"), "4f9e33d"),
     ("env.obstacle_gates", Some("0"), "4f9e33d"),
@@ -24,6 +25,13 @@ const RETIRED: [(&str, Option<&str>, &str); 11] = [
     ("ppo.mirror_coef", Some("0.0"), "8941555"),
     ("env.randomization.gate_perception", Some("0.0"), "7da1853"),
     ("env.randomization.gate_perception_floor", Some("0.0"), "7da1853"),
+    ("crash_margin", Some("0"), "2482eeb"),
+    ("gate_loss_weight", Some("0.0"), "2482eeb"),
+    ("frozen_encoder", Some("false"), "2482eeb"),
+    ("frame_stack", Some("{ frames = 1, stride = 1 }"), "2482eeb"),
+    ("frame_widening", Some("\"zero\""), "2482eeb"),
+    ("dataset_from", None, "2482eeb"),
+    ("relabel", Some("false"), "2482eeb"),
 ];
 
 /// Keys of `[env]` that moved into `[env.observation]` (the one observation layout), with their
@@ -61,7 +69,7 @@ pub fn retire(text: &str) -> Result<Cow<'_, str>, String> {
         if default.as_ref() != Some(value) {
             return Err(format!(
                 "`{key}` was removed from dronerace (a rejected option; it last ran at commit {commit}, \
-                 docs/notebook/generalist-rejected.md): delete it from the file"
+                 and docs/notebook/ says why): delete it from the file"
             ));
         }
         section.remove(last);
@@ -97,34 +105,58 @@ pub fn parse_over<T: Serialize + DeserializeOwned>(defaults: &T, text: &str) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::distill::DistillConfig;
+    use serde::Deserialize;
+    use taskctl::SwitchParams;
+
+    /// A config whose defaults differ from its sections' types' own, as a distillation's do.
+    #[derive(Debug, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields, default)]
+    struct Tiny {
+        rounds: u32,
+        switching: SwitchParams,
+        env: sim::EnvConfig,
+    }
+
+    impl Default for Tiny {
+        fn default() -> Self {
+            Self {
+                rounds: 60,
+                switching: SwitchParams { window: 5, alpha: 100.0, ..SwitchParams::default() },
+                env: sim::EnvConfig::default(),
+            }
+        }
+    }
 
     #[test]
     fn a_partial_section_keeps_the_configs_own_defaults_and_bad_keys_are_named() {
-        // DistillConfig's switching default (window 5, α = 100) is not SwitchParams' (600, 1000).
-        let config = parse_over(&DistillConfig::default(), "rounds = 7\n[switching]\npolicy = \"none\"\n").unwrap();
+        // Tiny's switching default (window 5, α = 100) is not SwitchParams' (600, 1000).
+        let config = parse_over(&Tiny::default(), "rounds = 7\n[switching]\npolicy = \"none\"\n").unwrap();
         assert_eq!(config.rounds, 7);
         assert_eq!(config.switching.policy, taskctl::SwitchPolicy::None);
         assert_eq!((config.switching.window, config.switching.alpha), (5, 100.0));
-        assert_eq!(config.envs, DistillConfig::default().envs);
-        let err = parse_over(&DistillConfig::default(), "rounds = 7\n[switching]\nwindoww = 3\n").unwrap_err();
+        let err = parse_over(&Tiny::default(), "rounds = 7\n[switching]\nwindoww = 3\n").unwrap_err();
         assert!(err.contains("windoww") && err.contains("line 3"), "{err}");
     }
 
     #[test]
     fn a_removed_option_at_its_old_default_is_read_as_gone_and_otherwise_refused_by_name() {
         let saved = "rounds = 7\n[env]\nstart_gate = \"first\"\n[env.randomization]\ngate_perception = 0.0\nmass = 0.1\n";
-        let config = parse_over(&DistillConfig::default(), saved).unwrap();
+        let config = parse_over(&Tiny::default(), saved).unwrap();
         assert_eq!((config.rounds, config.env.randomization.mass), (7, 0.1));
-        let err = parse_over(&DistillConfig::default(), "[env]\nstart_gate = \"flying\"\n").unwrap_err();
+        let err = parse_over(&Tiny::default(), "[env]\nstart_gate = \"flying\"\n").unwrap_err();
         assert!(err.contains("env.start_gate") && err.contains("8941555"), "{err}");
         assert!(retire("[warm_start]\nrounds = 3\n").unwrap_err().contains("warm_start"));
+        // A removed option whose old value is a table (a distillation's frame stack).
+        let saved = "rounds = 9\ncrash_margin = 0\n[frame_stack]\nframes = 1\nstride = 1\n";
+        assert_eq!(parse_over(&Tiny::default(), saved).unwrap().rounds, 9);
+        let err = parse_over(&Tiny::default(), "[frame_stack]\nframes = 4\nstride = 1\n").unwrap_err();
+        assert!(err.contains("frame_stack") && err.contains("2482eeb"), "{err}");
         assert!(matches!(retire("seed = 1\n").unwrap(), Cow::Borrowed(_)), "a file without them is read as written");
         // The observation keys a saved config holds under [env] read as [env.observation]'s.
         let saved = "[env]\nobservation_frame = \"body\"\nline_points = 2\nobstacle_gates = 0\n";
-        let config = parse_over(&DistillConfig::default(), saved).unwrap();
+        let config = parse_over(&Tiny::default(), saved).unwrap();
         assert_eq!((config.env.observation.frame, config.env.observation.line_points), (sim::ObservationFrame::Body, 2));
         let both = "[env]\nline_points = 2\n[env.observation]\nline_points = 3\n";
-        assert!(parse_over(&DistillConfig::default(), both).unwrap_err().contains("one setting"));
+        assert!(parse_over(&Tiny::default(), both).unwrap_err().contains("one setting"));
     }
 }

@@ -182,21 +182,24 @@ impl TrainConfig {
     /// Parses a run config: the text's values over the defaults of the agent it names. A
     /// `[ppo]` table overrides the named profile's PPO settings field by field, so `gamma =
     /// 0.998` alone keeps the cpu profile's minibatches.
-    pub fn from_toml(text: &str) -> Result<Self, String> {
-        let text = crate::overrides::retire(text)?;
+    pub fn from_toml(text: &str) -> Result<Self, TrainError> {
+        let text = crate::overrides::retire(text).map_err(TrainError::Config)?;
         let text = text.as_ref();
-        let config: Self = toml::from_str(text).map_err(|e| e.to_string())?;
+        let config: Self = toml::from_str(text).map_err(|e| TrainError::Config(e.to_string()))?;
         let mut defaults = Self::defaults_for(config.agent);
         if config.ppo.is_some() && defaults.ppo.is_none() {
             defaults.ppo = Profile::named(&config.profile).map(|profile| profile.ppo);
         }
-        crate::overrides::parse_over(&defaults, text)
+        crate::overrides::parse_over(&defaults, text).map_err(TrainError::Config)
     }
 
     /// Reads a config file; errors name the file and the field.
     pub fn read(path: &Path) -> Result<Self, TrainError> {
         let text = std::fs::read_to_string(path).map_err(|source| TrainError::Io { file: path.to_path_buf(), source })?;
-        Self::from_toml(&text).map_err(|e| TrainError::Config(format!("{}: {e}", path.display())))
+        Self::from_toml(&text).map_err(|e| match e {
+            TrainError::Config(message) => TrainError::Config(format!("{}: {message}", path.display())),
+            other => other,
+        })
     }
 
     /// The task controller for `envs` environments this config describes.
@@ -746,7 +749,7 @@ mod tests {
         // The vision agent's column stays under a partial table too.
         let vision = ppo("agent = \"vision\"\n[ppo]\ngae_lambda = 0.9\n");
         assert_eq!(PpoConfig { gae_lambda: 0.95, ..vision }, PpoConfig::vision_based());
-        let err = TrainConfig::from_toml("[ppo]\ngama = 0.998\n").unwrap_err();
+        let err = TrainConfig::from_toml("[ppo]\ngama = 0.998\n").unwrap_err().to_string();
         assert!(err.contains("gama"), "{err}");
     }
 }

@@ -11,7 +11,8 @@
 
 use std::cell::RefCell;
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
 
 use crate::track::{GATE_HALF_DEPTH, GATE_HALF_OPENING, GATE_HALF_OUTER, Gate, Track};
 
@@ -27,6 +28,33 @@ pub const TARGET_COLOUR: u8 = 255;
 pub const NEXT_COLOUR: u8 = 155;
 /// Colour of every other gate.
 pub const OTHER_COLOUR: u8 = 55;
+
+/// Where the camera was at one step and which gate was the target (its brightest): enough to
+/// render the image seen again (the renderer is deterministic), in ~60 bytes instead of 7 kB.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CameraPose {
+    /// Target gate.
+    pub target: u32,
+    /// Position (m, world).
+    pub position: [f64; 3],
+    /// Body attitude quaternion (w, x, y, z).
+    pub attitude: [f64; 4],
+}
+
+impl CameraPose {
+    /// Renders the image seen from this pose on `track` into `out` (`IMAGE_PIXELS` bytes).
+    pub fn render(&self, track: &Track, out: &mut [u8]) {
+        let (position, rotation) = self.position_and_rotation();
+        render(track, self.target as usize, &position, &rotation, out);
+    }
+
+    /// Position and `R_WB`.
+    pub fn position_and_rotation(&self) -> (Vector3<f64>, Matrix3<f64>) {
+        let [w, x, y, z] = self.attitude;
+        let rotation = UnitQuaternion::new_unchecked(Quaternion::new(w, x, y, z)).to_rotation_matrix().into_inner();
+        (Vector3::from(self.position), rotation)
+    }
+}
 
 /// Half the image side in pixels: `u = (c + 0.5 − 42) / 42` spans tan(±45°).
 const HALF: f64 = IMAGE_SIDE as f64 / 2.0;
@@ -449,6 +477,14 @@ mod tests {
         assert_eq!(image, expected);
         let colours: std::collections::BTreeSet<u8> = image.iter().copied().collect();
         assert!(colours.contains(&TARGET_COLOUR), "gate 1 is in view as the target: {colours:?}");
+        // A saved pose renders the same image again, here and after the drone has moved on.
+        let pose = env.camera_pose();
+        let mut again = vec![0u8; IMAGE_PIXELS];
+        pose.render(env.track(), &mut again);
+        assert_eq!(again, image);
+        env.step(&pilot.act(&env));
+        pose.render(env.track(), &mut again);
+        assert_eq!(again, image, "the pose, not the environment, says what is rendered");
     }
 
     #[test]

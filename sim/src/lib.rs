@@ -3,7 +3,6 @@
 
 pub mod camera;
 pub mod eval;
-pub mod frame_stack;
 pub mod observation;
 pub mod params;
 pub mod pilot;
@@ -18,7 +17,7 @@ pub mod seed;
 pub mod track;
 pub mod vec_env;
 
-pub use frame_stack::{CameraHistory, CameraPose, FrameStack};
+pub use camera::CameraPose;
 pub use nalgebra;
 pub use observation::{
     DEFAULT_LINE_SPACING, GateSight, LINE_POINT_DIM, NEXT_CORNERS_RANGE, ObservationFrame, ObservationLayout, PREVIOUS_ACTION_RANGE,

@@ -355,6 +355,13 @@ impl RaceEnv {
         crate::camera::render(&self.track, self.target, &self.quad.body.position, &self.quad.body.rotation(), out);
     }
 
+    /// Where the camera is now, to render its image again later.
+    pub fn camera_pose(&self) -> crate::camera::CameraPose {
+        let body = &self.quad.body;
+        let a = body.attitude;
+        crate::camera::CameraPose { target: self.target as u32, position: body.position.into(), attitude: [a.w, a.i, a.j, a.k] }
+    }
+
     /// The state observation in `layout` as a new row.
     pub fn observation_in(&self, layout: ObservationLayout) -> Vec<f32> {
         let mut out = vec![0f32; layout.dim()];

@@ -3,14 +3,13 @@
 //! Each environment owns its random stream, so results are bit-identical whatever the number
 //! of rayon threads. Finished episodes reset automatically; the observation that ended them is
 //! kept in `final_observations` so a learner can bootstrap truncated episodes. With images on,
-//! each environment's camera observation (its current image, and the earlier frames of a
-//! frame stack) is rendered after every step into `images`.
+//! each environment's camera image is rendered after every step into `images`.
 
 use std::sync::Arc;
 
 use rayon::prelude::*;
 
-use crate::frame_stack::{CameraHistory, CameraPose, FrameStack};
+use crate::camera::IMAGE_PIXELS;
 use crate::race::{EnvConfig, EpisodeStats, RaceEnv, StepOutcome};
 use crate::track::Track;
 
@@ -43,11 +42,8 @@ pub struct VecEnv {
     pub final_observations: Vec<f32>,
     /// Episodes that finished in the last step, in environment order.
     pub finished: Vec<FinishedEpisode>,
-    /// Current camera observations, `n × frames × 84 × 84` bytes (each environment's current
-    /// image first); empty unless [`VecEnv::with_images`] or [`VecEnv::with_frame_stack`].
+    /// Current camera images, `n × 84 × 84` bytes; empty unless [`VecEnv::with_images`].
     pub images: Vec<u8>,
-    /// Each environment's recent camera poses, when images are on.
-    cameras: Vec<CameraHistory>,
 }
 
 impl VecEnv {
@@ -58,51 +54,18 @@ impl VecEnv {
     }
 
     /// Renders a camera image for every environment after every step from now on (SPEC §5).
-    pub fn with_images(self) -> Self {
-        self.with_frame_stack(FrameStack::default())
-    }
-
-    /// Renders the frames of `stack` for every environment after every step from now on: the
-    /// current image and earlier ones, each flight's first standing in for the steps before it.
-    pub fn with_frame_stack(mut self, stack: FrameStack) -> Self {
-        self.enable_images(stack);
+    pub fn with_images(mut self) -> Self {
+        self.enable_images();
         self
     }
 
-    /// [`VecEnv::with_frame_stack`] in place: renders the current observations at once (a
-    /// no-op when images are on already).
-    pub fn enable_images(&mut self, stack: FrameStack) {
-        if self.images.is_empty() {
-            self.cameras = self
-                .envs
-                .iter()
-                .map(|env| {
-                    let mut camera = CameraHistory::new(stack);
-                    camera.restart(CameraPose::of(env));
-                    camera
-                })
-                .collect();
-            self.images = vec![0; self.envs.len() * stack.image_len()];
+    /// [`VecEnv::with_images`] in place: renders the current images at once (a no-op when
+    /// images are on already).
+    pub fn enable_images(&mut self) {
+        if self.images.is_empty() && !self.envs.is_empty() {
+            self.images = vec![0; self.envs.len() * IMAGE_PIXELS];
             self.render_all_images();
         }
-    }
-
-    /// The environments' camera histories (empty with images off), e.g. for a checkpoint.
-    pub fn cameras(&self) -> &[CameraHistory] {
-        &self.cameras
-    }
-
-    /// Restores camera histories saved from [`VecEnv::cameras`] of environments restored by
-    /// [`VecEnv::from_envs`], with images on in their frame stack; an error says what does
-    /// not fit.
-    pub fn restore_cameras(&mut self, cameras: Vec<CameraHistory>) -> Result<(), String> {
-        let stack = self.cameras.first().map(CameraHistory::stack);
-        if cameras.len() != self.envs.len() || cameras.iter().any(|c| Some(c.stack()) != stack) {
-            return Err(format!("{} camera histories for {} environments seeing {stack:?}", cameras.len(), self.envs.len()));
-        }
-        self.cameras = cameras;
-        self.render_all_images();
-        Ok(())
     }
 
     /// Number of environments.
@@ -151,14 +114,6 @@ impl VecEnv {
                 self.finished.push(FinishedEpisode { env: i, stats });
             }
         }
-        if !self.cameras.is_empty() {
-            for (i, (camera, env)) in self.cameras.iter_mut().zip(&self.envs).enumerate() {
-                match self.terminated[i] || self.truncated[i] {
-                    true => camera.restart(CameraPose::of(env)),
-                    false => camera.record(CameraPose::of(env)),
-                }
-            }
-        }
         self.render_all_images();
     }
 
@@ -168,10 +123,8 @@ impl VecEnv {
         self.envs[i].set_track(track);
         let d = self.observation_dim;
         self.envs[i].observe(&mut self.observations[i * d..(i + 1) * d]);
-        if let Some(camera) = self.cameras.get_mut(i) {
-            camera.restart(CameraPose::of(&self.envs[i]));
-            let len = camera.stack().image_len();
-            camera.render(self.envs[i].track(), &mut self.images[i * len..(i + 1) * len]);
+        if !self.images.is_empty() {
+            self.envs[i].render_camera(&mut self.images[i * IMAGE_PIXELS..(i + 1) * IMAGE_PIXELS]);
         }
     }
 
@@ -197,7 +150,6 @@ impl VecEnv {
             final_observations: vec![0.0; n * observation_dim],
             finished: Vec::new(),
             images: Vec::new(),
-            cameras: Vec::new(),
         };
         v.write_all_observations();
         v
@@ -206,15 +158,14 @@ impl VecEnv {
     /// Renders every environment's camera observation in parallel (a no-op with images off);
     /// each depends on its own environment only, so the bytes do not depend on the thread count.
     fn render_all_images(&mut self) {
-        let Some(len) = self.cameras.first().map(|c| c.stack().image_len()) else {
+        if self.images.is_empty() {
             return;
-        };
+        }
         self.envs
             .par_iter()
-            .zip(self.cameras.par_iter())
-            .zip(self.images.par_chunks_mut(len))
+            .zip(self.images.par_chunks_mut(IMAGE_PIXELS))
             .with_min_len(4)
-            .for_each(|((env, camera), images)| camera.render(env.track(), images));
+            .for_each(|(env, image)| env.render_camera(image));
     }
 
     fn write_all_observations(&mut self) {
@@ -227,7 +178,6 @@ impl VecEnv {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::IMAGE_PIXELS;
     use crate::track::{Arena, Gate};
     use nalgebra::Vector3;
     use rand::{Rng, SeedableRng};
@@ -305,34 +255,6 @@ mod tests {
         let mut single = vec![0; IMAGE_PIXELS];
         env.envs()[2].render_camera(&mut single);
         assert_eq!(&env.images[2 * IMAGE_PIXELS..], &single[..]);
-    }
-
-    #[test]
-    fn a_frame_stack_shows_each_environment_its_earlier_frames_and_forgets_them_on_reset() {
-        let stack = FrameStack { frames: 2, stride: 3 };
-        let (len, image) = (stack.image_len(), IMAGE_PIXELS);
-        let mut env = VecEnv::new(tracks(2), EnvConfig::default(), 1).with_frame_stack(stack);
-        let mut shown = vec![env.images.clone()];
-        // Full thrust straight up crashes environment 0 within a few dozen steps.
-        let actions = [1.0f32, 0.0, 0.0, 0.0, 0.2, 0.0, 0.0, 0.0];
-        while !env.terminated[0] {
-            env.step(&actions);
-            shown.push(env.images.clone());
-            assert!(shown.len() < 200);
-        }
-        for e in 0..2 {
-            let current = |t: usize| &shown[t][e * len..e * len + image];
-            let earlier = |t: usize| &shown[t][e * len + image..(e + 1) * len];
-            assert_eq!(earlier(1), current(0), "the first frame stands in for the steps before it");
-            assert_eq!(earlier(5), current(2), "the frame of 3 steps before");
-            assert_ne!(current(5), current(2), "the drones moved");
-        }
-        let last = shown.len() - 1;
-        assert_eq!(&shown[last][image..len], &shown[last][..image], "a reset forgets the crashed flight");
-        let mut restored = VecEnv::from_envs(env.envs().to_vec()).with_frame_stack(stack);
-        restored.restore_cameras(env.cameras().to_vec()).unwrap();
-        assert_eq!(restored.images, env.images, "restored histories show the same frames");
-        assert!(restored.restore_cameras(Vec::new()).unwrap_err().contains("0 camera histories"));
     }
 
     #[test]

@@ -1,4 +1,4 @@
-//! `dronerace distill`: a student learns from a teacher by DAgger (`runtime::distill`): a
+//! `dronerace distill`: a student learns from a teacher by DAgger (the `distill` crate): a
 //! vision student from a state-based policy, or a state-based student from the pilot.
 
 use std::path::{Path, PathBuf};
@@ -6,8 +6,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::Context;
 use clap::Args;
+use distill::{DistillConfig, Distiller, progress_line};
 use policy::WeightsBlob;
-use runtime::distill::{DistillConfig, Distiller, progress_line};
 use runtime::progress::ProgressLog;
 
 /// Arguments of `dronerace distill`.
@@ -21,7 +21,7 @@ pub struct DistillArgs {
     /// student's defaults).
     #[arg(long, value_parser = super::train::parse_agent)]
     student: Option<policy::Agent>,
-    /// TOML configuration (every field optional; see runtime::distill::DistillConfig).
+    /// TOML configuration (every field optional; see distill::DistillConfig).
     #[arg(long)]
     config: Option<PathBuf>,
     /// Run directory.
@@ -47,7 +47,7 @@ pub struct DistillArgs {
 
 /// Runs the distillation and reports where the student is.
 pub fn run(args: DistillArgs) -> anyhow::Result<()> {
-    let stop = runtime::signal::stop_flag()?;
+    let stop = crate::signal::stop_flag()?;
     let (dir, config) = match &args.resume {
         Some(dir) => {
             if let Some(rounds) = args.total_rounds {

@@ -8,7 +8,7 @@ use clap::Subcommand;
 use runtime::experiment::{Experiment, markdown_report, run_experiment, sequential_track_curves, summarise};
 
 use super::write_atomic;
-use runtime::signal::stop_flag;
+use crate::signal::stop_flag;
 
 /// Experiment subcommands.
 #[derive(Subcommand)]

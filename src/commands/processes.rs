@@ -11,6 +11,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
+use crate::signal::stop_flag;
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use proto::board::LearnerBoard;
@@ -20,7 +21,6 @@ use proto::task_client::TaskClient;
 use proto::{LearnerLink, Security};
 use runtime::learner_process::{LearnerProcess, learner_only};
 use runtime::progress::{ProgressLog, progress_line};
-use runtime::signal::stop_flag;
 use runtime::{Run, TrainConfig};
 use taskctl::TaskService;
 

@@ -10,6 +10,7 @@ use std::path::PathBuf;
 use std::pin::Pin;
 use std::sync::Arc;
 
+use crate::signal::stop_flag;
 use anyhow::Context;
 use clap::Args;
 use policy::Policy;
@@ -17,7 +18,6 @@ use proto::v1::pilot_server::{Pilot as PilotRpc, PilotServer};
 use proto::v1::race_request::Kind;
 use proto::v1::{ActRequest, ActResponse, DescribeRequest, PilotDescription, RaceCommand, RaceRequest};
 use runtime::pilot::{DroneState, Pilot, PilotError, PolicyPilot};
-use runtime::signal::stop_flag;
 use sim::Racer;
 use tokio_stream::Stream;
 use tonic::{Request, Response, Status, Streaming};

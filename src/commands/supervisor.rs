@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 
 use super::processes::Transport;
-use runtime::signal::stop_flag;
+use crate::signal::stop_flag;
 
 /// What the supervisor starts.
 pub struct ClusterPlan {

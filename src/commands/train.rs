@@ -7,9 +7,9 @@ use anyhow::Context;
 use clap::Args;
 use std::sync::atomic::Ordering;
 
+use crate::signal::stop_flag;
 use learner::checkpoint::CheckpointDir;
 use runtime::progress::{ProgressLog, progress_line};
-use runtime::signal::stop_flag;
 use runtime::{TrackSource, TrainConfig, Trainer};
 
 use super::processes::Transport;

@@ -164,11 +164,9 @@ impl PpoNetwork for VisionActorCritic {
         let width = frozen.output_width()?;
         // On the inner backend: no graph is recorded, as none would be differentiated.
         let (network, device) = (self.valid(), device.clone().without_autodiff());
-        let frames = self.frames();
-        let observation = frames * IMAGE_SIDE * IMAGE_SIDE;
         let mut outputs = Vec::with_capacity(batch.len() * width);
-        for images in batch.images.chunks(FROZEN_ROWS * observation) {
-            let convolved = network.convolve(image_tensor(images, frames, &device));
+        for images in batch.images.chunks(FROZEN_ROWS * IMAGE_SIDE * IMAGE_SIDE) {
+            let convolved = network.convolve(image_tensor(images, &device));
             let output = if frozen == Frozen::Encoder { network.embed_convolved(convolved) } else { convolved };
             outputs.extend(output.into_data().try_into_vec::<f32>().expect("float outputs"));
         }
@@ -432,7 +430,7 @@ pub fn explained_variance(values: &[f32], returns: &[f32]) -> f64 {
 
 /// The value of a one-element tensor.
 #[allow(clippy::expect_used, reason = "float scalar")]
-pub(crate) fn scalar(t: Tensor<1>) -> f32 {
+pub fn scalar(t: Tensor<1>) -> f32 {
     t.into_data().try_into_vec::<f32>().expect("float scalar")[0]
 }
 
