@@ -91,8 +91,7 @@ impl DistillDataset {
                 _ => return,
             }
         };
-        let sample =
-            Sample { track: self.track_id(env.track()), pose: env.camera_pose(), label: std::array::from_fn(|i| label[i]) };
+        let sample = Sample { track: self.track_id(env.track()), pose: env.camera_pose(), label: std::array::from_fn(|i| label[i]) };
         match slot {
             Some(j) => {
                 self.samples[j] = sample;
