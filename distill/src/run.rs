@@ -160,7 +160,7 @@ impl DistillConfig {
     /// the field.
     pub fn read(path: &Path) -> anyhow::Result<Self> {
         let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        let error = |e: String| anyhow::anyhow!("{}: {e}", path.display());
+        let error = |e: runtime::overrides::OverrideError| anyhow::anyhow!("{}: {e}", path.display());
         let student = runtime::overrides::parse_over(&Self::default(), &text).map_err(error)?.student;
         runtime::overrides::parse_over(&Self::defaults_for(student), &text).map_err(error)
     }

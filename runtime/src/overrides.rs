@@ -34,6 +34,40 @@ const RETIRED: [(&str, Option<&str>, &str); 18] = [
     ("relabel", Some("false"), "2482eeb"),
 ];
 
+/// Why a config file's text cannot be read as overrides of a config's defaults.
+#[derive(Debug, thiserror::Error)]
+pub enum OverrideError {
+    /// Not TOML, an unknown key or a wrong type; toml's message names the line and the key.
+    #[error("{0}")]
+    Toml(String),
+    /// A removed option set to another value than the one every run had.
+    #[error(
+        "`{key}` was removed from dronerace (a rejected option; it last ran at commit {commit}, and docs/notebook/ says why): delete it from the file"
+    )]
+    Retired {
+        /// Its dotted key.
+        key: &'static str,
+        /// The last commit that has it.
+        commit: &'static str,
+    },
+    /// An `[env]` observation key and its `[env.observation]` twin both set.
+    #[error("env.{old} and env.observation.{new} are one setting: keep env.observation.{new}")]
+    Twice {
+        /// The key under `[env]`.
+        old: &'static str,
+        /// Its name under `[env.observation]`.
+        new: &'static str,
+    },
+    /// `env.observation` is not a table.
+    #[error("env.observation must be a table")]
+    NotATable,
+}
+
+/// toml's error as an [`OverrideError`].
+fn toml_error(e: impl std::fmt::Display) -> OverrideError {
+    OverrideError::Toml(e.to_string())
+}
+
 /// Keys of `[env]` that moved into `[env.observation]` (the one observation layout), with their
 /// new names there.
 const MOVED: [(&str, &str); 4] =
@@ -42,16 +76,16 @@ const MOVED: [(&str, &str); 4] =
 /// `text` without the removed options it holds at the value every run had (a run directory's
 /// saved config holds them so), and with `[env]`'s observation keys under `[env.observation]`;
 /// a removed option set to anything else is refused by name.
-pub fn retire(text: &str) -> Result<Cow<'_, str>, String> {
-    let mut table: toml::Table = toml::from_str(text).map_err(|e| e.to_string())?;
+pub fn retire(text: &str) -> Result<Cow<'_, str>, OverrideError> {
+    let mut table: toml::Table = toml::from_str(text).map_err(toml_error)?;
     let mut removed = false;
     if let Some(env) = table.get_mut("env").and_then(toml::Value::as_table_mut) {
         for (old, new) in MOVED {
             if let Some(value) = env.remove(old) {
                 let observation = env.entry("observation").or_insert_with(|| toml::Value::Table(toml::Table::new()));
-                let Some(observation) = observation.as_table_mut() else { return Err("env.observation must be a table".into()) };
+                let Some(observation) = observation.as_table_mut() else { return Err(OverrideError::NotATable) };
                 if observation.insert(new.to_string(), value).is_some() {
-                    return Err(format!("env.{old} and env.observation.{new} are one setting: keep env.observation.{new}"));
+                    return Err(OverrideError::Twice { old, new });
                 }
                 removed = true;
             }
@@ -67,15 +101,12 @@ pub fn retire(text: &str) -> Result<Cow<'_, str>, String> {
         let Some(value) = section.get(last) else { continue };
         let default = kept.and_then(|k| toml::from_str::<toml::Table>(&format!("v = {k}")).ok()).and_then(|t| t.get("v").cloned());
         if default.as_ref() != Some(value) {
-            return Err(format!(
-                "`{key}` was removed from dronerace (a rejected option; it last ran at commit {commit}, \
-                 and docs/notebook/ says why): delete it from the file"
-            ));
+            return Err(OverrideError::Retired { key, commit });
         }
         section.remove(last);
         removed = true;
     }
-    Ok(if removed { Cow::Owned(toml::to_string(&table).map_err(|e| e.to_string())?) } else { Cow::Borrowed(text) })
+    Ok(if removed { Cow::Owned(toml::to_string(&table).map_err(toml_error)?) } else { Cow::Borrowed(text) })
 }
 
 /// Merges `overrides` into `table`: tables key by key, anything else replaced.
@@ -92,14 +123,14 @@ pub fn merge(table: &mut toml::Table, overrides: &toml::Table) {
 
 /// Parses `text` as overrides of `defaults`. The text is first parsed on its own, so that an
 /// unknown key or a wrong type is reported with its line.
-pub fn parse_over<T: Serialize + DeserializeOwned>(defaults: &T, text: &str) -> Result<T, String> {
+pub fn parse_over<T: Serialize + DeserializeOwned>(defaults: &T, text: &str) -> Result<T, OverrideError> {
     let text = retire(text)?;
     let text = text.as_ref();
-    toml::from_str::<T>(text).map_err(|e| e.to_string())?;
-    let file: toml::Table = toml::from_str(text).map_err(|e| e.to_string())?;
-    let mut table: toml::Table = toml::from_str(&toml::to_string(defaults).map_err(|e| e.to_string())?).map_err(|e| e.to_string())?;
+    toml::from_str::<T>(text).map_err(toml_error)?;
+    let file: toml::Table = toml::from_str(text).map_err(toml_error)?;
+    let mut table: toml::Table = toml::from_str(&toml::to_string(defaults).map_err(toml_error)?).map_err(toml_error)?;
     merge(&mut table, &file);
-    toml::from_str(&toml::to_string(&table).map_err(|e| e.to_string())?).map_err(|e| e.to_string())
+    toml::from_str(&toml::to_string(&table).map_err(toml_error)?).map_err(toml_error)
 }
 
 #[cfg(test)]
@@ -134,7 +165,7 @@ mod tests {
         assert_eq!(config.rounds, 7);
         assert_eq!(config.switching.policy, taskctl::SwitchPolicy::None);
         assert_eq!((config.switching.window, config.switching.alpha), (5, 100.0));
-        let err = parse_over(&Tiny::default(), "rounds = 7\n[switching]\nwindoww = 3\n").unwrap_err();
+        let err = parse_over(&Tiny::default(), "rounds = 7\n[switching]\nwindoww = 3\n").unwrap_err().to_string();
         assert!(err.contains("windoww") && err.contains("line 3"), "{err}");
     }
 
@@ -143,13 +174,13 @@ mod tests {
         let saved = "rounds = 7\n[env]\nstart_gate = \"first\"\n[env.randomization]\ngate_perception = 0.0\nmass = 0.1\n";
         let config = parse_over(&Tiny::default(), saved).unwrap();
         assert_eq!((config.rounds, config.env.randomization.mass), (7, 0.1));
-        let err = parse_over(&Tiny::default(), "[env]\nstart_gate = \"flying\"\n").unwrap_err();
+        let err = parse_over(&Tiny::default(), "[env]\nstart_gate = \"flying\"\n").unwrap_err().to_string();
         assert!(err.contains("env.start_gate") && err.contains("8941555"), "{err}");
-        assert!(retire("[warm_start]\nrounds = 3\n").unwrap_err().contains("warm_start"));
+        assert!(retire("[warm_start]\nrounds = 3\n").unwrap_err().to_string().contains("warm_start"));
         // A removed option whose old value is a table (a distillation's frame stack).
         let saved = "rounds = 9\ncrash_margin = 0\n[frame_stack]\nframes = 1\nstride = 1\n";
         assert_eq!(parse_over(&Tiny::default(), saved).unwrap().rounds, 9);
-        let err = parse_over(&Tiny::default(), "[frame_stack]\nframes = 4\nstride = 1\n").unwrap_err();
+        let err = parse_over(&Tiny::default(), "[frame_stack]\nframes = 4\nstride = 1\n").unwrap_err().to_string();
         assert!(err.contains("frame_stack") && err.contains("2482eeb"), "{err}");
         assert!(matches!(retire("seed = 1\n").unwrap(), Cow::Borrowed(_)), "a file without them is read as written");
         // The observation keys a saved config holds under [env] read as [env.observation]'s.
@@ -157,6 +188,6 @@ mod tests {
         let config = parse_over(&Tiny::default(), saved).unwrap();
         assert_eq!((config.env.observation.frame, config.env.observation.line_points), (sim::ObservationFrame::Body, 2));
         let both = "[env]\nline_points = 2\n[env.observation]\nline_points = 3\n";
-        assert!(parse_over(&Tiny::default(), both).unwrap_err().contains("one setting"));
+        assert!(parse_over(&Tiny::default(), both).unwrap_err().to_string().contains("one setting"));
     }
 }

@@ -183,14 +183,14 @@ impl TrainConfig {
     /// `[ppo]` table overrides the named profile's PPO settings field by field, so `gamma =
     /// 0.998` alone keeps the cpu profile's minibatches.
     pub fn from_toml(text: &str) -> Result<Self, TrainError> {
-        let text = crate::overrides::retire(text).map_err(TrainError::Config)?;
+        let text = crate::overrides::retire(text).map_err(|e| TrainError::Config(e.to_string()))?;
         let text = text.as_ref();
         let config: Self = toml::from_str(text).map_err(|e| TrainError::Config(e.to_string()))?;
         let mut defaults = Self::defaults_for(config.agent);
         if config.ppo.is_some() && defaults.ppo.is_none() {
             defaults.ppo = Profile::named(&config.profile).map(|profile| profile.ppo);
         }
-        crate::overrides::parse_over(&defaults, text).map_err(TrainError::Config)
+        crate::overrides::parse_over(&defaults, text).map_err(|e| TrainError::Config(e.to_string()))
     }
 
     /// Reads a config file; errors name the file and the field.
