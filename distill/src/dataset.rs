@@ -15,9 +15,9 @@ use rayon::prelude::*;
 use sim::camera::IMAGE_PIXELS;
 use sim::{ACTION_DIM, CameraPose, RaceEnv, Track};
 
-/// The frame of a serialised data set (format 4: one camera pose a sample). Earlier formats,
-/// which held stacked frames (3) or none of the state length (1), are not read: a data set is a
-/// run's working state, and the runs that wrote them ended with the options that needed them.
+/// The frame of a serialised data set (format 4: one camera pose a sample). Earlier formats
+/// (3: a frame stack, written by every run before 71a070b; 2 and 1 before it) are not read, so
+/// such a distillation resumes at 2482eeb only.
 const DATASET_FRAME: frames::FrameKind = frames::FrameKind { magic: b"DRDAGGER", format: 4, name: "distillation data set" };
 
 /// Bytes of a camera pose in a serialised data set: the target gate and seven f64s.

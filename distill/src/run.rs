@@ -84,7 +84,7 @@ pub struct DistillConfig {
     pub previous_action: bool,
     /// The student's log standard deviation, for vision PPO started from it (SPEC §10 VB: 0).
     pub initial_log_std: f64,
-    /// Start the student's CNN and actor from this vision policy (checkpoint or blob of the
+    /// Start the student's CNN and actor from this policy (checkpoint or blob of the
     /// teacher's shape; e.g. a student distilled on one track) instead of a fresh network.
     pub init_from: Option<PathBuf>,
     /// Tracks the student flies (default generated, as in training).
@@ -221,7 +221,7 @@ pub struct RoundSummary {
     pub laps_per_episode: f64,
     /// Fraction of them that crashed.
     pub crash_rate: f64,
-    /// Seconds flying (and rendering, labelling) and regressing.
+    /// Seconds flying (and rendering, labelling).
     pub fly_seconds: f64,
     /// Seconds of the regression steps.
     pub fit_seconds: f64,

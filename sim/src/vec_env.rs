@@ -155,7 +155,7 @@ impl VecEnv {
         v
     }
 
-    /// Renders every environment's camera observation in parallel (a no-op with images off);
+    /// Renders every environment's camera image in parallel (a no-op with images off);
     /// each depends on its own environment only, so the bytes do not depend on the thread count.
     fn render_all_images(&mut self) {
         if self.images.is_empty() {
