@@ -25,29 +25,17 @@ pub enum PilotError {
     /// A number of the request is NaN or infinite.
     #[error("{field}[{index}] is {value}, not a finite number")]
     NotFinite {
-        /// The request's field (`observation`, `DroneState.position`, …).
+        /// The request's field (`observation`).
         field: &'static str,
         /// Index within it.
         index: usize,
         /// The number sent.
         value: f64,
     },
-    /// A drone-state field has the wrong number of values.
-    #[error("{field} has {got} numbers; it needs {expected}")]
-    StateLength {
-        /// The field.
-        field: &'static str,
-        /// Numbers sent.
-        got: usize,
-        /// Numbers it needs.
-        expected: usize,
-    },
-    /// The orientation is not a unit quaternion.
-    #[error("DroneState.orientation has norm {norm}; it must be a unit quaternion (w, x, y, z)")]
-    NotUnitQuaternion {
-        /// Its norm.
-        norm: f64,
-    },
+    /// A drone state's field has the wrong length, a non-finite number or a quaternion far
+    /// from unit length.
+    #[error(transparent)]
+    State(#[from] sim::racer::ReportedStateError),
     /// A race started without a track, on a pilot that has none of its own.
     #[error("RaceStart.track_toml is empty and this server has no --track: send the track file's text")]
     NoTrack,
@@ -197,40 +185,18 @@ fn finite(action: Vec<f32>) -> Result<Vec<f32>, PilotError> {
     }
 }
 
-/// A reported state as the simulator's body state, refused naming the field whose length is
-/// wrong or that holds a non-finite number, or a quaternion far from unit length.
+/// A reported state as the simulator's body state, refused naming the field.
 fn body_state(state: DroneState<'_>) -> Result<BodyState, PilotError> {
-    let field = |field: &'static str, values: &[f64], expected: usize| -> Result<(), PilotError> {
-        if values.len() != expected {
-            return Err(PilotError::StateLength { field, got: values.len(), expected });
-        }
-        match values.iter().position(|v| !v.is_finite()) {
-            Some(index) => Err(PilotError::NotFinite { field, index, value: values[index] }),
-            None => Ok(()),
-        }
-    };
-    field("DroneState.position", state.position, 3)?;
-    field("DroneState.velocity", state.velocity, 3)?;
-    field("DroneState.orientation", state.orientation, 4)?;
-    field("DroneState.angular_velocity", state.angular_velocity, 3)?;
-    let q = state.orientation;
-    let norm = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-    if (norm - 1.0).abs() > 1e-3 {
-        return Err(PilotError::NotUnitQuaternion { norm });
-    }
-    let v3 = |v: &[f64]| sim::nalgebra::Vector3::new(v[0], v[1], v[2]);
-    Ok(BodyState {
-        position: v3(state.position),
-        attitude: sim::nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]),
-        velocity: v3(state.velocity),
-        body_rates: v3(state.angular_velocity),
-    })
+    let values = [state.position, state.velocity, state.orientation, state.angular_velocity];
+    let names = ["DroneState.position", "DroneState.velocity", "DroneState.orientation", "DroneState.angular_velocity"];
+    Ok(sim::racer::reported_body_state(values, names)?)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use policy::{ActorCritic, Architecture, Device, ObsNormalizer, WeightsBlob};
+    use sim::racer::ReportedStateError;
 
     #[test]
     fn a_policy_file_with_nan_weights_is_refused_and_no_nan_action_is_sent() {
@@ -264,10 +230,13 @@ mod tests {
         };
         assert!(body_state(DroneState { position: &ok, velocity: &ok, orientation: &unit, angular_velocity: &ok }).is_ok());
         let short = body_state(state(&[0.0, 1.0], &[1.0, 0.0, 0.0, 0.0])).unwrap_err();
-        assert!(matches!(short, PilotError::StateLength { field: "DroneState.position", got: 2, expected: 3 }), "{short}");
+        assert!(
+            matches!(short, PilotError::State(ReportedStateError::Length { field: "DroneState.position", got: 2, expected: 3 })),
+            "{short}"
+        );
         let nan = body_state(state(&[0.0, f64::NAN, 0.0], &[1.0, 0.0, 0.0, 0.0])).unwrap_err();
-        assert!(matches!(nan, PilotError::NotFinite { field: "DroneState.position", index: 1, .. }), "{nan}");
+        assert!(matches!(nan, PilotError::State(ReportedStateError::NotFinite { field: "DroneState.position", index: 1, .. })), "{nan}");
         let skewed = body_state(state(&[0.0; 3], &[2.0, 0.0, 0.0, 0.0])).unwrap_err();
-        assert!(matches!(skewed, PilotError::NotUnitQuaternion { .. }) && !skewed.is_internal(), "{skewed}");
+        assert!(matches!(skewed, PilotError::State(ReportedStateError::NotUnitQuaternion { .. })) && !skewed.is_internal(), "{skewed}");
     }
 }

@@ -8,7 +8,7 @@ use std::sync::Arc;
 use policy::{Agent, RolloutChunk};
 use racetracks::TrackGenerator;
 use serde::{Deserialize, Serialize};
-use sim::{EnvConfig, ObservationLayout};
+use sim::EnvConfig;
 use taskctl::{SwitchParams, TaskController};
 
 use crate::metrics::{MetricsRow, MetricsWriter};
@@ -135,13 +135,7 @@ impl Default for TrainConfig {
             tracks: TrackSource::Generated,
             generator: TrackGenerator::default(),
             switching: SwitchParams::default(),
-            // Four points of the pilot's racing line in the observation (12 numbers after
-            // SPEC §5's 40): chosen on 100 validation tracks over proxy seeds
-            // (docs/notebook/generalist.md, the racing line in the observation).
-            env: EnvConfig {
-                observation: ObservationLayout { line_points: 4, ..EnvConfig::default().observation },
-                ..EnvConfig::default()
-            },
+            env: EnvConfig::state_agent(),
             checkpoint_every: 10,
             keep_checkpoints: 3,
             learner: Default::default(),
@@ -161,11 +155,8 @@ impl TrainConfig {
     /// (§5) and the switching sensitivity α = 100 (§8); the rest as the state-based defaults.
     pub fn vision() -> Self {
         let mut config = Self { name: "vision".into(), agent: Agent::Vision, ppo: Some(PpoConfig::vision_based()), ..Self::default() };
-        config.env.randomization = sim::RandomizationParams::vision_based();
-        config.env.reward = sim::RewardParams::vision_based();
+        config.env = EnvConfig::vision_agent();
         config.switching.alpha = 100.0;
-        // The camera is what a vision agent sees: its state input is SPEC §5's alone.
-        config.env.observation.line_points = 0;
         // Its validation renders and runs the CNN: 20 tracks keep it to minutes.
         config.eval = crate::validation::EvalSettings::default();
         config

@@ -6,9 +6,11 @@ use std::sync::Arc;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::observation::ObservationLayout;
 use crate::pilot::Controller;
 use crate::race::{CrashCause, EnvConfig, RaceEnv};
 use crate::track::Track;
+use crate::vec_env::ACTION_DIM;
 
 /// How an evaluation is run.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -277,35 +279,98 @@ pub fn deploy_recording(
     stream: u64,
     mut trajectory: Option<&mut Trajectory>,
 ) -> Deployment {
-    let mut env_config = config.env;
-    env_config.race.max_episode_steps = config.steps;
-    let mut env = RaceEnv::new(track, env_config, config.seed, stream);
-    controller.reset(&env);
-    let mut lap_times = Vec::new();
-    let mut crash = None;
-    for _ in 0..config.steps {
-        let action = controller.act(&env);
+    let mut flight = Flight::new(track, config, stream);
+    controller.reset(&flight.env);
+    while !flight.is_over() {
+        let action = controller.act(&flight.env);
         if let Some(t) = trajectory.as_deref_mut() {
-            t.record(&env, Some(&action));
+            t.record(&flight.env, Some(&action));
         }
-        let out = env.step(&action);
-        lap_times.extend(out.lap_time);
-        if out.done() {
-            crash = out.crash;
-            break;
-        }
+        flight.step(&action);
     }
     if let Some(t) = trajectory {
-        t.record(&env, None);
+        t.record(&flight.env, None);
     }
-    Deployment {
-        success: crash.is_none() && !lap_times.is_empty(),
-        lap_times,
-        crash,
-        gates_passed: env.stats().gates_passed,
-        steps: env.stats().length,
-        target: env.target_gate(),
+    flight.into_deployment()
+}
+
+/// One deployment in flight: its environment and what it has flown so far. [`deploy`] flies
+/// one to the end; [`evaluate_batched`] steps many in lockstep.
+struct Flight {
+    env: RaceEnv,
+    steps_left: u32,
+    lap_times: Vec<f64>,
+    crash: Option<CrashCause>,
+    ended: bool,
+}
+
+impl Flight {
+    /// Deployment `stream` of `config` on `track`, at its (perturbed) start.
+    fn new(track: Arc<Track>, config: &EvalConfig, stream: u64) -> Self {
+        let mut env_config = config.env;
+        env_config.race.max_episode_steps = config.steps;
+        let env = RaceEnv::new(track, env_config, config.seed, stream);
+        Self { env, steps_left: config.steps, lap_times: Vec::new(), crash: None, ended: false }
     }
+
+    /// True once it crashed, timed out or used its steps.
+    fn is_over(&self) -> bool {
+        self.ended || self.steps_left == 0
+    }
+
+    fn step(&mut self, action: &[f32; 4]) {
+        let out = self.env.step(action);
+        self.steps_left -= 1;
+        self.lap_times.extend(out.lap_time);
+        if out.done() {
+            self.crash = out.crash;
+            self.ended = true;
+        }
+    }
+
+    fn into_deployment(self) -> Deployment {
+        Deployment {
+            success: self.crash.is_none() && !self.lap_times.is_empty(),
+            lap_times: self.lap_times,
+            crash: self.crash,
+            gates_passed: self.env.stats().gates_passed,
+            steps: self.env.stats().length,
+            target: self.env.target_gate(),
+        }
+    }
+}
+
+/// [`evaluate`] for a controller that acts on many observations at once (a policy called from
+/// another language, a batched network): every deployment of every track flies in lockstep,
+/// and each step `act` gets the observations (in `layout`) of the deployments still flying,
+/// one row each, and writes one 4-number action row per observation row. The deployments,
+/// their starts and so the report are those of [`evaluate`] with the same controller.
+pub fn evaluate_batched<E>(
+    controller_name: &str,
+    tracks: &[Arc<Track>],
+    layout: ObservationLayout,
+    config: &EvalConfig,
+    mut act: impl FnMut(&[f32], &mut [f32]) -> Result<(), E>,
+) -> Result<EvalReport, E> {
+    let mut flights: Vec<Flight> = (0..tracks.len())
+        .flat_map(|t| (0..config.runs).map(move |k| (t, k)))
+        .map(|(t, k)| Flight::new(tracks[t].clone(), config, (t * config.runs + k) as u64))
+        .collect();
+    let dim = layout.dim();
+    let (mut observations, mut actions) = (Vec::new(), Vec::new());
+    loop {
+        let mut flying: Vec<&mut Flight> = flights.iter_mut().filter(|f| !f.is_over()).collect();
+        if flying.is_empty() {
+            break;
+        }
+        observations.resize(flying.len() * dim, 0.0);
+        actions.resize(flying.len() * ACTION_DIM, 0.0);
+        flying.par_iter().zip(observations.par_chunks_mut(dim)).for_each(|(f, row)| f.env.observe_in(layout, row));
+        act(&observations, &mut actions)?;
+        flying.par_iter_mut().zip(actions.par_chunks(ACTION_DIM)).for_each(|(f, a)| f.step(&[a[0], a[1], a[2], a[3]]));
+    }
+    let deployments: Vec<Deployment> = flights.into_iter().map(Flight::into_deployment).collect();
+    Ok(report(controller_name, tracks, config, deployments))
 }
 
 /// Evaluates a controller on `tracks`; all deployments run in parallel, each with a fresh
@@ -340,6 +405,11 @@ pub fn evaluate_recording(
         })
         .unzip();
     let trajectories = if record { trajectories } else { Vec::new() };
+    (report(controller_name, tracks, config, deployments), trajectories)
+}
+
+/// The report of `deployments`, track by track (each track's `config.runs` in order).
+fn report(controller_name: &str, tracks: &[Arc<Track>], config: &EvalConfig, deployments: Vec<Deployment>) -> EvalReport {
     let mut per_track = deployments.chunks(config.runs.max(1));
     let results: Vec<TrackResult> = tracks
         .iter()
@@ -349,7 +419,7 @@ pub fn evaluate_recording(
         })
         .collect();
     let all = summarise("all", deployments);
-    let report = EvalReport {
+    EvalReport {
         controller: controller_name.to_owned(),
         config: *config,
         s_pw: all.s_pw,
@@ -358,8 +428,7 @@ pub fn evaluate_recording(
         fastest_lap: all.fastest_lap,
         outcomes: all.outcomes,
         tracks: results,
-    };
-    (report, trajectories)
+    }
 }
 
 fn summarise(track: &str, deployments: Vec<Deployment>) -> TrackResult {
@@ -432,6 +501,45 @@ mod tests {
         let g = |x, y, yaw_deg: f64| Gate::new(Vector3::new(x, y, 2.5), yaw_deg.to_radians());
         let gates = vec![g(0.0, -6.0, 0.0), g(9.0, 0.0, 90.0), g(0.0, 6.0, 180.0), g(-9.0, 0.0, -90.0)];
         Arc::new(Track::new("oval", gates, None, Arena::default()).unwrap())
+    }
+
+    /// Steers from the observation alone (a fixed linear map, crashing on some deployments and
+    /// lapping on none): what a policy does, without a network.
+    fn steer(observation: &[f32]) -> [f32; 4] {
+        std::array::from_fn(|j| (0.3 * observation[j] - 0.2 * observation[j + 4] + 0.1 * j as f32).tanh())
+    }
+
+    /// [`steer`] as a controller, reading the default layout as a policy reads its own.
+    struct Steer;
+    impl Controller for Steer {
+        fn reset(&mut self, _: &RaceEnv) {}
+        fn act(&mut self, env: &RaceEnv) -> [f32; 4] {
+            steer(&env.observation_in(ObservationLayout::default()))
+        }
+    }
+
+    #[test]
+    fn lockstep_evaluation_flies_the_deployments_evaluate_flies() {
+        let config = EvalConfig { runs: 3, steps: 300, ..EvalConfig::default() };
+        let tracks = [oval(), oval()];
+        let one_by_one = evaluate("steer", &tracks, &|| Box::new(Steer), &config);
+        let mut calls = 0;
+        let layout = ObservationLayout::default();
+        let batched = evaluate_batched::<()>("steer", &tracks, layout, &config, |observations, actions| {
+            calls += 1;
+            for (o, a) in observations.chunks(layout.dim()).zip(actions.chunks_mut(ACTION_DIM)) {
+                a.copy_from_slice(&steer(o));
+            }
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(batched, one_by_one);
+        let longest = one_by_one.tracks.iter().flat_map(|t| &t.deployments).map(|d| d.steps).max().unwrap();
+        assert_eq!(calls, longest as usize, "one call per step while any deployment flies");
+        let ends: std::collections::HashSet<u32> = one_by_one.tracks.iter().flat_map(|t| &t.deployments).map(|d| d.steps).collect();
+        assert!(ends.len() > 1, "deployments end at different steps, so the lockstep drops finished ones: {ends:?}");
+        // An error from the controller stops the evaluation and comes back.
+        assert_eq!(evaluate_batched("fails", &tracks, layout, &config, |_, _| Err("no")), Err("no"));
     }
 
     #[test]

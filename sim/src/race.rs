@@ -68,6 +68,20 @@ impl Default for EnvConfig {
 }
 
 impl EnvConfig {
+    /// The state-based agent's training environment (a run's default `[env]`): these defaults
+    /// with four points of the pilot's racing line after SPEC §5's 40 numbers, chosen on 100
+    /// validation tracks over proxy seeds (docs/notebook/generalist.md, the racing line in the
+    /// observation).
+    pub fn state_agent() -> Self {
+        Self { observation: ObservationLayout { line_points: 4, ..Self::default().observation }, ..Self::default() }
+    }
+
+    /// The vision agent's training environment: SPEC's VB randomisation (§3) and reward (§5);
+    /// the camera is what it sees, so its state input is SPEC §5's 40 numbers alone.
+    pub fn vision_agent() -> Self {
+        Self { randomization: RandomizationParams::vision_based(), reward: RewardParams::vision_based(), ..Self::default() }
+    }
+
     /// The evaluation setting of SPEC §9: nominal dynamics, 1000-step episodes.
     pub fn evaluation() -> Self {
         Self {

@@ -5,12 +5,69 @@
 
 use std::sync::Arc;
 
-use nalgebra::Vector3;
+use nalgebra::{Quaternion, Vector3};
 
 use crate::observation::{ObservationLayout, write_state_observation};
 use crate::quadrotor::BodyState;
 use crate::racing_line::RacingLine;
 use crate::track::Track;
+
+/// A drone state as a flight stack reported it, refused: each error names the field as the
+/// caller named it.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum ReportedStateError {
+    /// A field has the wrong number of values.
+    #[error("{field} has {got} numbers; it needs {expected}")]
+    Length {
+        /// The field.
+        field: &'static str,
+        /// Numbers sent.
+        got: usize,
+        /// Numbers it needs.
+        expected: usize,
+    },
+    /// A number is NaN or infinite.
+    #[error("{field}[{index}] is {value}, not a finite number")]
+    NotFinite {
+        /// The field.
+        field: &'static str,
+        /// Index within it.
+        index: usize,
+        /// The number sent.
+        value: f64,
+    },
+    /// The orientation is not a unit quaternion (within 1e-3).
+    #[error("{field} has norm {norm}; it must be a unit quaternion (w, x, y, z)")]
+    NotUnitQuaternion {
+        /// The field.
+        field: &'static str,
+        /// Its norm.
+        norm: f64,
+    },
+}
+
+/// The body state of a reported drone state — position (3, m, world), velocity (3, m/s, world),
+/// orientation (4: w, x, y, z; body to world) and angular velocity (3, rad/s, body), under the
+/// caller's field `names` in that order — or the first thing wrong with it. The quaternion is
+/// taken as sent (not renormalised), so a state read off the simulator observes exactly as the
+/// simulator does.
+pub fn reported_body_state(values: [&[f64]; 4], names: [&'static str; 4]) -> Result<BodyState, ReportedStateError> {
+    for (field, (values, expected)) in names.into_iter().zip(values.into_iter().zip([3, 3, 4, 3])) {
+        if values.len() != expected {
+            return Err(ReportedStateError::Length { field, got: values.len(), expected });
+        }
+        if let Some(index) = values.iter().position(|v| !v.is_finite()) {
+            return Err(ReportedStateError::NotFinite { field, index, value: values[index] });
+        }
+    }
+    let [p, v, q, w] = values;
+    let norm = q.iter().map(|x| x * x).sum::<f64>().sqrt();
+    if (norm - 1.0).abs() > 1e-3 {
+        return Err(ReportedStateError::NotUnitQuaternion { field: names[2], norm });
+    }
+    let v3 = |v: &[f64]| Vector3::new(v[0], v[1], v[2]);
+    Ok(BodyState { position: v3(p), attitude: Quaternion::new(q[0], q[1], q[2], q[3]), velocity: v3(v), body_rates: v3(w) })
+}
 
 /// One race on one track, fed the drone's state once per control step.
 #[derive(Clone, Debug)]
@@ -78,6 +135,20 @@ impl Racer {
 mod tests {
     use super::*;
     use crate::{Controller, EnvConfig, RaceEnv, ReferencePilot};
+
+    #[test]
+    fn a_reported_state_is_refused_naming_the_field_and_entry() {
+        let names = ["p", "v", "q", "w"];
+        let (ok, unit) = ([0.0; 3], [1.0, 0.0, 0.0, 0.0]);
+        let body = reported_body_state([&[1.0, 2.0, 3.0], &ok, &unit, &[0.1, 0.2, 0.3]], names).unwrap();
+        assert_eq!((body.position, body.body_rates), (Vector3::new(1.0, 2.0, 3.0), Vector3::new(0.1, 0.2, 0.3)));
+        let short = reported_body_state([&[0.0, 1.0], &ok, &unit, &ok], names).unwrap_err();
+        assert_eq!(short, ReportedStateError::Length { field: "p", got: 2, expected: 3 });
+        let nan = reported_body_state([&ok, &ok, &unit, &[0.0, f64::NAN, 0.0]], names).unwrap_err();
+        assert!(matches!(nan, ReportedStateError::NotFinite { field: "w", index: 1, .. }), "{nan}");
+        let skewed = reported_body_state([&ok, &ok, &[2.0, 0.0, 0.0, 0.0], &ok], names).unwrap_err();
+        assert_eq!(skewed, ReportedStateError::NotUnitQuaternion { field: "q", norm: 2.0 });
+    }
 
     /// The reference pilot flies three laps of a library-like track; a racer fed only the
     /// drone's states sees every observation, target gate and lap count the environment has.
