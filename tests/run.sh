@@ -9,7 +9,8 @@
 #   CPU without AVX-512), python3-venv when the interpreter cannot make virtual environments.
 # - Python packages go into a virtual environment at .venv/ (never the system interpreter, which
 #   Debian 12 and Ubuntu 24.04 refuse to pip-install into): numpy, safetensors, onnxruntime,
-#   grpcio, grpcio-tools, kubernetes-validate, and podman-compose 1.5.0 (1.6.0's `up -d` waits on
+#   grpcio, grpcio-tools, kubernetes-validate, the package of python/ with pytest, and
+#   podman-compose 1.5.0 (1.6.0's `up -d` waits on
 #   dependencies it has not started yet and never returns: containers/podman-compose#1541).
 # - The multi-host and container tests need root, as CI runs.
 #
@@ -58,6 +59,10 @@ venv=.venv
 if ! "$venv/bin/python3" -c "import numpy, safetensors, onnxruntime, grpc, grpc_tools, kubernetes_validate" >/dev/null 2>&1; then
     "$venv/bin/python3" -m pip install --quiet numpy safetensors onnxruntime grpcio grpcio-tools kubernetes-validate
 fi
+# The Python package (python/: maturin, PyO3) built from this checkout, as `pip install ./python`
+# builds it for a user, with its test dependency; tests/python_package.rs and the pytest suite
+# below use it. pip reuses this workspace's target/ directory, so a rebuild is incremental.
+"$venv/bin/python3" -m pip install --quiet "./python[test]"
 if [ "$("$venv/bin/podman-compose" version 2>/dev/null | head -1)" != "podman-compose version 1.5.0" ]; then
     "$venv/bin/python3" -m pip install --quiet podman-compose==1.5.0
 fi
@@ -78,3 +83,5 @@ export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 cargo fmt --check
 cargo clippy --workspace --all-targets --locked -- -D warnings
 cargo test --workspace --locked
+# The Python package's own suite (gymnasium's env checker, the API, errors, tools).
+pytest -q python/tests

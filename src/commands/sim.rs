@@ -53,8 +53,9 @@ pub struct SimBenchArgs {
     /// episodes end only by truncation (the worst case per step).
     #[arg(long, value_enum, default_value = "random")]
     actions: BenchActions,
-    /// `state`: the 40-number observation only; `vision`: also the 84×84 camera image of
-    /// every environment after every step (SPEC §5).
+    /// `state`: the state-based agent's environments (its 52-number observation); `vision`:
+    /// the vision agent's, with the 84×84 camera image of every environment after every step
+    /// (SPEC §5).
     #[arg(long, value_enum, default_value = "state")]
     obs: BenchObs,
 }
@@ -162,9 +163,14 @@ pub fn bench(args: SimBenchArgs) -> anyhow::Result<()> {
     };
     let mut pilots: Vec<::sim::ReferencePilot> = (0..envs).map(|_| ::sim::ReferencePilot::default()).collect();
     let (seconds, episodes, mut coded) = pool.install(|| {
+        // The environments the agent trains in: what a training run steps.
+        let agent = match obs {
+            BenchObs::State => EnvConfig::state_agent(),
+            BenchObs::Vision => EnvConfig::vision_agent(),
+        };
         let config = match kind {
-            BenchActions::Random | BenchActions::Pilot => EnvConfig::default(),
-            BenchActions::Hover => EnvConfig { randomization: ::sim::RandomizationParams::none(), ..EnvConfig::default() },
+            BenchActions::Random | BenchActions::Pilot => agent,
+            BenchActions::Hover => EnvConfig { randomization: ::sim::RandomizationParams::none(), ..agent },
         };
         let mut env = VecEnv::new(tracks, config, 0);
         if obs == BenchObs::Vision {

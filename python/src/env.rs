@@ -1,0 +1,484 @@
+//! The vectorised race environment Python steps: `num_envs` race environments in parallel,
+//! gymnasium's next-step autoreset, and the task controller's switching in the loop.
+//!
+//! Autoreset as gymnasium 1.x does by default: the step that ends an episode returns its last
+//! observation (with `terminated` or `truncated`); the next step ignores that environment's
+//! action, starts a new episode and returns its first observation with reward 0. A task switch
+//! (every `rollout_steps` steps, as the actors report rollouts in training) cuts the episode the
+//! same way: that step is `truncated`, and the next starts on the new track.
+//!
+//! Environment `i` runs on random stream `i` of the seed, as `sim::VecEnv` (training's
+//! environment) does, so the same seed and actions fly the same trajectories in both.
+
+use std::sync::Arc;
+
+use numpy::{PyArray1, PyArray2, PyArray4, PyArrayMethods, PyReadonlyArray2};
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use rayon::prelude::*;
+use sim::camera::{IMAGE_PIXELS, IMAGE_SIDE};
+use sim::{ACTION_DIM, CrashCause, EnvConfig, EpisodeStats, RaceEnv, RandomizationParams, Track};
+use taskctl::{SwitchParams, SwitchPolicy, TaskController};
+
+use crate::inputs::{Observation, finite_rows};
+use crate::tracks::{PyTrack, resolve};
+
+/// Numbers of a body state row of `VecEnv.states`.
+const STATE_COLUMNS: usize = 13;
+
+/// Why an episode ended, as Python reads it in `infos["episode"]["outcome"]`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Ending {
+    Crash(CrashCause),
+    TimeLimit,
+    TrackSwitch,
+}
+
+impl Ending {
+    fn name(self) -> &'static str {
+        match self {
+            Self::Crash(CrashCause::Ground) => "crash_ground",
+            Self::Crash(CrashCause::Ceiling) => "crash_ceiling",
+            Self::Crash(CrashCause::Wall) => "crash_wall",
+            Self::Crash(CrashCause::Gate(_)) => "crash_gate",
+            Self::TimeLimit => "time_limit",
+            Self::TrackSwitch => "track_switch",
+        }
+    }
+}
+
+/// How an environment starts again at its next step.
+#[derive(Clone, Debug)]
+enum Restart {
+    /// A new episode on its track.
+    Episode,
+    /// A new episode on a new track (a task switch).
+    Track(Arc<Track>),
+}
+
+/// One environment and what the wrapper keeps about it.
+#[derive(Clone, Debug)]
+struct Slot {
+    env: RaceEnv,
+    restart: Option<Restart>,
+    /// Sum of this rollout's rewards, reported to the task controller.
+    rollout_return: f64,
+}
+
+/// What one environment's step gave.
+#[derive(Clone, Copy, Debug, Default)]
+struct Stepped {
+    reward: f32,
+    terminated: bool,
+    truncated: bool,
+    ended: Option<(EpisodeStats, Option<CrashCause>)>,
+}
+
+/// An episode that ended in the last step.
+#[derive(Clone, Copy, Debug)]
+struct Finished {
+    env: usize,
+    stats: EpisodeStats,
+    ending: Ending,
+}
+
+/// `num_envs` race environments stepped in parallel into numpy arrays that are filled in place
+/// (the same arrays every step: copy what you keep).
+#[pyclass(module = "dronerace._core")]
+pub struct VecEnv {
+    num_envs: usize,
+    slots: Vec<Slot>,
+    config: EnvConfig,
+    /// Tracks given at construction, cycled over the environments; empty: generated tracks.
+    given: Vec<Arc<Track>>,
+    switching: SwitchParams,
+    controller: Option<TaskController>,
+    rollout_steps: u32,
+    steps_in_rollout: u32,
+    rollout: u64,
+    seed: u64,
+    started: bool,
+    finished: Vec<Finished>,
+    observations: Py<PyArray2<f32>>,
+    images: Option<Py<PyArray4<u8>>>,
+    rewards: Py<PyArray1<f32>>,
+    terminations: Py<PyArray1<bool>>,
+    truncations: Py<PyArray1<bool>>,
+    laps: Py<PyArray1<i32>>,
+    target_gates: Py<PyArray1<i32>>,
+}
+
+#[pymethods]
+impl VecEnv {
+    /// `num_envs` environments on `tracks` (each a `Track`, library name or path, cycled over
+    /// the environments; `None`: tracks of the informed generator, drawn by the task controller),
+    /// observing as the `observation` agent does ("state" or "vision"), switching tracks by
+    /// `switching` ("adaptive", "random" or "none") after every `rollout_steps` steps.
+    /// `randomize=False` flies the nominal vehicle from SPEC §9's perturbed start (evaluation's
+    /// setting); `max_episode_steps` overrides the episode length. `switch_window` (l),
+    /// `switch_alpha` (α) and `switch_probability` (the random policy's) are SPEC §8's.
+    #[new]
+    #[pyo3(signature = (num_envs, tracks = None, seed = 0, switching = None, observation = "state", rollout_steps = 250,
+                        randomize = true, max_episode_steps = None, switch_window = 600, switch_alpha = 1000.0,
+                        switch_probability = 1.616e-3))]
+    #[allow(clippy::too_many_arguments, reason = "the Python constructor's keyword arguments")]
+    fn new(
+        py: Python<'_>,
+        num_envs: usize,
+        tracks: Option<Vec<Bound<'_, PyAny>>>,
+        seed: u64,
+        switching: Option<&str>,
+        observation: &str,
+        rollout_steps: u32,
+        randomize: bool,
+        max_episode_steps: Option<u32>,
+        switch_window: usize,
+        switch_alpha: f64,
+        switch_probability: f64,
+    ) -> PyResult<Self> {
+        if num_envs == 0 {
+            return Err(PyValueError::new_err("num_envs: at least one environment"));
+        }
+        if rollout_steps == 0 {
+            return Err(PyValueError::new_err("rollout_steps: at least one step"));
+        }
+        let observation = Observation::parse(observation)?;
+        let mut config = observation.env_config();
+        if !randomize {
+            config.randomization = RandomizationParams::evaluation();
+        }
+        if let Some(steps) = max_episode_steps {
+            if steps == 0 {
+                return Err(PyValueError::new_err("max_episode_steps: at least one step"));
+            }
+            config.race.max_episode_steps = steps;
+        }
+        let given = match &tracks {
+            Some(items) if items.is_empty() => return Err(PyValueError::new_err("tracks: an empty list (None draws generated tracks)")),
+            Some(items) => resolve("tracks", items)?,
+            None => Vec::new(),
+        };
+        // A user's own tracks stay unless switching is asked for; generated ones switch as in
+        // training (the thesis' adaptive switching).
+        let policy = match switching {
+            None if given.is_empty() => SwitchPolicy::Adaptive,
+            None => SwitchPolicy::None,
+            Some("adaptive") => SwitchPolicy::Adaptive,
+            Some("random") => SwitchPolicy::Random,
+            Some("none") => SwitchPolicy::None,
+            Some(other) => {
+                return Err(PyValueError::new_err(format!("switching: {other:?} is not one of \"adaptive\", \"random\", \"none\"")));
+            }
+        };
+        let switching = SwitchParams { policy, window: switch_window, alpha: switch_alpha, random_probability: switch_probability };
+        switching.check().map_err(|e| PyValueError::new_err(e.replace("switching.", "switch_")))?;
+        let images_on = observation == Observation::Vision;
+        let dim = config.observation.dim();
+        Ok(Self {
+            num_envs,
+            slots: Vec::new(),
+            config,
+            given,
+            switching,
+            controller: None,
+            rollout_steps,
+            steps_in_rollout: 0,
+            rollout: 0,
+            seed,
+            started: false,
+            finished: Vec::new(),
+            observations: PyArray2::zeros(py, [num_envs, dim], false).unbind(),
+            images: images_on.then(|| PyArray4::zeros(py, [num_envs, 1, IMAGE_SIDE, IMAGE_SIDE], false).unbind()),
+            rewards: PyArray1::zeros(py, num_envs, false).unbind(),
+            terminations: PyArray1::zeros(py, num_envs, false).unbind(),
+            truncations: PyArray1::zeros(py, num_envs, false).unbind(),
+            laps: PyArray1::zeros(py, num_envs, false).unbind(),
+            target_gates: PyArray1::zeros(py, num_envs, false).unbind(),
+        })
+    }
+
+    /// Starts every environment afresh: with `seed`, from scratch (tracks, task controller and
+    /// random streams as a new environment of that seed); without, new episodes from where the
+    /// streams are (the constructor's seed at the first reset).
+    #[pyo3(signature = (seed = None))]
+    fn reset(&mut self, py: Python<'_>, seed: Option<u64>) -> PyResult<()> {
+        if seed.is_some() || !self.started {
+            self.seed = seed.unwrap_or(self.seed);
+            self.rebuild()?;
+        } else {
+            for slot in &mut self.slots {
+                match slot.restart.take() {
+                    Some(Restart::Track(track)) => slot.env.set_track(track),
+                    _ => slot.env.reset(),
+                }
+            }
+        }
+        self.finished.clear();
+        let Self { slots, observations, images, .. } = self;
+        let mut observations = observations.bind(py).readwrite();
+        let observations = observations.as_slice_mut().map_err(internal)?;
+        let dim = self.config.observation.dim();
+        let mut images = images.as_ref().map(|i| i.bind(py).readwrite());
+        let images = images.as_mut().map(|i| i.as_slice_mut().map_err(internal)).transpose()?;
+        py.detach(|| {
+            slots.par_iter().zip(observations.par_chunks_mut(dim)).for_each(|(slot, row)| slot.env.observe(row));
+            if let Some(images) = images {
+                slots.par_iter().zip(images.par_chunks_mut(IMAGE_PIXELS)).for_each(|(slot, image)| slot.env.render_camera(image));
+            }
+        });
+        self.rewards.bind(py).readwrite().as_slice_mut().map_err(internal)?.fill(0.0);
+        self.terminations.bind(py).readwrite().as_slice_mut().map_err(internal)?.fill(false);
+        self.truncations.bind(py).readwrite().as_slice_mut().map_err(internal)?.fill(false);
+        self.write_race_state(py)?;
+        self.started = true;
+        Ok(())
+    }
+
+    /// Steps every environment with its row of `actions` (`num_envs × 4`, float32, finite);
+    /// returns how many episodes ended (see `finished`).
+    fn step(&mut self, py: Python<'_>, actions: PyReadonlyArray2<'_, f32>) -> PyResult<usize> {
+        if !self.started {
+            return Err(PyRuntimeError::new_err("step before reset: call reset() first"));
+        }
+        let n = self.num_envs;
+        let actions = finite_rows("actions", &actions, Some(n), ACTION_DIM)?;
+        let dim = self.config.observation.dim();
+        let Self { slots, observations, images, .. } = self;
+        let mut observations = observations.bind(py).readwrite();
+        let observations = observations.as_slice_mut().map_err(internal)?;
+        let mut images = images.as_ref().map(|i| i.bind(py).readwrite());
+        let images = images.as_mut().map(|i| i.as_slice_mut().map_err(internal)).transpose()?;
+        let stepped: Vec<Stepped> = py.detach(|| {
+            let stepped = slots
+                .par_iter_mut()
+                .zip(actions.par_chunks(ACTION_DIM))
+                .zip(observations.par_chunks_mut(dim))
+                .with_min_len(4)
+                .map(|((slot, action), row)| {
+                    let stepped = step_slot(slot, action);
+                    slot.env.observe(row);
+                    stepped
+                })
+                .collect();
+            if let Some(images) = images {
+                slots.par_iter().zip(images.par_chunks_mut(IMAGE_PIXELS)).with_min_len(4).for_each(|(s, image)| s.env.render_camera(image));
+            }
+            stepped
+        });
+        self.finished.clear();
+        {
+            let mut rewards = self.rewards.bind(py).readwrite();
+            let mut terminations = self.terminations.bind(py).readwrite();
+            let mut truncations = self.truncations.bind(py).readwrite();
+            let (rewards, terminations, truncations) = (
+                rewards.as_slice_mut().map_err(internal)?,
+                terminations.as_slice_mut().map_err(internal)?,
+                truncations.as_slice_mut().map_err(internal)?,
+            );
+            for (i, s) in stepped.iter().enumerate() {
+                (rewards[i], terminations[i], truncations[i]) = (s.reward, s.terminated, s.truncated);
+                if let Some((stats, crash)) = s.ended {
+                    let ending = crash.map_or(Ending::TimeLimit, Ending::Crash);
+                    self.finished.push(Finished { env: i, stats, ending });
+                }
+            }
+            self.steps_in_rollout += 1;
+            if self.steps_in_rollout == self.rollout_steps {
+                self.steps_in_rollout = 0;
+                self.end_rollout(truncations)?;
+            }
+        }
+        self.write_race_state(py)?;
+        Ok(self.finished.len())
+    }
+
+    /// Current observations, `num_envs × observation_dim` float32 (filled in place).
+    #[getter]
+    fn observations<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
+        self.observations.bind(py).clone()
+    }
+
+    /// Current camera images, `num_envs × 1 × 84 × 84` uint8 (vision only; else `None`).
+    #[getter]
+    fn images<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray4<u8>>> {
+        self.images.as_ref().map(|i| i.bind(py).clone())
+    }
+
+    /// Rewards of the last step.
+    #[getter]
+    fn rewards<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f32>> {
+        self.rewards.bind(py).clone()
+    }
+
+    /// Which environments crashed in the last step.
+    #[getter]
+    fn terminations<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<bool>> {
+        self.terminations.bind(py).clone()
+    }
+
+    /// Which environments reached the step limit or switched track in the last step.
+    #[getter]
+    fn truncations<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<bool>> {
+        self.truncations.bind(py).clone()
+    }
+
+    /// Laps completed in each environment's current episode.
+    #[getter]
+    fn laps<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<i32>> {
+        self.laps.bind(py).clone()
+    }
+
+    /// The gate each environment races to.
+    #[getter]
+    fn target_gates<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<i32>> {
+        self.target_gates.bind(py).clone()
+    }
+
+    /// The episodes that ended in the last step: `(env, return, length, laps, gates_passed,
+    /// fastest_lap or None, outcome, crashed gate or None)`, outcome one of `crash_ground`,
+    /// `crash_ceiling`, `crash_wall`, `crash_gate`, `time_limit`, `track_switch`.
+    #[allow(clippy::type_complexity, reason = "a plain tuple is what Python reads")]
+    fn finished(&self) -> Vec<(usize, f64, u32, u32, u32, Option<f64>, &'static str, Option<usize>)> {
+        self.finished
+            .iter()
+            .map(|f| {
+                let s = &f.stats;
+                let gate = match f.ending {
+                    Ending::Crash(CrashCause::Gate(g)) => Some(g),
+                    _ => None,
+                };
+                (f.env, s.episode_return, s.length, s.laps, s.gates_passed, s.fastest_lap, f.ending.name(), gate)
+            })
+            .collect()
+    }
+
+    /// Each environment's body state now, `num_envs × 13` float64: position (m, world),
+    /// velocity (m/s, world), orientation (w, x, y, z; body to world), angular velocity
+    /// (rad/s, body) — what a flight stack would report, and what `Racer` takes.
+    fn states<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let mut rows = Vec::with_capacity(self.slots.len() * STATE_COLUMNS);
+        for slot in &self.slots {
+            let b = slot.env.body();
+            let q = b.attitude;
+            rows.extend([b.position.x, b.position.y, b.position.z, b.velocity.x, b.velocity.y, b.velocity.z]);
+            rows.extend([q.w, q.i, q.j, q.k, b.body_rates.x, b.body_rates.y, b.body_rates.z]);
+        }
+        PyArray1::from_vec(py, rows).reshape([self.slots.len(), STATE_COLUMNS])
+    }
+
+    /// Number of environments.
+    #[getter]
+    fn num_envs(&self) -> usize {
+        self.num_envs
+    }
+
+    /// Length of one observation row.
+    #[getter]
+    fn observation_dim(&self) -> usize {
+        self.config.observation.dim()
+    }
+
+    /// The tracks the environments fly now (after `reset`).
+    fn tracks(&self) -> Vec<PyTrack> {
+        self.slots.iter().map(|s| PyTrack { track: s.env.track().clone() }).collect()
+    }
+
+    /// Task switches made since the last seeded reset.
+    #[getter]
+    fn switches(&self) -> usize {
+        self.controller.as_ref().map_or(0, |c| c.history().len())
+    }
+}
+
+impl VecEnv {
+    /// Environments, streams and task controller as new for `self.seed`.
+    fn rebuild(&mut self) -> PyResult<()> {
+        let n = self.num_envs;
+        let generator = racetracks::TrackGenerator::default();
+        let controller = if self.given.is_empty() {
+            Some(TaskController::new(n, generator, self.switching, self.seed).map_err(|e| PyRuntimeError::new_err(e.to_string()))?)
+        } else if self.switching.policy != SwitchPolicy::None {
+            let tracks = (0..n).map(|i| self.given[i % self.given.len()].clone()).collect();
+            Some(
+                TaskController::with_tracks(tracks, generator, self.switching, self.seed)
+                    .map_err(|e| PyRuntimeError::new_err(e.to_string()))?,
+            )
+        } else {
+            None
+        };
+        let tracks: Vec<Arc<Track>> = match &controller {
+            Some(c) => c.tracks(),
+            None => (0..n).map(|i| self.given[i % self.given.len()].clone()).collect(),
+        };
+        self.slots = tracks
+            .into_iter()
+            .enumerate()
+            .map(|(i, track)| Slot { env: RaceEnv::new(track, self.config, self.seed, i as u64), restart: None, rollout_return: 0.0 })
+            .collect();
+        self.controller = controller;
+        (self.steps_in_rollout, self.rollout) = (0, 0);
+        Ok(())
+    }
+
+    /// Reports the rollout's returns to the task controller; an environment it switches is cut
+    /// (`truncated`) and restarts on its new track at its next step.
+    fn end_rollout(&mut self, truncations: &mut [bool]) -> PyResult<()> {
+        let rollout = self.rollout;
+        self.rollout += 1;
+        let Some(controller) = &mut self.controller else {
+            return Ok(());
+        };
+        for (i, slot) in self.slots.iter_mut().enumerate() {
+            let rollout_return = std::mem::take(&mut slot.rollout_return);
+            let switched = controller.report(i, rollout, rollout_return).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+            if let Some(track) = switched {
+                if slot.restart.is_none() {
+                    truncations[i] = true;
+                    self.finished.push(Finished { env: i, stats: *slot.env.stats(), ending: Ending::TrackSwitch });
+                }
+                slot.restart = Some(Restart::Track(track));
+            }
+        }
+        Ok(())
+    }
+
+    /// Laps and target gates of the current episodes.
+    fn write_race_state(&self, py: Python<'_>) -> PyResult<()> {
+        let mut laps = self.laps.bind(py).readwrite();
+        let mut targets = self.target_gates.bind(py).readwrite();
+        let (laps, targets) = (laps.as_slice_mut().map_err(internal)?, targets.as_slice_mut().map_err(internal)?);
+        for (i, slot) in self.slots.iter().enumerate() {
+            laps[i] = slot.env.stats().laps as i32;
+            targets[i] = slot.env.target_gate() as i32;
+        }
+        Ok(())
+    }
+}
+
+/// One environment's step: a pending restart (the action ignored), or the action flown.
+fn step_slot(slot: &mut Slot, action: &[f32]) -> Stepped {
+    match slot.restart.take() {
+        Some(Restart::Episode) => {
+            slot.env.reset();
+            Stepped::default()
+        }
+        Some(Restart::Track(track)) => {
+            slot.env.set_track(track);
+            Stepped::default()
+        }
+        None => {
+            let out = slot.env.step(&[action[0], action[1], action[2], action[3]]);
+            slot.rollout_return += out.reward.total();
+            let ended = out.done().then(|| {
+                slot.restart = Some(Restart::Episode);
+                (*slot.env.stats(), out.crash)
+            });
+            Stepped { reward: out.reward.total() as f32, terminated: out.terminated, truncated: out.truncated, ended }
+        }
+    }
+}
+
+/// A numpy array of ours that is not contiguous: a bug here, not the caller's.
+fn internal(e: impl std::fmt::Display) -> PyErr {
+    PyRuntimeError::new_err(format!("dronerace internal array: {e}"))
+}
