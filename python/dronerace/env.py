@@ -11,9 +11,6 @@ from gymnasium.vector.utils import batch_space
 
 from dronerace import _core
 
-_EPISODE_FIELDS = ("r", "l", "laps", "gates_passed", "fastest_lap", "outcome", "crash_gate")
-
-
 def _spaces(core, observation):
     """The single environment's observation and action spaces."""
     state = spaces.Box(-np.inf, np.inf, shape=(core.observation_dim,), dtype=np.float32)
@@ -84,12 +81,15 @@ class RaceVecEnv(gymnasium.vector.VectorEnv):
                                   rollout_steps=rollout_steps, randomize=randomize, max_episode_steps=max_episode_steps,
                                   switch_window=switch_window, switch_alpha=switch_alpha, switch_probability=switch_probability)
         self.num_envs = num_envs
-        self._vision = observation == "vision"
         self.single_observation_space, self.single_action_space = _spaces(self._core, observation)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
         self.render_mode = None
-        self._all = np.ones(num_envs, dtype=bool)
+        # The core fills these arrays in place at every step.
+        if observation == "vision":
+            self._observations = {"image": self._core.images, "state": self._core.observations}
+        else:
+            self._observations = self._core.observations
 
     def reset(self, *, seed=None, options=None):
         """Starts every environment afresh; with `seed`, exactly as a new environment of that
@@ -99,14 +99,13 @@ class RaceVecEnv(gymnasium.vector.VectorEnv):
             raise TypeError(f"seed: one int for all environments (environment i uses stream i), not {seed!r}")
         if seed is not None:
             super().reset(seed=int(seed))
-        self._core.reset(None if seed is None else int(seed))
-        return self._observations(), self._infos(0)
+        infos = self._core.reset(None if seed is None else int(seed))
+        return self._observations, infos
 
     def step(self, actions):
         """Steps every environment with its row of `actions` (num_envs x 4, in [-1, 1])."""
-        finished = self._core.step(_actions(actions, self.num_envs))
-        core = self._core
-        return self._observations(), core.rewards, core.terminations, core.truncations, self._infos(finished)
+        rewards, terminations, truncations, infos = self._core.step(_actions(actions, self.num_envs))
+        return self._observations, rewards, terminations, truncations, infos
 
     def tracks(self):
         """The track each environment flies now."""
@@ -121,39 +120,6 @@ class RaceVecEnv(gymnasium.vector.VectorEnv):
     def switches(self):
         """Task switches since the last seeded reset."""
         return self._core.switches
-
-    def _observations(self):
-        if self._vision:
-            return {"image": self._core.images, "state": self._core.observations}
-        return self._core.observations
-
-    def _infos(self, finished):
-        infos = {
-            "laps": self._core.laps.copy(),
-            "_laps": self._all,
-            "target_gate": self._core.target_gates.copy(),
-            "_target_gate": self._all,
-        }
-        if finished:
-            n = self.num_envs
-            episode = {
-                "r": np.zeros(n, dtype=np.float32),
-                "l": np.zeros(n, dtype=np.int32),
-                "laps": np.zeros(n, dtype=np.int32),
-                "gates_passed": np.zeros(n, dtype=np.int32),
-                "fastest_lap": np.full(n, np.nan),
-                "outcome": np.full(n, None, dtype=object),
-                "crash_gate": np.full(n, -1, dtype=np.int32),
-            }
-            mask = np.zeros(n, dtype=bool)
-            for env, *values in self._core.finished():
-                mask[env] = True
-                for key, value in zip(_EPISODE_FIELDS, values):
-                    if value is not None:
-                        episode[key][env] = value
-            infos["episode"] = episode
-            infos["_episode"] = mask
-        return infos
 
 
 class RaceEnv(gymnasium.Env):

@@ -12,9 +12,10 @@
 
 use std::sync::Arc;
 
-use numpy::{PyArray1, PyArray2, PyArray4, PyArrayMethods, PyReadonlyArray2};
+use numpy::{PyArray1, PyArray2, PyArray4, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyString};
 use rayon::prelude::*;
 use sim::camera::{IMAGE_PIXELS, IMAGE_SIDE};
 use sim::{ACTION_DIM, CrashCause, EnvConfig, EpisodeStats, RaceEnv, RandomizationParams, Track};
@@ -104,8 +105,6 @@ pub struct VecEnv {
     rewards: Py<PyArray1<f32>>,
     terminations: Py<PyArray1<bool>>,
     truncations: Py<PyArray1<bool>>,
-    laps: Py<PyArray1<i32>>,
-    target_gates: Py<PyArray1<i32>>,
 }
 
 #[pymethods]
@@ -192,16 +191,14 @@ impl VecEnv {
             rewards: PyArray1::zeros(py, num_envs, false).unbind(),
             terminations: PyArray1::zeros(py, num_envs, false).unbind(),
             truncations: PyArray1::zeros(py, num_envs, false).unbind(),
-            laps: PyArray1::zeros(py, num_envs, false).unbind(),
-            target_gates: PyArray1::zeros(py, num_envs, false).unbind(),
         })
     }
 
     /// Starts every environment afresh: with `seed`, from scratch (tracks, task controller and
     /// random streams as a new environment of that seed); without, new episodes from where the
-    /// streams are (the constructor's seed at the first reset).
+    /// streams are (the constructor's seed at the first reset). Returns the infos.
     #[pyo3(signature = (seed = None))]
-    fn reset(&mut self, py: Python<'_>, seed: Option<u64>) -> PyResult<()> {
+    fn reset<'py>(&mut self, py: Python<'py>, seed: Option<u64>) -> PyResult<Bound<'py, PyDict>> {
         if seed.is_some() || !self.started {
             self.seed = seed.unwrap_or(self.seed);
             self.rebuild()?;
@@ -214,40 +211,43 @@ impl VecEnv {
             }
         }
         self.finished.clear();
-        let Self { slots, observations, images, .. } = self;
-        let mut observations = observations.bind(py).readwrite();
-        let observations = observations.as_slice_mut().map_err(internal)?;
         let dim = self.config.observation.dim();
-        let mut images = images.as_ref().map(|i| i.bind(py).readwrite());
-        let images = images.as_mut().map(|i| i.as_slice_mut().map_err(internal)).transpose()?;
+        // SAFETY: see `ours`.
+        let (observations, images) = unsafe { (ours(&self.observations, py), self.images.as_ref().map(|i| ours(i, py))) };
+        let slots = &self.slots;
         py.detach(|| {
             slots.par_iter().zip(observations.par_chunks_mut(dim)).for_each(|(slot, row)| slot.env.observe(row));
             if let Some(images) = images {
                 slots.par_iter().zip(images.par_chunks_mut(IMAGE_PIXELS)).for_each(|(slot, image)| slot.env.render_camera(image));
             }
         });
-        self.rewards.bind(py).readwrite().as_slice_mut().map_err(internal)?.fill(0.0);
-        self.terminations.bind(py).readwrite().as_slice_mut().map_err(internal)?.fill(false);
-        self.truncations.bind(py).readwrite().as_slice_mut().map_err(internal)?.fill(false);
-        self.write_race_state(py)?;
+        // SAFETY: see `ours`.
+        unsafe {
+            ours(&self.rewards, py).fill(0.0);
+            ours(&self.terminations, py).fill(false);
+            ours(&self.truncations, py).fill(false);
+        }
         self.started = true;
-        Ok(())
+        self.infos(py)
     }
 
-    /// Steps every environment with its row of `actions` (`num_envs × 4`, float32, finite);
-    /// returns how many episodes ended (see `finished`).
-    fn step(&mut self, py: Python<'_>, actions: PyReadonlyArray2<'_, f32>) -> PyResult<usize> {
+    /// Steps every environment with its row of `actions` (`num_envs × 4`, float32, finite):
+    /// `(rewards, terminations, truncations, infos)`, the arrays filled in place, the
+    /// observations in place in `observations` (and `images`).
+    #[allow(clippy::type_complexity, reason = "gymnasium's step tuple, less the observations")]
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        actions: PyReadonlyArray2<'_, f32>,
+    ) -> PyResult<(Bound<'py, PyArray1<f32>>, Bound<'py, PyArray1<bool>>, Bound<'py, PyArray1<bool>>, Bound<'py, PyDict>)> {
         if !self.started {
             return Err(PyRuntimeError::new_err("step before reset: call reset() first"));
         }
-        let n = self.num_envs;
-        let actions = finite_rows("actions", &actions, Some(n), ACTION_DIM)?;
+        let actions = finite_rows("actions", &actions, Some(self.num_envs), ACTION_DIM)?;
         let dim = self.config.observation.dim();
-        let Self { slots, observations, images, .. } = self;
-        let mut observations = observations.bind(py).readwrite();
-        let observations = observations.as_slice_mut().map_err(internal)?;
-        let mut images = images.as_ref().map(|i| i.bind(py).readwrite());
-        let images = images.as_mut().map(|i| i.as_slice_mut().map_err(internal)).transpose()?;
+        // SAFETY: see `ours`.
+        let (observations, images) = unsafe { (ours(&self.observations, py), self.images.as_ref().map(|i| ours(i, py))) };
+        let slots = &mut self.slots;
         let stepped: Vec<Stepped> = py.detach(|| {
             let stepped = slots
                 .par_iter_mut()
@@ -266,30 +266,23 @@ impl VecEnv {
             stepped
         });
         self.finished.clear();
-        {
-            let mut rewards = self.rewards.bind(py).readwrite();
-            let mut terminations = self.terminations.bind(py).readwrite();
-            let mut truncations = self.truncations.bind(py).readwrite();
-            let (rewards, terminations, truncations) = (
-                rewards.as_slice_mut().map_err(internal)?,
-                terminations.as_slice_mut().map_err(internal)?,
-                truncations.as_slice_mut().map_err(internal)?,
-            );
-            for (i, s) in stepped.iter().enumerate() {
-                (rewards[i], terminations[i], truncations[i]) = (s.reward, s.terminated, s.truncated);
-                if let Some((stats, crash)) = s.ended {
-                    let ending = crash.map_or(Ending::TimeLimit, Ending::Crash);
-                    self.finished.push(Finished { env: i, stats, ending });
-                }
-            }
-            self.steps_in_rollout += 1;
-            if self.steps_in_rollout == self.rollout_steps {
-                self.steps_in_rollout = 0;
-                self.end_rollout(truncations)?;
+        // SAFETY: see `ours`.
+        let (rewards, terminations, truncations) =
+            unsafe { (ours(&self.rewards, py), ours(&self.terminations, py), ours(&self.truncations, py)) };
+        for (i, s) in stepped.iter().enumerate() {
+            (rewards[i], terminations[i], truncations[i]) = (s.reward, s.terminated, s.truncated);
+            if let Some((stats, crash)) = s.ended {
+                let ending = crash.map_or(Ending::TimeLimit, Ending::Crash);
+                self.finished.push(Finished { env: i, stats, ending });
             }
         }
-        self.write_race_state(py)?;
-        Ok(self.finished.len())
+        self.steps_in_rollout += 1;
+        if self.steps_in_rollout == self.rollout_steps {
+            self.steps_in_rollout = 0;
+            self.end_rollout(py)?;
+        }
+        let infos = self.infos(py)?;
+        Ok((self.rewards.bind(py).clone(), self.terminations.bind(py).clone(), self.truncations.bind(py).clone(), infos))
     }
 
     /// Current observations, `num_envs × observation_dim` float32 (filled in place).
@@ -302,54 +295,6 @@ impl VecEnv {
     #[getter]
     fn images<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray4<u8>>> {
         self.images.as_ref().map(|i| i.bind(py).clone())
-    }
-
-    /// Rewards of the last step.
-    #[getter]
-    fn rewards<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f32>> {
-        self.rewards.bind(py).clone()
-    }
-
-    /// Which environments crashed in the last step.
-    #[getter]
-    fn terminations<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<bool>> {
-        self.terminations.bind(py).clone()
-    }
-
-    /// Which environments reached the step limit or switched track in the last step.
-    #[getter]
-    fn truncations<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<bool>> {
-        self.truncations.bind(py).clone()
-    }
-
-    /// Laps completed in each environment's current episode.
-    #[getter]
-    fn laps<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<i32>> {
-        self.laps.bind(py).clone()
-    }
-
-    /// The gate each environment races to.
-    #[getter]
-    fn target_gates<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<i32>> {
-        self.target_gates.bind(py).clone()
-    }
-
-    /// The episodes that ended in the last step: `(env, return, length, laps, gates_passed,
-    /// fastest_lap or None, outcome, crashed gate or None)`, outcome one of `crash_ground`,
-    /// `crash_ceiling`, `crash_wall`, `crash_gate`, `time_limit`, `track_switch`.
-    #[allow(clippy::type_complexity, reason = "a plain tuple is what Python reads")]
-    fn finished(&self) -> Vec<(usize, f64, u32, u32, u32, Option<f64>, &'static str, Option<usize>)> {
-        self.finished
-            .iter()
-            .map(|f| {
-                let s = &f.stats;
-                let gate = match f.ending {
-                    Ending::Crash(CrashCause::Gate(g)) => Some(g),
-                    _ => None,
-                };
-                (f.env, s.episode_return, s.length, s.laps, s.gates_passed, s.fastest_lap, f.ending.name(), gate)
-            })
-            .collect()
     }
 
     /// Each environment's body state now, `num_envs × 13` float64: position (m, world),
@@ -422,7 +367,9 @@ impl VecEnv {
 
     /// Reports the rollout's returns to the task controller; an environment it switches is cut
     /// (`truncated`) and restarts on its new track at its next step.
-    fn end_rollout(&mut self, truncations: &mut [bool]) -> PyResult<()> {
+    fn end_rollout(&mut self, py: Python<'_>) -> PyResult<()> {
+        // SAFETY: see `ours`.
+        let truncations = unsafe { ours(&self.truncations, py) };
         let rollout = self.rollout;
         self.rollout += 1;
         let Some(controller) = &mut self.controller else {
@@ -442,17 +389,62 @@ impl VecEnv {
         Ok(())
     }
 
-    /// Laps and target gates of the current episodes.
-    fn write_race_state(&self, py: Python<'_>) -> PyResult<()> {
-        let mut laps = self.laps.bind(py).readwrite();
-        let mut targets = self.target_gates.bind(py).readwrite();
-        let (laps, targets) = (laps.as_slice_mut().map_err(internal)?, targets.as_slice_mut().map_err(internal)?);
-        for (i, slot) in self.slots.iter().enumerate() {
-            laps[i] = slot.env.stats().laps as i32;
-            targets[i] = slot.env.target_gate() as i32;
+    /// gymnasium's infos: `laps` and `target_gate` of every environment, and where an episode
+    /// ended in the last step, `episode` (return `r`, length `l`, `laps`, `gates_passed`,
+    /// `fastest_lap`, `outcome`, `crash_gate`), each with its `_key` mask.
+    fn infos<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let n = self.num_envs;
+        let infos = PyDict::new(py);
+        let all = PyArray1::from_vec(py, vec![true; n]);
+        let laps: Vec<i32> = self.slots.iter().map(|s| s.env.stats().laps as i32).collect();
+        let targets: Vec<i32> = self.slots.iter().map(|s| s.env.target_gate() as i32).collect();
+        infos.set_item("laps", PyArray1::from_vec(py, laps))?;
+        infos.set_item("_laps", &all)?;
+        infos.set_item("target_gate", PyArray1::from_vec(py, targets))?;
+        infos.set_item("_target_gate", &all)?;
+        if self.finished.is_empty() {
+            return Ok(infos);
         }
-        Ok(())
+        let (mut r, mut l, mut laps, mut gates) = (vec![0f32; n], vec![0i32; n], vec![0i32; n], vec![0i32; n]);
+        let (mut fastest, mut crash_gate, mut mask) = (vec![f64::NAN; n], vec![-1i32; n], vec![false; n]);
+        let mut outcome: Vec<Py<PyAny>> = (0..n).map(|_| py.None()).collect();
+        for f in &self.finished {
+            let (i, s) = (f.env, &f.stats);
+            (r[i], l[i], laps[i], gates[i]) = (s.episode_return as f32, s.length as i32, s.laps as i32, s.gates_passed as i32);
+            fastest[i] = s.fastest_lap.unwrap_or(f64::NAN);
+            if let Ending::Crash(CrashCause::Gate(g)) = f.ending {
+                crash_gate[i] = g as i32;
+            }
+            outcome[i] = PyString::new(py, f.ending.name()).into_any().unbind();
+            mask[i] = true;
+        }
+        let episode = PyDict::new(py);
+        episode.set_item("r", PyArray1::from_vec(py, r))?;
+        episode.set_item("l", PyArray1::from_vec(py, l))?;
+        episode.set_item("laps", PyArray1::from_vec(py, laps))?;
+        episode.set_item("gates_passed", PyArray1::from_vec(py, gates))?;
+        episode.set_item("fastest_lap", PyArray1::from_vec(py, fastest))?;
+        episode.set_item("outcome", PyArray1::from_vec(py, outcome))?;
+        episode.set_item("crash_gate", PyArray1::from_vec(py, crash_gate))?;
+        infos.set_item("episode", episode)?;
+        infos.set_item("_episode", PyArray1::from_vec(py, mask))?;
+        Ok(infos)
     }
+}
+
+/// A mutable view of one of this environment's own output arrays, without numpy's dynamic
+/// borrow tracking (a few microseconds a step).
+///
+/// # Safety
+/// The array was created by [`VecEnv::new`] (C-contiguous, never resized) and is borrowed by
+/// no other Rust code; the caller holds the view only within one method call. Python code
+/// reading the array from another thread while a step runs sees partly written values, as
+/// with any buffer filled in place.
+#[allow(clippy::mut_from_ref, reason = "the array's memory is numpy's, shared with Python; the safety contract bounds the view")]
+unsafe fn ours<'a, T: numpy::Element, D: numpy::ndarray::Dimension>(array: &'a Py<numpy::PyArray<T, D>>, py: Python<'_>) -> &'a mut [T] {
+    let array = array.bind(py);
+    // SAFETY: the caller's contract above; `data` points at `len` elements in C order.
+    unsafe { std::slice::from_raw_parts_mut(array.data(), array.len()) }
 }
 
 /// One environment's step: a pending restart (the action ignored), or the action flown.
@@ -476,9 +468,4 @@ fn step_slot(slot: &mut Slot, action: &[f32]) -> Stepped {
             Stepped { reward: out.reward.total() as f32, terminated: out.terminated, truncated: out.truncated, ended }
         }
     }
-}
-
-/// A numpy array of ours that is not contiguous: a bug here, not the caller's.
-fn internal(e: impl std::fmt::Display) -> PyErr {
-    PyRuntimeError::new_err(format!("dronerace internal array: {e}"))
 }
