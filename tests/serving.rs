@@ -278,3 +278,42 @@ fn the_shipped_generalist_races_from_drone_states_as_eval_flies_it_step_for_step
         }
     });
 }
+
+/// The Python closed loop of `docs/python/race_closed_loop.py`: the `dronerace` package plays
+/// the drone from eval's first start, `Pilot/Race` serves the shipped generalist, and the flight
+/// laps Figure8 as `dronerace eval`'s deployment 0 does.
+#[test]
+fn a_python_closed_loop_through_pilot_race_laps_as_eval_flies() {
+    let needs = [Need::Python { modules: &["dronerace", "grpc", "grpc_tools"], packages: "./python grpcio grpcio-tools" }];
+    if !available("a_python_closed_loop_through_pilot_race_laps_as_eval_flies", &needs) {
+        return;
+    }
+    let _serial = serial();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let (policy_path, track_path) = (root.join("policies/generalist.bin"), root.join("tracks/figure8.toml"));
+    let dir = tempfile::tempdir().unwrap();
+    let addr = format!("127.0.0.1:{}", free_port());
+    let server = Proc::start(dir.path(), "serve", &args(&["serve", "--policy", policy_path.to_str().unwrap(), "--listen", &addr]));
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let channel = tonic::transport::Endpoint::from_shared(format!("http://{addr}")).unwrap();
+    wait_until(Duration::from_secs(30), "the pilot server answers", &[&server], || rt.block_on(channel.connect()).is_ok());
+    let track = Arc::new(racetracks::read_track(&track_path).unwrap());
+    let policy = Arc::new(Policy::from_blob(&learner::checkpoint::read_policy(&policy_path).unwrap()).unwrap());
+    let config = sim::eval::EvalConfig::default();
+    let reference = sim::eval::deploy(track, &mut PolicyController::new(policy), &config, 0);
+    assert!(reference.success && reference.lap_times.len() >= 2, "{reference:?}");
+    let script = root.join("docs/python/race_closed_loop.py");
+    let out = std::process::Command::new("python3")
+        .arg(&script)
+        .args(["--addr", &addr, "--track", track_path.to_str().unwrap(), "--steps", &config.steps.to_string()])
+        .output()
+        .expect("python3 runs");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let flown: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let fastest = reference.lap_times.iter().copied().fold(f64::INFINITY, f64::min);
+    assert_eq!(flown["outcome"], "time_limit", "{flown}");
+    assert_eq!(flown["laps"].as_u64(), Some(reference.lap_times.len() as u64), "{flown}");
+    assert_eq!(flown["served_laps"], flown["laps"], "the server counted the laps the simulator did: {flown}");
+    assert_eq!(flown["fastest_lap"].as_f64(), Some(fastest), "{flown}");
+    assert_eq!(flown["steps"].as_u64(), Some(u64::from(reference.steps)), "{flown}");
+}

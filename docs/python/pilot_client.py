@@ -23,17 +23,24 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def stubs():
-    """The generated dronerace.v1 modules (protoc runs once per proto file version)."""
+    """The generated dronerace.v1 modules (protoc runs once per proto file version).
+
+    They are generated as the package `dronerace_grpc.v1`, not `dronerace.v1` as the proto
+    file's path would name them, so that they never shadow or hide the `dronerace` package
+    (python/) in one interpreter."""
+    import shutil
     from grpc_tools import protoc
-    proto = ROOT / "proto" / "proto"
-    out = Path(tempfile.gettempdir()) / f"dronerace-pilot-stubs-{int((proto / 'dronerace/v1/dronerace.proto').stat().st_mtime)}"
-    if not (out / "dronerace" / "v1" / "dronerace_pb2_grpc.py").exists():
-        out.mkdir(parents=True, exist_ok=True)
-        code = protoc.main(["protoc", f"-I{proto}", f"--python_out={out}", f"--grpc_python_out={out}", "dronerace/v1/dronerace.proto"])
+    source = ROOT / "proto" / "proto" / "dronerace" / "v1" / "dronerace.proto"
+    out = Path(tempfile.gettempdir()) / f"dronerace-pilot-stubs-{int(source.stat().st_mtime)}"
+    if not (out / "dronerace_grpc" / "v1" / "dronerace_pb2_grpc.py").exists():
+        (out / "proto" / "dronerace_grpc" / "v1").mkdir(parents=True, exist_ok=True)
+        shutil.copy(source, out / "proto" / "dronerace_grpc" / "v1" / "dronerace.proto")
+        code = protoc.main(["protoc", f"-I{out / 'proto'}", f"--python_out={out}", f"--grpc_python_out={out}",
+                            "dronerace_grpc/v1/dronerace.proto"])
         if code != 0:
             sys.exit(f"protoc failed ({code})")
     sys.path.insert(0, str(out))
-    from dronerace.v1 import dronerace_pb2, dronerace_pb2_grpc
+    from dronerace_grpc.v1 import dronerace_pb2, dronerace_pb2_grpc
     return dronerace_pb2, dronerace_pb2_grpc
 
 
