@@ -30,15 +30,20 @@ pub struct StepTiming {
     pub gflops: f64,
 }
 
+/// A backend this build does not have.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("backend {0:?} is not in this build (flex; ndarray with --features ndarray or openblas)")]
+pub struct UnknownBackend(pub String);
+
 /// The autodiff device of a backend this build has: `flex`, or `ndarray` with the `ndarray`
 /// (or `openblas`) feature.
-pub fn device(backend: &str) -> Result<Device, String> {
+pub fn device(backend: &str) -> Result<Device, UnknownBackend> {
     match backend {
         "flex" => Ok(Device::flex().autodiff()),
         #[cfg(feature = "ndarray")]
         #[allow(deprecated)] // measured for the record; flex is the backend we use
         "ndarray" => Ok(Device::ndarray().autodiff()),
-        other => Err(format!("backend {other:?} is not in this build (flex; ndarray with --features ndarray or openblas)")),
+        other => Err(UnknownBackend(other.to_owned())),
     }
 }
 

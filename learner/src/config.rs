@@ -109,11 +109,21 @@ impl Default for PpoConfig {
     }
 }
 
+/// A PPO setting outside its range, named as in a run config (`ppo.gamma`, …).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("ppo.{field}: {reason}")]
+pub struct InvalidPpoConfig {
+    /// The setting.
+    pub field: &'static str,
+    /// What is wrong with its value.
+    pub reason: String,
+}
+
 impl PpoConfig {
-    /// Every number in its range, or the first that is not, named as in a run config
-    /// (`ppo.gamma`, …): a value outside would panic or make every update non-finite.
-    pub fn check(&self) -> Result<(), String> {
-        let ranges: [(&str, f64, f64, f64); 11] = [
+    /// Every number in its range, or the first that is not: a value outside would panic or
+    /// make every update non-finite.
+    pub fn check(&self) -> Result<(), InvalidPpoConfig> {
+        let ranges: [(&'static str, f64, f64, f64); 11] = [
             ("gamma", self.gamma, 0.0, 1.0),
             ("gae_lambda", self.gae_lambda, 0.0, 1.0),
             ("clip_range", self.clip_range, 1e-6, 1.0),
@@ -128,12 +138,12 @@ impl PpoConfig {
         ];
         for (name, value, low, high) in ranges {
             if !(value.is_finite() && (low..=high).contains(&value)) {
-                return Err(format!("ppo.{name}: {value} is outside {low}..={high}"));
+                return Err(InvalidPpoConfig { field: name, reason: format!("{value} is outside {low}..={high}") });
             }
         }
         for (name, value) in [("n_steps", self.n_steps), ("batch_size", self.batch_size), ("n_epochs", self.n_epochs)] {
             if value == 0 {
-                return Err(format!("ppo.{name}: must be ≥ 1"));
+                return Err(InvalidPpoConfig { field: name, reason: "must be ≥ 1".into() });
             }
         }
         Ok(())

@@ -15,9 +15,10 @@ use crate::ppo::{GaeInput, TrainingBatch, UpdateStats, UpdateStep, gae, update};
 /// A batch of chunks the learner refuses.
 #[derive(Debug, thiserror::Error)]
 pub enum LearnerError {
-    /// A chunk's arrays do not have the lengths its header promises.
+    /// A chunk's arrays do not have the lengths its header promises, or hold numbers no
+    /// healthy run makes.
     #[error("malformed rollout chunk: {0}")]
-    Malformed(String),
+    Malformed(#[from] policy::RolloutCheckError),
     /// No chunks.
     #[error("no rollout chunks to learn from")]
     Empty,

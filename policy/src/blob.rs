@@ -64,6 +64,9 @@ pub enum BlobError {
         /// Architecture expected, as JSON.
         expected: String,
     },
+    /// Its parameters do not fit its own architecture.
+    #[error("weights blob is malformed: {0}")]
+    Shapes(#[from] crate::network::ShapeMismatch),
     /// Anything else malformed inside.
     #[error("weights blob is malformed: {0}")]
     Malformed(String),
@@ -107,13 +110,13 @@ impl WeightsBlob {
     /// The state-based network on `device`, with its original parameter ids.
     pub fn model(&self, device: &Device) -> Result<ActorCritic, BlobError> {
         self.check_agent(Agent::State)?;
-        ActorCritic::import(&self.architecture, &self.params, device).map_err(BlobError::Malformed)
+        Ok(ActorCritic::import(&self.architecture, &self.params, device)?)
     }
 
     /// The vision network on `device`, with its original parameter ids.
     pub fn vision_model(&self, device: &Device) -> Result<VisionActorCritic, BlobError> {
         self.check_agent(Agent::Vision)?;
-        VisionActorCritic::import(&self.architecture, &self.params, device).map_err(BlobError::Malformed)
+        Ok(VisionActorCritic::import(&self.architecture, &self.params, device)?)
     }
 
     /// Parameter shapes of `architecture`, in export order.

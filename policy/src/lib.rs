@@ -28,5 +28,5 @@ pub use inference::{
 };
 pub use network::ActorCritic;
 pub use normalizer::ObsNormalizer;
-pub use rollout::{ChunkLimits, EpisodeRecord, RolloutChunk, RolloutWireError};
+pub use rollout::{ChunkLimits, EpisodeRecord, RolloutCheckError, RolloutChunk, RolloutWireError};
 pub use vision::{VisionActorCritic, pixels_to_unit};

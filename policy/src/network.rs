@@ -195,7 +195,7 @@ impl ActorCritic {
     }
 
     /// Rebuilds a network of `arch` from [`ActorCritic::export`]'s output, keeping parameter ids.
-    pub fn import(arch: &Architecture, params: &[ExportedParam], device: &Device) -> Result<Self, String> {
+    pub fn import(arch: &Architecture, params: &[ExportedParam], device: &Device) -> Result<Self, ShapeMismatch> {
         check_shapes(&Self::shapes(arch), params)?;
         let (actor, rest) = params.split_at(2 * (arch.hidden.len() + 1));
         let (critic, log_std) = rest.split_at(actor.len());
@@ -207,10 +207,20 @@ impl ActorCritic {
     }
 }
 
+/// Exported parameters whose shapes do not fit the architecture they are imported into.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("parameter shapes {got:?} do not fit the architecture's {expected:?}")]
+pub struct ShapeMismatch {
+    /// The parameters' shapes, in export order.
+    pub got: Vec<Vec<usize>>,
+    /// The architecture's.
+    pub expected: Vec<Vec<usize>>,
+}
+
 /// Refuses exported parameters whose shapes are not `expected`.
-pub(crate) fn check_shapes(expected: &[Vec<usize>], params: &[ExportedParam]) -> Result<(), String> {
+pub(crate) fn check_shapes(expected: &[Vec<usize>], params: &[ExportedParam]) -> Result<(), ShapeMismatch> {
     let got: Vec<Vec<usize>> = params.iter().map(|p| p.shape.clone()).collect();
-    if expected == got { Ok(()) } else { Err(format!("parameter shapes {got:?} do not fit the architecture's {expected:?}")) }
+    if expected == got { Ok(()) } else { Err(ShapeMismatch { got, expected: expected.to_vec() }) }
 }
 
 #[cfg(test)]

@@ -167,9 +167,8 @@ impl RolloutChunk {
 
     /// Checks every array's length against `envs × steps` and the given dimensions, that the
     /// camera images are there exactly when the agent acts on them (`images`: a vision agent),
-    /// and that all numbers are finite and at most [`MAX_MAGNITUDE`] in size; the message names
-    /// the offending field.
-    pub fn check(&self, observation_dim: usize, action_dim: usize, images: bool) -> Result<(), String> {
+    /// and that all numbers are finite and at most [`MAX_MAGNITUDE`] in size.
+    pub fn check(&self, observation_dim: usize, action_dim: usize, images: bool) -> Result<(), RolloutCheckError> {
         let t = self.transitions();
         let expect = [
             ("observations", self.observations.len(), t * observation_dim),
@@ -181,17 +180,12 @@ impl RolloutChunk {
             ("truncated", self.truncated.len(), t),
             ("truncation_values", self.truncation_values.len(), t),
             ("last_values", self.last_values.len(), self.envs),
+            ("images", self.images.len(), if images { t * IMAGE_PIXELS } else { 0 }),
         ];
-        for (name, got, want) in expect {
-            if got != want {
-                return Err(format!("{name} has {got} values, expected {want}"));
+        for (field, got, expected) in expect {
+            if got != expected {
+                return Err(RolloutCheckError::Length { field, got, expected });
             }
-        }
-        match (images, self.images.len()) {
-            (true, 0) => return Err("images: a vision agent's rollout without its camera images".into()),
-            (false, n) if n > 0 => return Err("images: camera images in a state-based agent's rollout".into()),
-            (true, n) if n != t * IMAGE_PIXELS => return Err(format!("images has {n} bytes, expected {}", t * IMAGE_PIXELS)),
-            _ => {}
         }
         let arrays = [
             ("observations", &self.observations),
@@ -202,15 +196,47 @@ impl RolloutChunk {
             ("truncation_values", &self.truncation_values),
             ("last_values", &self.last_values),
         ];
-        for (name, values) in arrays {
-            if let Some(i) = values.iter().position(|x| !x.is_finite()) {
-                return Err(format!("{name}[{i}] is {}, not a finite number", values[i]));
-            }
-            if let Some(i) = values.iter().position(|x| x.abs() > MAX_MAGNITUDE) {
-                return Err(format!("{name}[{i}] is {}, beyond the ±{MAX_MAGNITUDE:e} any rollout number may have", values[i]));
+        for (field, values) in arrays {
+            if let Some(index) = values.iter().position(|x| !x.is_finite() || x.abs() > MAX_MAGNITUDE) {
+                return Err(RolloutCheckError::Value { field, index, value: values[index] });
             }
         }
         Ok(())
+    }
+}
+
+/// What [`RolloutChunk::check`] refuses, naming the field.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum RolloutCheckError {
+    /// An array of the wrong length; for `images`, camera images a state-based agent does not
+    /// act on (expected 0) or a vision agent's rollout without them (got 0).
+    #[error("{field} has {got} values, expected {expected}{}", images_note(field, *got, *expected))]
+    Length {
+        /// The array.
+        field: &'static str,
+        /// Its length.
+        got: usize,
+        /// The length the run's shapes give.
+        expected: usize,
+    },
+    /// A number that is not finite, or beyond the ±[`MAX_MAGNITUDE`] any rollout number may have.
+    #[error("{field}[{index}] is {value}, not a finite number within ±{MAX_MAGNITUDE:e}")]
+    Value {
+        /// The array.
+        field: &'static str,
+        /// Index within it.
+        index: usize,
+        /// The number.
+        value: f32,
+    },
+}
+
+/// What a wrong `images` length means, for the error message.
+fn images_note(field: &str, got: usize, expected: usize) -> &'static str {
+    match (field, got, expected) {
+        ("images", 0, _) => " (a vision agent's rollout without its camera images)",
+        ("images", _, 0) => " (camera images in a state-based agent's rollout)",
+        _ => "",
     }
 }
 
@@ -420,14 +446,16 @@ mod tests {
             image[100 + i..140 + i].fill(155);
         }
         v.check(5, 2, true).unwrap();
-        assert!(v.check(5, 2, false).unwrap_err().contains("state-based"));
-        assert!(c.check(5, 2, true).unwrap_err().contains("without its camera images"));
+        assert!(v.check(5, 2, false).unwrap_err().to_string().contains("state-based"));
+        let missing = c.check(5, 2, true).unwrap_err();
+        assert!(matches!(missing, RolloutCheckError::Length { field: "images", got: 0, .. }), "{missing}");
+        assert!(missing.to_string().contains("without its camera images"));
         let bytes = v.to_bytes();
         assert!(bytes.len() < c.to_bytes().len() + v.transitions() * 20, "images are run-length coded");
         assert_eq!(RolloutChunk::from_bytes(&bytes, &VISION).unwrap(), v);
         assert!(matches!(RolloutChunk::from_bytes(&bytes, &LIMITS), Err(RolloutWireError::Malformed(m)) if m.contains("state-based")));
         v.images.pop();
-        assert!(v.check(5, 2, true).unwrap_err().contains("images"));
+        assert!(v.check(5, 2, true).unwrap_err().to_string().starts_with("images has"));
     }
 
     #[test]
@@ -495,9 +523,9 @@ mod tests {
     fn numbers_beyond_any_healthy_run_are_refused_by_field() {
         let mut c = chunk();
         c.rewards[3] = 2.0e9;
-        assert!(c.check(5, 2, false).unwrap_err().contains("rewards[3]"));
+        assert_eq!(c.check(5, 2, false), Err(RolloutCheckError::Value { field: "rewards", index: 3, value: 2.0e9 }));
         let mut c = chunk();
         c.last_values[1] = -1.0e10;
-        assert!(c.check(5, 2, false).unwrap_err().contains("last_values[1]"));
+        assert!(c.check(5, 2, false).unwrap_err().to_string().starts_with("last_values[1] is -10000000000"));
     }
 }

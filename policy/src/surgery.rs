@@ -33,7 +33,7 @@ impl WeightsBlob {
         };
         weight.values.resize((inputs + sim::ACTION_DIM) * outputs, 0.0);
         weight.shape = vec![inputs + sim::ACTION_DIM, outputs];
-        crate::network::check_shapes(&Self::shapes(&widened.architecture), &widened.params).map_err(BlobError::Malformed)?;
+        crate::network::check_shapes(&Self::shapes(&widened.architecture), &widened.params)?;
         Ok(widened)
     }
 
@@ -93,7 +93,7 @@ impl WeightsBlob {
                 widened.params[bias].values.resize(new_out, 0.0);
             }
         }
-        crate::network::check_shapes(&Self::shapes(&widened.architecture), &widened.params).map_err(BlobError::Malformed)?;
+        crate::network::check_shapes(&Self::shapes(&widened.architecture), &widened.params)?;
         Ok(widened)
     }
 }

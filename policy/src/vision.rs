@@ -14,7 +14,7 @@ use sim::camera::IMAGE_PIXELS;
 
 use crate::architecture::Architecture;
 use crate::dense::{dense, leaky_relu};
-use crate::network::{ExportedParam, Mlp, check_shapes, exported, loaded, orthogonal, parameter};
+use crate::network::{ExportedParam, Mlp, ShapeMismatch, check_shapes, exported, loaded, orthogonal, parameter};
 
 /// Side of the camera image (pixels).
 pub const IMAGE_SIDE: usize = 84;
@@ -203,7 +203,7 @@ impl VisionActorCritic {
     }
 
     /// Rebuilds a network of `arch` from [`VisionActorCritic::export`]'s output, keeping ids.
-    pub fn import(arch: &Architecture, params: &[ExportedParam], device: &Device) -> Result<Self, String> {
+    pub fn import(arch: &Architecture, params: &[ExportedParam], device: &Device) -> Result<Self, ShapeMismatch> {
         check_shapes(&Self::shapes(arch), params)?;
         let (convs, rest) = params.split_at(2 * CONVOLUTIONS.len());
         let convolutions = convs

@@ -66,7 +66,7 @@ impl TaskService for TaskClient {
         let mut c = self.client.clone();
         let r = self.call(Duration::from_secs(30), c.register(v1::RegisterRequest { actor: actor.into(), envs: envs as u32 }))?;
         let tracks = r.tracks.iter().map(|t| track_from_proto(t).map(Arc::new)).collect::<Result<Vec<_>, _>>();
-        let tracks = tracks.map_err(TaskServiceError::BadAnswer)?;
+        let tracks = tracks.map_err(|e| TaskServiceError::BadAnswer(e.to_string()))?;
         if tracks.len() != envs {
             return Err(TaskServiceError::BadAnswer(format!("{} tracks for {envs} environments", tracks.len())));
         }
@@ -80,8 +80,9 @@ impl TaskService for TaskClient {
         r.switches
             .iter()
             .map(|a| {
-                let track = a.track.as_ref().ok_or_else(|| "switch without a track".to_string()).and_then(track_from_proto);
-                track.map(|t| (a.env as usize, Arc::new(t))).map_err(TaskServiceError::BadAnswer)
+                let track = a.track.as_ref().ok_or_else(|| TaskServiceError::BadAnswer("switch without a track".into()))?;
+                let track = track_from_proto(track).map_err(|e| TaskServiceError::BadAnswer(e.to_string()))?;
+                Ok((a.env as usize, Arc::new(track)))
             })
             .collect()
     }

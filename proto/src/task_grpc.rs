@@ -80,7 +80,8 @@ fn task_to_proto(t: &TaskInfo) -> v1::Task {
 }
 
 pub(crate) fn task_from_proto(t: &v1::Task) -> Result<TaskInfo, String> {
-    let track = t.track.as_ref().ok_or_else(|| format!("task {}: no track", t.env)).and_then(track_from_proto)?;
+    let track = t.track.as_ref().ok_or_else(|| format!("task {}: no track", t.env))?;
+    let track = track_from_proto(track).map_err(|e| format!("task {}: {e}", t.env))?;
     Ok(TaskInfo {
         env: t.env as usize,
         actor: (!t.actor.is_empty()).then(|| t.actor.clone()),
@@ -140,7 +141,7 @@ type EventStream = Pin<Box<dyn Stream<Item = Result<v1::TaskEvent, Status>> + Se
 impl TaskControllerRpc for TaskControllerService {
     async fn register(&self, request: Request<v1::RegisterRequest>) -> Result<Response<v1::RegisterResponse>, Status> {
         let r = request.into_inner();
-        check_actor_name(&r.actor).map_err(Status::invalid_argument)?;
+        check_actor_name(&r.actor).map_err(|e| Status::invalid_argument(e.to_string()))?;
         self.blocking(move |t| {
             let registration = t.register(&r.actor, r.envs as usize)?;
             Ok(v1::RegisterResponse {

@@ -187,8 +187,8 @@ impl Admission {
 
     /// Accepts a rollout the learner can train on now, or says why not.
     pub fn check(&self, actor: &str, learner_epoch: u64, chunk: &RolloutChunk) -> Result<(), Refusal> {
-        check_actor_name(actor).map_err(Refusal::Malformed)?;
-        chunk.check(self.observation_dim, self.action_dim, self.images).map_err(Refusal::Malformed)?;
+        check_actor_name(actor).map_err(|e| Refusal::Malformed(e.to_string()))?;
+        chunk.check(self.observation_dim, self.action_dim, self.images).map_err(|e| Refusal::Malformed(e.to_string()))?;
         if chunk.steps > self.rollout_steps {
             return Err(Refusal::Malformed(format!("{} steps per environment, more than the run's {}", chunk.steps, self.rollout_steps)));
         }
@@ -214,10 +214,15 @@ impl Admission {
     }
 }
 
+/// An actor name that is not 1–64 characters of `[A-Za-z0-9_.-]`.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("actor name {0:?} must be 1-64 characters of A-Z a-z 0-9 _ . -")]
+pub struct BadActorName(pub String);
+
 /// Actor names: 1–64 characters of `[A-Za-z0-9_.-]` (they become log keys and shm headers).
-pub fn check_actor_name(actor: &str) -> Result<(), String> {
+pub fn check_actor_name(actor: &str) -> Result<(), BadActorName> {
     let ok = !actor.is_empty() && actor.len() <= 64 && actor.bytes().all(|b| b.is_ascii_alphanumeric() || b"_.-".contains(&b));
-    if ok { Ok(()) } else { Err(format!("actor name {actor:?} must be 1-64 characters of A-Z a-z 0-9 _ . -")) }
+    if ok { Ok(()) } else { Err(BadActorName(actor.to_owned())) }
 }
 
 #[cfg(test)]

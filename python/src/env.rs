@@ -170,7 +170,11 @@ impl VecEnv {
             }
         };
         let switching = SwitchParams { policy, window: switch_window, alpha: switch_alpha, random_probability: switch_probability };
-        switching.check().map_err(|e| PyValueError::new_err(e.replace("switching.", "switch_")))?;
+        switching.check().map_err(|e| {
+            // Named as the constructor's keyword arguments are.
+            let argument = if e.field == "random_probability" { "switch_probability".into() } else { format!("switch_{}", e.field) };
+            PyValueError::new_err(format!("{argument}: {}", e.reason))
+        })?;
         let images_on = observation == Observation::Vision;
         let dim = config.observation.dim();
         Ok(Self {

@@ -260,8 +260,8 @@ impl TrainConfig {
         if profile.envs == 0 {
             return Err(TrainError::Config("envs must be ≥ 1".into()));
         }
-        profile.ppo.check().map_err(TrainError::Config)?;
-        self.switching.check().map_err(TrainError::Config)?;
+        profile.ppo.check().map_err(|e| TrainError::Config(e.to_string()))?;
+        self.switching.check().map_err(|e| TrainError::Config(e.to_string()))?;
         // A gRPC learner must be able to hold at least one rollout of every environment, as
         // sent and as decoded.
         let arch = &profile.architecture;

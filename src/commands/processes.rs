@@ -309,7 +309,7 @@ pub struct ActorArgs {
 pub fn actor(args: ActorArgs) -> anyhow::Result<()> {
     let config = read_config(&args.config)?;
     anyhow::ensure!(args.envs > 0, "--envs must be at least 1");
-    proto::transport::check_actor_name(&args.name).map_err(|e| anyhow::anyhow!("--name: {e}"))?;
+    proto::transport::check_actor_name(&args.name).context("--name")?;
     let profile = config.resolved_profile()?;
     let security = Security::load(&config.network)?;
     let rt = async_runtime(1)?;

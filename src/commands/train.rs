@@ -156,7 +156,7 @@ pub fn bench(args: LearnerBenchArgs) -> anyhow::Result<()> {
         anyhow::ensure!(!hidden.is_empty() && !hidden.contains(&0), "--hidden: widths must be at least 1, e.g. 128,128");
         profile.architecture.hidden = hidden;
     }
-    let device = learner::bench::device(&args.backend).map_err(|e| anyhow::anyhow!("--backend: {e}"))?;
+    let device = learner::bench::device(&args.backend).context("--backend")?;
     let t = match parse_agent(&args.agent)? {
         policy::Agent::State => learner::bench::time_gradient_step(&profile, args.samples, args.repeats, &device),
         policy::Agent::Vision => learner::bench::time_vision_gradient_step(&profile, args.samples, args.repeats, &device),

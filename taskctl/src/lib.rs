@@ -9,4 +9,4 @@ pub mod switching;
 
 pub use controller::{ActorRange, EnvSlot, SnapshotError, SwitchEvent, TaskController, TaskError};
 pub use service::{LocalTasks, Registration, Summary, TaskEvent, TaskInfo, TaskService, TaskServiceError};
-pub use switching::{SwitchParams, SwitchPolicy};
+pub use switching::{InvalidSwitchParams, SwitchParams, SwitchPolicy};

@@ -37,17 +37,28 @@ impl Default for SwitchParams {
     }
 }
 
+/// A switching parameter outside its range, named as in a run config (`switching.window`, …).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("switching.{field}: {reason}")]
+pub struct InvalidSwitchParams {
+    /// The parameter.
+    pub field: &'static str,
+    /// What is wrong with its value.
+    pub reason: String,
+}
+
 impl SwitchParams {
-    /// Every value in its range, or the first that is not, named as in a run config.
-    pub fn check(&self) -> Result<(), String> {
+    /// Every value in its range, or the first that is not.
+    pub fn check(&self) -> Result<(), InvalidSwitchParams> {
+        let invalid = |field, reason| Err(InvalidSwitchParams { field, reason });
         if self.window < 2 {
-            return Err(format!("switching.window: {} rollouts; ρ needs at least 2", self.window));
+            return invalid("window", format!("{} rollouts; ρ needs at least 2", self.window));
         }
         if !(self.alpha.is_finite() && self.alpha >= 0.0) {
-            return Err(format!("switching.alpha: {} must be a finite sensitivity ≥ 0", self.alpha));
+            return invalid("alpha", format!("{} must be a finite sensitivity ≥ 0", self.alpha));
         }
         if !(0.0..=1.0).contains(&self.random_probability) {
-            return Err(format!("switching.random_probability: {} is not a probability", self.random_probability));
+            return invalid("random_probability", format!("{} is not a probability", self.random_probability));
         }
         Ok(())
     }
