@@ -93,9 +93,12 @@ fn an_interrupted_experiment_resumes_without_redoing_finished_runs_and_reports()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
-    for needle in ["| world | 2 of 2 |", "| heading | 2 of 2 |", "ground", "gate frame"] {
+    for needle in ["| world | 2 of 2 |", "| heading | 2 of 2 |", "ground", "gate frame", "## The thesis' columns"] {
         assert!(report.contains(needle), "report lacks {needle:?}:\n{report}");
     }
+    // The thesis' columns: both runs of each variant have a validation curve and a switch count.
+    let columns = report.split("## The thesis' columns").nth(1).unwrap();
+    assert!(columns.lines().any(|l| l.starts_with("| world | 2 | ")), "{columns}");
     let png = std::fs::read(out.join("curves.png")).unwrap();
     assert_eq!(&png[1..4], b"PNG");
 }

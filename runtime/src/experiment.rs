@@ -421,6 +421,8 @@ pub struct VariantSummary {
     pub results: Vec<RunResult>,
     /// Validation curve of every run that has one (finished or not), by seed.
     pub curves: Vec<(u64, Vec<CurvePoint>)>,
+    /// Task switches each run with a metrics file made so far, by seed.
+    pub switches: Vec<(u64, u64)>,
     /// Runs not finished yet.
     pub unfinished: Vec<u64>,
 }
@@ -429,12 +431,21 @@ pub struct VariantSummary {
 pub fn summarise(experiment: &Experiment, out: &Path) -> Result<Vec<VariantSummary>, ExperimentError> {
     let mut summaries = Vec::new();
     for variant in &experiment.variants {
-        let mut summary = VariantSummary { name: variant.name.clone(), results: Vec::new(), curves: Vec::new(), unfinished: Vec::new() };
+        let mut summary = VariantSummary {
+            name: variant.name.clone(),
+            results: Vec::new(),
+            curves: Vec::new(),
+            switches: Vec::new(),
+            unfinished: Vec::new(),
+        };
         for &seed in &experiment.seeds {
             let dir = Experiment::run_dir(out, &variant.name, seed);
             let curve = validation_curve(&dir.join("metrics.csv"))?;
             if !curve.is_empty() {
                 summary.curves.push((seed, curve));
+            }
+            if let Some(switches) = column_max(&dir.join("metrics.csv"), "tasks/switches") {
+                summary.switches.push((seed, switches));
             }
             let path = dir.join("test.json");
             match std::fs::read(&path) {
@@ -463,8 +474,22 @@ fn metrics_columns<const N: usize>(metrics: &Path, names: [&str; N]) -> Option<(
 
 /// The most env steps any row of a metrics file records (0 without the file or the column).
 fn trained_env_steps(metrics: &Path) -> u64 {
-    let Some((text, [steps])) = metrics_columns(metrics, ["env_steps"]) else { return 0 };
-    text.lines().skip(1).filter_map(|line| line.split(',').nth(steps)?.parse::<u64>().ok()).max().unwrap_or(0)
+    column_max(metrics, "env_steps").unwrap_or(0)
+}
+
+/// The largest whole number in a metrics file's column; `None` without the file, the column or
+/// a row.
+fn column_max(metrics: &Path, name: &str) -> Option<u64> {
+    let (text, [column]) = metrics_columns(metrics, [name])?;
+    text.lines().skip(1).filter_map(|line| line.split(',').nth(column)?.parse::<u64>().ok()).max()
+}
+
+/// Env steps at which a validation curve first reaches half its maximum: the thesis' "time to
+/// 50 % of max" (Table 3.2), in samples rather than hours so machines compare; `None` for an
+/// empty curve or one that never rises above 0.
+pub fn steps_to_half_max(curve: &[CurvePoint]) -> Option<u64> {
+    let max = curve.iter().map(|p| p.s_pw).fold(f64::NEG_INFINITY, f64::max);
+    (max > 0.0).then(|| curve.iter().find(|p| p.s_pw >= 0.5 * max).map(|p| p.env_steps)).flatten()
 }
 
 /// `(env_steps, eval/S_pw)` of every evaluated iteration in a metrics file (empty if none).
@@ -544,6 +569,26 @@ pub fn markdown_report(experiment: &Experiment, summaries: &[VariantSummary]) ->
             spread(validation.iter().map(|x| x.success_rate).collect(), true),
             spread(validation.iter().map(|x| x.s_pw).collect(), false),
         ));
+    }
+    out.push_str(
+        "\n## The thesis' columns (Table 3.2)\n\nPer run: the maximum validation S_pw, the env steps at which validation first \
+         reached half of it, and the task switches made; mean ± sample standard deviation over the runs with a curve, then each \
+         run's.\n\n| variant | runs | max validation S_pw | env steps to 50 % of max (M) | switches |\n|---|---:|---:|---:|---:|\n",
+    );
+    for v in summaries {
+        let max: Vec<f64> = v.curves.iter().map(|(_, c)| c.iter().map(|p| p.s_pw).fold(f64::NEG_INFINITY, f64::max)).collect();
+        let half: Vec<f64> = v.curves.iter().filter_map(|(_, c)| steps_to_half_max(c)).map(|s| s as f64 / 1e6).collect();
+        let switches: Vec<f64> = v.switches.iter().map(|&(_, s)| s as f64).collect();
+        let whole = |values: Vec<f64>| {
+            if values.len() > 1 {
+                let (m, s) = mean_std(&values);
+                let each: Vec<String> = values.iter().map(|v| format!("{v:.1}")).collect();
+                format!("{m:.1} ± {s:.1} ({})", each.join(", "))
+            } else {
+                values.first().map_or_else(|| "–".into(), |v| format!("{v:.1}"))
+            }
+        };
+        out.push_str(&format!("| {} | {} | {} | {} | {} |\n", v.name, v.curves.len(), spread(max, false), whole(half), whole(switches)));
     }
     out.push_str("\n## How the test deployments of `best` ended (all seeds together)\n\n");
     out.push_str("| variant | deployments | success | ground | ceiling | wall | gate frame | of it not the target | no lap | mean lap (s) |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
@@ -656,6 +701,16 @@ mod tests {
         let (curves, boundaries) = sequential_track_curves(&e, out.path(), 0).unwrap();
         assert_eq!(boundaries, vec![300]);
         assert_eq!(curves[0].points, vec![(200, 1.0), (500, 1.0)]);
+    }
+
+    #[test]
+    fn time_to_half_max_is_the_first_validation_at_half_the_runs_best() {
+        let curve =
+            |s: &[f64]| s.iter().enumerate().map(|(i, &s_pw)| CurvePoint { env_steps: (i as u64 + 1) * 100, s_pw }).collect::<Vec<_>>();
+        assert_eq!(steps_to_half_max(&curve(&[0.0, 0.02, 0.06, 0.04, 0.1])), Some(300));
+        assert_eq!(steps_to_half_max(&curve(&[0.08, 0.1])), Some(100));
+        assert_eq!(steps_to_half_max(&curve(&[0.0, 0.0])), None);
+        assert_eq!(steps_to_half_max(&[]), None);
     }
 
     #[test]
