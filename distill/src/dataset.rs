@@ -202,6 +202,11 @@ impl DistillDataset {
         if r.remaining() != 0 || samples.len() > capacity.max(1) {
             return Err(bad(format!("{} bytes after {count} samples, capacity {capacity}", r.remaining())));
         }
+        // Reservoir sampling keeps at most what it was offered: fewer offers than samples would
+        // skew every later replacement's odds.
+        if seen < count as u64 {
+            return Err(bad(format!("{count} samples kept of {seen} offered")));
+        }
         let track_index = tracks.iter().enumerate().map(|(i, t)| (Arc::as_ptr(t) as usize, i as u32)).collect();
         Ok(Self { tracks, track_index, samples, states, state_dim, capacity: capacity.max(1), seen })
     }
@@ -258,6 +263,9 @@ mod tests {
         let mut bytes = data.to_bytes();
         bytes.truncate(bytes.len() - 9);
         assert!(DistillDataset::from_bytes(&bytes).is_err());
+        data.seen = 99;
+        let e = DistillDataset::from_bytes(&data.to_bytes()).unwrap_err().to_string();
+        assert!(e.contains("100 samples kept of 99 offered"), "{e}");
     }
 
     #[test]

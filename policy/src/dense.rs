@@ -181,6 +181,8 @@ fn backward(saved: &Saved, dy: &FlexTensor, input_gradient: bool) -> (Option<Fle
     if input_gradient && inputs > 0 {
         dx_parts.extend(dx.spare_capacity_mut()[..rows * inputs].chunks_mut(PART_ROWS * inputs).map(Some));
     }
+    // One input-gradient part per part of dz (the zip below would silently drop a mismatch).
+    debug_assert!(dx_parts.is_empty() || dx_parts.len() == rows.div_ceil(PART_ROWS));
     dx_parts.resize_with(rows.div_ceil(PART_ROWS), || None);
     // Per part of the rows, on one thread: dz = dy ⊙ activation'(z), the part's bias and weight
     // gradients (Σ_rows dz, xᵀ·dz) and its rows of the input gradient (dz · wᵀ).
