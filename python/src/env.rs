@@ -344,21 +344,17 @@ impl VecEnv {
     fn rebuild(&mut self) -> PyResult<()> {
         let n = self.num_envs;
         let generator = racetracks::TrackGenerator::default();
-        let controller = if self.given.is_empty() {
-            Some(TaskController::new(n, generator, self.switching, self.seed).map_err(|e| PyRuntimeError::new_err(e.to_string()))?)
+        let task_error = |e: taskctl::TaskError| PyRuntimeError::new_err(e.to_string());
+        // The given tracks cycled over the environments; none given: the controller draws them.
+        let given: Vec<Arc<Track>> = (0..n).filter_map(|i| self.given.get(i % self.given.len().max(1)).cloned()).collect();
+        let controller = if given.is_empty() {
+            Some(TaskController::new(n, generator, self.switching, self.seed).map_err(task_error)?)
         } else if self.switching.policy != SwitchPolicy::None {
-            let tracks = (0..n).map(|i| self.given[i % self.given.len()].clone()).collect();
-            Some(
-                TaskController::with_tracks(tracks, generator, self.switching, self.seed)
-                    .map_err(|e| PyRuntimeError::new_err(e.to_string()))?,
-            )
+            Some(TaskController::with_tracks(given.clone(), generator, self.switching, self.seed).map_err(task_error)?)
         } else {
             None
         };
-        let tracks: Vec<Arc<Track>> = match &controller {
-            Some(c) => c.tracks(),
-            None => (0..n).map(|i| self.given[i % self.given.len()].clone()).collect(),
-        };
+        let tracks = controller.as_ref().map_or(given, TaskController::tracks);
         self.slots = tracks
             .into_iter()
             .enumerate()
