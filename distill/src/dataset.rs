@@ -168,7 +168,12 @@ impl DistillDataset {
 
     /// Reads [`DistillDataset::to_bytes`]' output; errors say what is wrong.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, LearnerError> {
-        let body = DATASET_FRAME.decode(bytes).map_err(|e| LearnerError::State(e.to_string()))?;
+        let body = DATASET_FRAME.decode(bytes).map_err(|e| match e {
+            frames::FrameError::UnsupportedFormat { found: 1..4, .. } => LearnerError::State(format!(
+                "{e}: this data set holds frame stacks (written before 71a070b); resume the distillation at 2482eeb or start it again"
+            )),
+            e => LearnerError::State(e.to_string()),
+        })?;
         let bad = |what: String| LearnerError::State(format!("distillation data set: {what}"));
         let short = |t: frames::Truncated| bad(format!("ends {} bytes short at byte {}", t.needed, t.at));
         let mut r = frames::Reader::new(body, 0);
@@ -266,6 +271,10 @@ mod tests {
         data.seen = 99;
         let e = DistillDataset::from_bytes(&data.to_bytes()).unwrap_err().to_string();
         assert!(e.contains("100 samples kept of 99 offered"), "{e}");
+        // A data set of the frame-stack layout is refused with the commit that still reads it.
+        let old = frames::FrameKind { format: 3, ..DATASET_FRAME }.encode(b"");
+        let e = DistillDataset::from_bytes(&old).unwrap_err().to_string();
+        assert!(e.contains("format 3") && e.contains("2482eeb"), "{e}");
     }
 
     #[test]

@@ -64,8 +64,12 @@ impl TensorData {
         }
     }
 
-    fn read(dtype: &str, bytes: &[u8]) -> Result<Self, String> {
-        let exact = |size: usize| if bytes.len().is_multiple_of(size) { Ok(()) } else { Err(format!("{} bytes of {dtype}", bytes.len())) };
+    /// Tensor `name`'s elements from its byte range.
+    fn read(name: &str, dtype: &str, bytes: &[u8]) -> Result<Self, TensorFileError> {
+        let malformed = |what: String| TensorFileError::Malformed(format!("tensor {name}: {what}"));
+        let exact = |size: usize| {
+            if bytes.len().is_multiple_of(size) { Ok(()) } else { Err(malformed(format!("{} bytes of {dtype}", bytes.len()))) }
+        };
         Ok(match dtype {
             "F32" => {
                 exact(4)?;
@@ -76,7 +80,7 @@ impl TensorData {
                 Self::F64(bytes.chunks_exact(8).map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]])).collect())
             }
             "U8" => Self::U8(bytes.to_vec()),
-            other => return Err(format!("dtype {other} is not one we write")),
+            other => return Err(malformed(format!("dtype {other} is not one we write"))),
         })
     }
 }
@@ -223,7 +227,7 @@ impl TensorFile {
             let shape = numbers("shape")?;
             let [start, end] = numbers("data_offsets")?[..] else { return Err(malformed(format!("tensor {name}: data_offsets"))) };
             let span = data.get(start..end).ok_or_else(|| malformed(format!("tensor {name}: bytes {start}..{end} outside the data")))?;
-            let tensor = TensorData::read(dtype, span).map_err(|e| malformed(format!("tensor {name}: {e}")))?;
+            let tensor = TensorData::read(&name, dtype, span)?;
             let numel = shape.iter().try_fold(1usize, |n, &d| n.checked_mul(d));
             if numel != Some(tensor.len()) {
                 return Err(malformed(format!("tensor {name}: shape {shape:?} holds {numel:?} elements, the data {}", tensor.len())));

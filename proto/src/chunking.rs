@@ -17,6 +17,32 @@ pub fn split(payload: Bytes) -> Vec<(u32, u32, Bytes)> {
         .collect()
 }
 
+/// Why a part was refused; the payload it belonged to is dropped.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum PartError {
+    /// A part announced a different part count than the payload's first part.
+    #[error("part count changed from {was} to {now} within one payload")]
+    CountChanged {
+        /// Count announced by the first part.
+        was: u32,
+        /// Count announced now.
+        now: u32,
+    },
+    /// A part arrived out of order (or a payload of zero parts).
+    #[error("part {part} of {parts} where part {expected} was expected")]
+    OutOfOrder {
+        /// Part received.
+        part: u32,
+        /// Its part count.
+        parts: u32,
+        /// Part expected.
+        expected: u32,
+    },
+    /// The parts add up to more than [`MAX_PAYLOAD_BYTES`].
+    #[error("payload exceeds {MAX_PAYLOAD_BYTES} bytes")]
+    TooLarge,
+}
+
 /// Collects the parts of one payload after another, in order.
 #[derive(Default)]
 pub struct Reassembler {
@@ -27,19 +53,17 @@ pub struct Reassembler {
 impl Reassembler {
     /// Adds part `part` of `parts`; returns the whole payload with its last part. Parts out of
     /// order, a changing part count or more than [`MAX_PAYLOAD_BYTES`] are refused.
-    pub fn push(&mut self, part: u32, parts: u32, data: &[u8]) -> Result<Option<Vec<u8>>, String> {
+    pub fn push(&mut self, part: u32, parts: u32, data: &[u8]) -> Result<Option<Vec<u8>>, PartError> {
         let next = match self.expected {
-            Some((_, total)) if total != parts => {
-                return Err(format!("part count changed from {total} to {parts} within one payload"));
-            }
+            Some((_, total)) if total != parts => return Err(PartError::CountChanged { was: total, now: parts }),
             Some((next, _)) => next,
             None => 0,
         };
         if parts == 0 || part != next {
-            return Err(format!("part {part} of {parts} where part {next} was expected"));
+            return Err(PartError::OutOfOrder { part, parts, expected: next });
         }
         if self.buffer.len() + data.len() > MAX_PAYLOAD_BYTES {
-            return Err(format!("payload exceeds {MAX_PAYLOAD_BYTES} bytes"));
+            return Err(PartError::TooLarge);
         }
         self.buffer.extend_from_slice(data);
         if part + 1 == parts {
@@ -73,7 +97,7 @@ mod tests {
         let mut r = Reassembler::default();
         assert_eq!(r.push(0, 3, &pieces[0].2).unwrap(), None);
         assert!(r.is_partial());
-        assert!(r.push(2, 3, &pieces[2].2).unwrap_err().contains("part 1 was expected"));
+        assert_eq!(r.push(2, 3, &pieces[2].2).unwrap_err(), PartError::OutOfOrder { part: 2, parts: 3, expected: 1 });
         let mut r = Reassembler::default();
         let mut out = None;
         for (i, n, d) in &pieces {

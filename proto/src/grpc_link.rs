@@ -250,7 +250,7 @@ impl Learner for LearnerService {
         while let Some(part) = stream.message().await? {
             // Reserved before the reassembler copies the part in.
             held.resize(parts.buffered() + part.data.len()).map_err(over_budget)?;
-            let Some(bytes) = parts.push(part.part, part.parts, &part.data).map_err(Status::invalid_argument)? else {
+            let Some(bytes) = parts.push(part.part, part.parts, &part.data).map_err(|e| Status::invalid_argument(e.to_string()))? else {
                 continue;
             };
             // Nothing is decoded without an admission: its limits bound the header, and what the

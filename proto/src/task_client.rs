@@ -90,13 +90,13 @@ impl TaskService for TaskClient {
     fn task(&self, env: usize) -> Result<TaskInfo, TaskServiceError> {
         let mut c = self.client.clone();
         let task = self.call(Duration::from_secs(5), c.get_task(v1::GetTaskRequest { env: env as u32 }))?;
-        task_from_proto(&task).map_err(TaskServiceError::BadAnswer)
+        task_from_proto(&task)
     }
 
     fn tasks(&self) -> Result<Vec<TaskInfo>, TaskServiceError> {
         let mut c = self.client.clone();
         let tasks = self.call(Duration::from_secs(5), c.list_tasks(v1::ListTasksRequest {}))?.tasks;
-        tasks.iter().map(|t| task_from_proto(t).map_err(TaskServiceError::BadAnswer)).collect()
+        tasks.iter().map(task_from_proto).collect()
     }
 
     fn summary(&self) -> Result<Summary, TaskServiceError> {

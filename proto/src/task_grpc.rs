@@ -79,9 +79,10 @@ fn task_to_proto(t: &TaskInfo) -> v1::Task {
     }
 }
 
-pub(crate) fn task_from_proto(t: &v1::Task) -> Result<TaskInfo, String> {
-    let track = t.track.as_ref().ok_or_else(|| format!("task {}: no track", t.env))?;
-    let track = track_from_proto(track).map_err(|e| format!("task {}: {e}", t.env))?;
+/// A task as the client reads it; an answer without a valid track is a bad answer.
+pub(crate) fn task_from_proto(t: &v1::Task) -> Result<TaskInfo, TaskServiceError> {
+    let track = t.track.as_ref().ok_or_else(|| TaskServiceError::BadAnswer(format!("task {}: no track", t.env)))?;
+    let track = track_from_proto(track).map_err(|e| TaskServiceError::BadAnswer(format!("task {}: {e}", t.env)))?;
     Ok(TaskInfo {
         env: t.env as usize,
         actor: (!t.actor.is_empty()).then(|| t.actor.clone()),

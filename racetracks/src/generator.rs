@@ -5,10 +5,11 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use sim::nalgebra::Vector3;
+use sim::track::TrackGeometryError;
 use sim::track::{GATE_HALF_OUTER, START_BEHIND_FIRST_GATE};
 use sim::{Arena, Gate, Pose, Track};
 
-use crate::spline::{BSplineCurve, fit_closed_curve};
+use crate::spline::{BSplineCurve, SplineError, fit_closed_curve};
 
 /// Parameters of both generators; `Default` is SPEC §7 (thesis Table A.3).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -74,7 +75,53 @@ pub struct GenerateError {
     /// Attempts made.
     pub attempts: usize,
     /// Why the last candidate was rejected.
-    pub last_reason: String,
+    pub last_reason: Rejection,
+}
+
+/// Why a candidate track (or the parameters themselves) was rejected.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum Rejection {
+    /// `gates_max` is set below `gates`, so no gate count can be drawn.
+    #[error("gates_max ({max}) is below gates ({gates})")]
+    GatesMaxBelowGates {
+        /// `gates_max` given.
+        max: usize,
+        /// `gates` given.
+        gates: usize,
+    },
+    /// `max_attempts` is 0.
+    #[error("no attempt made (max_attempts is 0)")]
+    NoAttempt,
+    /// Rejection sampling could not fit the control points into the padded box.
+    #[error("could not place {count} control points {spacing} m apart")]
+    CrowdedControlPoints {
+        /// Control points wanted.
+        count: usize,
+        /// Their smallest horizontal spacing (m).
+        spacing: f64,
+    },
+    /// The smoothing spline could not be fitted through the control points.
+    #[error("spline: {0}")]
+    Spline(#[from] SplineError),
+    /// Two gate centres are closer than `min_gate_spacing`.
+    #[error("gates {first} and {second} are {distance:.2} m apart")]
+    GatesTooClose {
+        /// Index of the first gate.
+        first: usize,
+        /// Index of the second gate.
+        second: usize,
+        /// Their distance (m).
+        distance: f64,
+    },
+    /// A gate centre lies outside the padded x–y box.
+    #[error("gate {0} is outside the padded box")]
+    GateOutsideBox(usize),
+    /// The start pose behind gate 0 lies outside the bounds.
+    #[error("the start is outside the bounds")]
+    StartOutsideBounds,
+    /// The track breaks a track-file rule (e.g. overlapping frames).
+    #[error(transparent)]
+    Geometry(#[from] TrackGeometryError),
 }
 
 /// A generated track and how it came about.
@@ -106,11 +153,11 @@ impl TrackGenerator {
             None => self.params.gates,
             Some(max) if max >= self.params.gates => rng.random_range(self.params.gates..=max),
             Some(max) => {
-                let last_reason = format!("gates_max ({max}) is below gates ({})", self.params.gates);
+                let last_reason = Rejection::GatesMaxBelowGates { max, gates: self.params.gates };
                 return Err(GenerateError { kind: self.kind, seed, attempts: 0, last_reason });
             }
         };
-        let mut last_reason = String::from("no attempt made");
+        let mut last_reason = Rejection::NoAttempt;
         for attempt in 1..=self.params.max_attempts {
             let candidate = match self.kind {
                 GeneratorKind::Informed => self.informed_candidate(&mut rng, gates),
@@ -138,7 +185,7 @@ impl TrackGenerator {
     }
 
     /// Steps 1–3 of SPEC §7: control points, spline, `gates` gates (with the control points).
-    fn informed_candidate(&self, rng: &mut ChaCha8Rng, gates: usize) -> Result<(Vec<Gate>, Vec<Vector3<f64>>), String> {
+    fn informed_candidate(&self, rng: &mut ChaCha8Rng, gates: usize) -> Result<(Vec<Gate>, Vec<Vector3<f64>>), Rejection> {
         let p = &self.params;
         let ([x0, x1], [y0, y1]) = self.padded_xy();
         let (z0, z1) = (p.bounds.min.z, p.bounds.max.z);
@@ -148,7 +195,7 @@ impl TrackGenerator {
         while points.len() < p.control_points {
             draws += 1;
             if draws > 1000 * p.control_points {
-                return Err(format!("could not place {} control points {} m apart", p.control_points, p.min_control_spacing));
+                return Err(Rejection::CrowdedControlPoints { count: p.control_points, spacing: p.min_control_spacing });
             }
             let q = Vector3::new(rng.random_range(x0..=x1), rng.random_range(y0..=y1), rng.random_range(z0..=z1));
             if points.iter().all(|o| (o.xy() - q.xy()).norm() >= p.min_control_spacing) {
@@ -158,7 +205,7 @@ impl TrackGenerator {
         let mean = points.iter().sum::<Vector3<f64>>() / points.len() as f64;
         let shift = p.bounds.centre() - mean;
         points.iter_mut().for_each(|q| *q += shift);
-        let fit = fit_closed_curve(&points, p.smoothing).map_err(|e| format!("spline: {e}"))?;
+        let fit = fit_closed_curve(&points, p.smoothing)?;
         Ok((place_gates(&fit.curve, gates, self.gate_z_range()), points))
     }
 
@@ -176,26 +223,26 @@ impl TrackGenerator {
 
     /// Steps 4–5: start pose and the constraints C, then the track-file rules (no overlapping
     /// frames), so every generated track is also a valid track file.
-    fn accept(&self, gates: Vec<Gate>, name: &str) -> Result<Track, String> {
+    fn accept(&self, gates: Vec<Gate>, name: &str) -> Result<Track, Rejection> {
         let p = &self.params;
         for i in 0..gates.len() {
             for j in i + 1..gates.len() {
                 let d = (gates[i].position - gates[j].position).norm();
                 if d < p.min_gate_spacing {
-                    return Err(format!("gates {i} and {j} are {d:.2} m apart"));
+                    return Err(Rejection::GatesTooClose { first: i, second: j, distance: d });
                 }
             }
         }
         let ([x0, x1], [y0, y1]) = self.padded_xy();
         if let Some(i) = gates.iter().position(|g| !(x0..=x1).contains(&g.position.x) || !(y0..=y1).contains(&g.position.y)) {
-            return Err(format!("gate {i} is outside the padded box"));
+            return Err(Rejection::GateOutsideBox(i));
         }
         let g0 = &gates[0];
         let start = Pose { position: g0.position - g0.normal() * START_BEHIND_FIRST_GATE, yaw: g0.yaw };
         if !p.bounds.contains(&start.position) {
-            return Err("the start is outside the bounds".into());
+            return Err(Rejection::StartOutsideBounds);
         }
-        Track::new(name, gates, Some(start), p.bounds).map_err(|e| format!("{}: {}", e.field, e.message))
+        Ok(Track::new(name, gates, Some(start), p.bounds)?)
     }
 }
 

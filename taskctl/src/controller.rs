@@ -162,13 +162,21 @@ pub enum SnapshotError {
         /// The underlying error.
         source: std::io::Error,
     },
-    /// The file is not an intact snapshot; it is refused rather than half-used.
-    #[error("{file}: refusing a corrupt snapshot: {reason}")]
+    /// The file is not an intact snapshot frame; it is refused rather than half-used.
+    #[error("{file}: refusing a corrupt snapshot: {source}")]
     Corrupt {
         /// The file.
         file: PathBuf,
-        /// What is wrong.
-        reason: String,
+        /// What is wrong with the frame (magic, format, length or checksum).
+        source: frames::FrameError,
+    },
+    /// The frame is intact but its body is not a controller state this version reads.
+    #[error("{file}: refusing a snapshot whose contents do not parse: {source}")]
+    Contents {
+        /// The file.
+        file: PathBuf,
+        /// The parse error.
+        source: serde_json::Error,
     },
 }
 
@@ -193,8 +201,6 @@ pub struct TaskController {
 
 /// The snapshot's frame (`frames`); its body is the state as JSON.
 const SNAPSHOT: frames::FrameKind = frames::FrameKind { magic: b"DRTASKS\0", format: 2, name: "dronerace task-controller snapshot" };
-/// First word of the earlier layout's text header line.
-const LEGACY_SNAPSHOT_MAGIC: &str = "dronerace-taskctl-snapshot";
 
 impl TaskController {
     /// `envs` environments, each with a freshly generated track.
@@ -399,38 +405,13 @@ impl TaskController {
         Self::from_snapshot_bytes(&bytes, path)
     }
 
-    /// Decodes snapshot bytes (either layout); `origin` names their source in errors.
+    /// Decodes snapshot bytes; `origin` names their source in errors. (Snapshots of the text-header
+    /// layout before 87bc9c6 are refused as a bad magic: no run of that age is resumed any more.)
     pub fn from_snapshot_bytes(bytes: &[u8], origin: &Path) -> Result<Self, SnapshotError> {
-        let corrupt = |reason: String| SnapshotError::Corrupt { file: origin.to_path_buf(), reason };
-        let body = if bytes.starts_with(LEGACY_SNAPSHOT_MAGIC.as_bytes()) {
-            legacy_snapshot_body(bytes).map_err(corrupt)?
-        } else {
-            SNAPSHOT.decode(bytes).map_err(|e| corrupt(e.to_string()))?
-        };
-        let state: State = serde_json::from_slice(body).map_err(|e| corrupt(format!("contents: {e}")))?;
+        let body = SNAPSHOT.decode(bytes).map_err(|source| SnapshotError::Corrupt { file: origin.to_path_buf(), source })?;
+        let state: State = serde_json::from_slice(body).map_err(|source| SnapshotError::Contents { file: origin.to_path_buf(), source })?;
         Ok(Self { state })
     }
-}
-
-/// The JSON body of a snapshot of the earlier layout: a text header line
-/// `dronerace-taskctl-snapshot 1 <length> <crc32 hex>`, then the body.
-fn legacy_snapshot_body(bytes: &[u8]) -> Result<&[u8], String> {
-    let newline = bytes.iter().position(|&b| b == b'\n').ok_or("no header line")?;
-    let header = std::str::from_utf8(&bytes[..newline]).map_err(|_| "header is not text")?;
-    let [_, version, length, checksum] = header.split(' ').collect::<Vec<_>>()[..] else {
-        return Err(format!("malformed header {header:?}"));
-    };
-    if version != "1" {
-        return Err(format!("format version {version}"));
-    }
-    let body = &bytes[newline + 1..];
-    if length.parse::<usize>().ok() != Some(body.len()) {
-        return Err(format!("truncated or padded: header says {length} bytes, found {}", body.len()));
-    }
-    if format!("{:08x}", crc32fast::hash(body)) != checksum {
-        return Err("checksum mismatch: the contents were altered".into());
-    }
-    Ok(body)
 }
 
 impl EnvSlot {
@@ -628,11 +609,7 @@ mod tests {
         let mut other = good.clone();
         other[8..12].copy_from_slice(&9u32.to_le_bytes());
         refuse(&other, "format 9");
-        // The earlier text-header layout: refused when damaged, read when intact.
-        let body = serde_json::to_vec(&controller(SwitchPolicy::Adaptive, 6, 2).state).unwrap();
-        let legacy = [format!("{LEGACY_SNAPSHOT_MAGIC} 1 {} {:08x}\n", body.len(), crc32fast::hash(&body)).into_bytes(), body].concat();
-        refuse(&legacy[..legacy.len() - 1], "truncated");
-        std::fs::write(&path, &legacy).unwrap();
-        assert_eq!(TaskController::restore(&path).unwrap(), controller(SwitchPolicy::Adaptive, 6, 2));
+        // An intact frame around a body that is not a controller state.
+        refuse(&SNAPSHOT.encode(b"{\"hello\": 1}"), "do not parse");
     }
 }
