@@ -230,7 +230,11 @@ impl<L: LearnerLink> LearnerProcess<L> {
         tasks: Option<&dyn TaskService>,
         sections: CheckpointSections,
     ) -> Result<Option<IterationSummary>, TrainError> {
-        let Some(batch) = self.gather(stop)? else { return Ok(None) };
+        let Some(mut batch) = self.gather(stop)? else { return Ok(None) };
+        // Environment order, not arrival order (nor which actor registered first): the update
+        // draws its minibatches from the chunks' concatenation, and an actor's data depends on
+        // its environments alone (its seed is drawn from them), so the seed decides the update.
+        batch.sort_by_key(|d| d.chunk.first_env);
         let version = self.learner.version();
         let version_lag = batch.iter().map(|d| version - d.chunk.policy_version).max().unwrap_or(0);
         let chunks: Vec<policy::RolloutChunk> = batch.into_iter().map(|d| d.chunk).collect();
