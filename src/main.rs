@@ -114,9 +114,27 @@ fn main() -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", error_message(&e));
             let fatal = e.chain().any(|c| c.downcast_ref::<runtime::TrainError>().is_some_and(runtime::TrainError::is_fatal));
             if fatal { std::process::ExitCode::from(commands::supervisor::EXIT_FATAL) } else { std::process::ExitCode::FAILURE }
         }
     }
+}
+
+/// The error and its causes joined by ": ", leaving out a cause whose text the message already
+/// ends with (our error types name their cause in their own text and also expose it as the
+/// source, which `{:#}` would print twice).
+fn error_message(e: &anyhow::Error) -> String {
+    let mut message = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if message.ends_with(&text) {
+            continue;
+        }
+        if !message.is_empty() {
+            message.push_str(": ");
+        }
+        message.push_str(&text);
+    }
+    message
 }

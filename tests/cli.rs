@@ -234,6 +234,12 @@ fn bad_inputs_are_refused_naming_the_file_and_the_field_or_line() {
     ]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("--start"), "{}", stderr(&o));
+
+    // A cause is said once, though our error types both name it and expose it as the source.
+    let missing = dir.path().join("missing.bin");
+    let o = dronerace(&["eval", "--policy", missing.to_str().unwrap()]);
+    let e = stderr(&o);
+    assert!(!o.status.success() && e.contains("missing.bin") && e.matches("No such file").count() == 1, "{e}");
 }
 
 #[test]
