@@ -10,7 +10,9 @@ Reads RUN/validation.csv (one row per validation track, mean over them = the run
 figure) and EV/ckpt-<iteration>/eval.json. Prints each validated iteration's two figures, the
 Spearman and Kendall rank correlations over all of them and over the second half of the run
 (where checkpoints differ least and selection matters), and what choosing by validation gave
-against the final checkpoint and the best possible one. Standard library only.
+against the final checkpoint and the best possible one; then, per test track, how often the
+second half's checkpoints fly it (≥ 50 % of its deployments): tracks every checkpoint flies, none
+flies, and those some fly and some do not. Standard library only.
 """
 import argparse
 import csv
@@ -37,6 +39,12 @@ def test_figures(ev):
             d = json.load(open(path))
             out[int(name[len("ckpt-"):])] = (d["success_rate"], d["s_pw"])
     return out
+
+
+def track_success(ev, iteration):
+    """{track: success rate} of EV/ckpt-<iteration>/eval.json."""
+    d = json.load(open(os.path.join(ev, f"ckpt-{iteration:09d}", "eval.json")))
+    return {t["track"]: t["success_rate"] for t in d["tracks"]}
 
 
 def ranks(values):
@@ -109,6 +117,16 @@ def main():
     print()
     for label, it in [("chosen by validation", chosen), ("final", final), ("best on the test set (hindsight)", best)]:
         print(f"{label}: iteration {it}, test {test[it][0]:.1%} / {test[it][1]:.4f}")
+    flown = defaultdict(int)
+    for it in half:
+        for track, rate in track_success(args.ev, it).items():
+            flown[track] += rate >= 0.5
+    counts = sorted(flown.values())
+    always, never = sum(c == len(half) for c in counts), sum(c == 0 for c in counts)
+    print()
+    print(f"test tracks flown by the second half's {len(half)} checkpoints: every one {always}, none {never}, "
+          f"some {len(counts) - always - never}; at least one {len(counts) - never} of {len(counts)}")
+    print("checkpoints flying each of the 'some' tracks:", [c for c in counts if 0 < c < len(half)])
 
 
 if __name__ == "__main__":
