@@ -137,6 +137,37 @@ fn a_runs_wall_seconds_count_each_validation_once() {
     assert!(trainer.wall_seconds() > 0.0 && trainer.wall_seconds() <= elapsed, "{} s counted in {elapsed} s", trainer.wall_seconds());
 }
 
+/// `tiny_config` validated after every iteration on two short tracks, `best.bin` averaging
+/// the last two validated policies.
+fn tiny_averaging_config() -> TrainConfig {
+    let eval = runtime::EvalSettings { every: 1, average: 2, tracks: 2, runs: 1, steps: 100, ..runtime::EvalSettings::default() };
+    TrainConfig { eval, checkpoint_every: 2, ..tiny_config() }
+}
+
+#[test]
+fn best_bin_is_the_weight_average_of_the_last_validated_policies_and_resumes_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    let _ = straight_and_resumed(tiny_averaging_config, dir.path());
+    let best_without_ids = |run: &str| {
+        let mut blob = learner::checkpoint::read_policy(&dir.path().join(run).join("checkpoints/best.bin")).unwrap();
+        blob.params.iter_mut().for_each(|p| p.id = 0);
+        blob.to_bytes()
+    };
+    for run in ["straight", "resumed"] {
+        let validated = dir.path().join(run).join("checkpoints/validated");
+        let mut kept: Vec<_> = std::fs::read_dir(&validated).unwrap().map(|e| e.unwrap().path()).collect();
+        kept.sort();
+        let names: Vec<_> = kept.iter().map(|p| p.file_name().unwrap().to_str().unwrap().to_owned()).collect();
+        assert_eq!(names, ["v-000000002.bin", "v-000000003.bin"], "{run}: the last two validations kept");
+        let policies: Vec<_> = kept.iter().map(|p| learner::checkpoint::read_policy(p).unwrap()).collect();
+        assert!(policies[0].params != policies[1].params, "{run}: two different policies");
+        let average = policy::averaging::average(&policies).unwrap();
+        let best = std::fs::read(dir.path().join(run).join("checkpoints/best.bin")).unwrap();
+        assert!(best == average.to_bytes(), "{run}: best.bin is their weight average");
+    }
+    assert!(best_without_ids("straight") == best_without_ids("resumed"), "the resumed run's best.bin is the straight run's");
+}
+
 #[test]
 fn two_identical_runs_are_identical() {
     let dir = tempfile::tempdir().unwrap();

@@ -146,7 +146,8 @@ impl Checkpoint {
     }
 }
 
-/// Checkpoint files of a run directory: `ckpt-<iteration>.bin` and `best.bin`.
+/// Checkpoint files of a run directory: `ckpt-<iteration>.bin`, `best.bin`, and the last
+/// validated policies in `validated/`.
 pub struct CheckpointDir {
     dir: PathBuf,
     keep: usize,
@@ -178,9 +179,31 @@ impl CheckpointDir {
         self.periodic().pop()
     }
 
-    /// Path of the best checkpoint.
+    /// Path of `best.bin`, the run's policy.
     pub fn best(&self) -> PathBuf {
         self.dir.join("best.bin")
+    }
+
+    /// Writes the policy validated after `iteration` as `validated/v-<iteration>.bin`, removes
+    /// all but the newest `keep` there, and returns those kept, oldest first. Files of later
+    /// iterations (a run resumed from an earlier checkpoint left them) are removed too.
+    pub fn save_validated(&self, policy: &policy::WeightsBlob, iteration: u64, keep: usize) -> Result<Vec<PathBuf>, CheckpointError> {
+        let dir = self.dir.join("validated");
+        std::fs::create_dir_all(&dir).map_err(|source| CheckpointError::Io { file: dir.clone(), source })?;
+        let path = dir.join(format!("v-{iteration:09}.bin"));
+        racetracks::files::write_atomic(&path, &policy.to_bytes()).map_err(|source| CheckpointError::Io { file: path.clone(), source })?;
+        let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+            .map_err(|source| CheckpointError::Io { file: dir.clone(), source })?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .collect();
+        files.retain(|p| p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("v-") && n.ends_with(".bin")));
+        files.sort();
+        let later = files.split_off(files.iter().position(|p| *p > path).unwrap_or(files.len()));
+        let stale = files.len().saturating_sub(keep.max(1));
+        for old in later.iter().chain(&files[..stale]) {
+            std::fs::remove_file(old).map_err(|source| CheckpointError::Io { file: old.clone(), source })?;
+        }
+        Ok(files.split_off(stale))
     }
 
     /// Writes the checkpoint of `iteration` and removes periodic ones beyond the last N.
@@ -206,6 +229,28 @@ pub fn read_policy(path: &Path) -> Result<policy::WeightsBlob, CheckpointError> 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn validated_policies_keep_the_newest_and_drop_later_ones() {
+        let dir = tempfile::tempdir().unwrap();
+        let checkpoints = CheckpointDir::new(dir.path().to_path_buf(), 3).unwrap();
+        let policy = crate::Learner::new(crate::Profile::cpu(), 1000, 0).weights();
+        let names = |kept: Vec<PathBuf>| kept.iter().map(|p| p.file_name().unwrap().to_str().unwrap().to_owned()).collect::<Vec<_>>();
+        for iteration in 1..=4 {
+            checkpoints.save_validated(&policy, iteration, 2).unwrap();
+        }
+        let listed = |d: &Path| {
+            let mut n: Vec<String> = std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+            n.sort();
+            n
+        };
+        assert_eq!(listed(&dir.path().join("validated")), ["v-000000003.bin", "v-000000004.bin"]);
+        // A run resumed before iteration 3 validates iteration 2 again: 3 and 4 are its future.
+        let kept = checkpoints.save_validated(&policy, 2, 2).unwrap();
+        assert_eq!(names(kept), ["v-000000002.bin"]);
+        assert_eq!(listed(&dir.path().join("validated")), ["v-000000002.bin"]);
+        assert_eq!(read_policy(&dir.path().join("validated/v-000000002.bin")).unwrap().to_bytes(), policy.to_bytes());
+    }
 
     #[test]
     fn sections_round_trip_and_corruption_is_refused() {

@@ -1,7 +1,7 @@
 //! Experiments as files: a base run config plus named variants (each a set of config
 //! overrides) × seeds. Every run trains in its own run directory `<out>/<variant>/seed-<s>/`;
-//! when its budget is spent, its final policy and its `best.bin` (chosen on the validation set)
-//! fly the test set and `test.json` marks the run done. Running the file again skips done runs
+//! when its budget is spent, its final policy and its `best.bin` (the average of its last
+//! validated policies) fly the test set and `test.json` marks the run done. Running the file again skips done runs
 //! and resumes interrupted ones from their newest checkpoint, so a grid can outlive a sitting.
 //!
 //! ```toml
@@ -197,9 +197,9 @@ pub struct RunResult {
     pub iterations: u64,
     /// Wall seconds of training (validation included, test evaluation not).
     pub wall_seconds: f64,
-    /// Highest validation S_pw seen (the one `best.bin` holds).
+    /// Highest validation S_pw seen (the thesis' "max S_pw").
     pub best_validation_s_pw: Option<f64>,
-    /// Policy version in `best.bin`.
+    /// Policy version in `best.bin` (the newest of those it averages).
     pub best_version: u64,
     /// The final policy on the test set, every deployment included.
     pub final_policy: EvalReport,
@@ -542,7 +542,8 @@ pub fn markdown_report(experiment: &Experiment, summaries: &[VariantSummary]) ->
     let mut out = format!("# Experiment report\n\n{}\n\n", experiment.description.trim());
     out.push_str(&format!(
         "Seeds {:?}; test set: library + generated from seed {}, {} deployments × {} steps per track. \
-         `best` is the checkpoint with the highest validation S_pw; mean ± sample standard deviation over seeds, \
+         `best` is the run's `best.bin` (runs before 2026-12-05: the checkpoint with the highest validation S_pw; since: \
+         the weight average of the last validated policies); mean ± sample standard deviation over seeds, \
          then each seed's value. The final policy also flies {} validation tracks × {FINAL_VALIDATION_RUNS} deployments \
          (\"final, validation\"): choose variants by that, not by the test set.\n\n",
         experiment.seeds, experiment.test.track_seed, experiment.test.runs, experiment.test.steps, experiment.test.validation_tracks

@@ -265,7 +265,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
         let validation = Validator::evaluate_if_due(self.validator.as_ref(), self.run.next_iteration(), || self.learner.weights())?;
         let (summary, best) = self.run.record(&chunks, report, timing, validation.as_ref())?;
         if best {
-            let saved = self.run.save_best(self.learner.checkpoint());
+            let saved = self.run.save_best(self.learner.weights());
             self.count_checkpoint(saved)?;
         }
         if self.run.checkpoint_due() {

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use policy::{Agent, RolloutChunk};
+use policy::{Agent, RolloutChunk, WeightsBlob};
 use racetracks::TrackGenerator;
 use serde::{Deserialize, Serialize};
 use sim::EnvConfig;
@@ -260,6 +260,9 @@ impl TrainConfig {
         if profile.envs == 0 {
             return Err(TrainError::Config("envs must be ≥ 1".into()));
         }
+        if self.eval.average == 0 {
+            return Err(TrainError::Config("eval.average: 0 must be at least 1 (the last validated policy alone)".into()));
+        }
         profile.ppo.check().map_err(|e| TrainError::Config(e.to_string()))?;
         self.switching.check().map_err(|e| TrainError::Config(e.to_string()))?;
         // A gRPC learner must be able to hold at least one rollout of every environment, as
@@ -408,7 +411,7 @@ struct Progress {
     iteration: u64,
     wall_seconds: f64,
     best_return: Option<f64>,
-    /// Highest validation S_pw so far (when evaluation is on, it picks `best.bin`).
+    /// Highest validation S_pw so far (the thesis' "max S_pw").
     #[serde(default)]
     best_validation: Option<f64>,
 }
@@ -554,9 +557,9 @@ impl Run {
         self.progress.iteration + 1
     }
 
-    /// Counts one iteration, writes its metrics row and says whether it is the best so far
-    /// (the caller then saves `best.bin`): by validation S_pw when evaluation is on, else by
-    /// mean training return.
+    /// Counts one iteration, writes its metrics row and says whether `best.bin` is to be
+    /// written again ([`Run::save_best`]): after every validation when evaluation is on, else
+    /// when the mean training return is the highest so far.
     pub fn record(
         &mut self,
         chunks: &[RolloutChunk],
@@ -634,11 +637,12 @@ impl Run {
                 .map_err(|source| TrainError::Io { file: self.dir.join("validation.csv"), source })?;
         }
         let best = if self.config.eval.every > 0 {
-            let best = eval.is_some_and(|r| self.progress.best_validation.is_none_or(|b| r.s_pw > b));
-            if best {
-                self.progress.best_validation = eval.map(|r| r.s_pw);
+            if let Some(r) = eval
+                && self.progress.best_validation.is_none_or(|b| r.s_pw > b)
+            {
+                self.progress.best_validation = Some(r.s_pw);
             }
-            best
+            eval.is_some()
         } else {
             let best = summary.mean_return.is_finite() && self.progress.best_return.is_none_or(|b| summary.mean_return > b);
             if best {
@@ -649,9 +653,13 @@ impl Run {
         Ok((summary, best))
     }
 
-    /// True when a periodic checkpoint is due after the iteration just recorded.
+    /// True when a periodic checkpoint is due after the iteration just recorded: every
+    /// `checkpoint_every` iterations, and after every validation, so that a resumed run never
+    /// validates again past a policy [`Run::save_best`] has since removed from `validated/`.
     pub fn checkpoint_due(&self) -> bool {
+        let every = self.config.eval.every;
         self.progress.iteration.is_multiple_of(self.config.checkpoint_every.max(1))
+            || (every > 0 && self.progress.iteration.is_multiple_of(every))
     }
 
     /// Adds the run's bookkeeping to `ckpt` and writes it as the periodic checkpoint.
@@ -661,11 +669,21 @@ impl Run {
         Ok(self.checkpoints.save(&ckpt, self.progress.iteration)?)
     }
 
-    /// Adds the run's bookkeeping to `ckpt` and writes it as `best.bin`.
-    #[allow(clippy::expect_used, reason = "progress serialises")]
-    pub fn save_best(&self, mut ckpt: Checkpoint) -> Result<(), TrainError> {
-        ckpt.put("progress", serde_json::to_vec(&self.progress).expect("progress serialises"));
-        Ok(ckpt.write(&self.checkpoints.best())?)
+    /// Writes `best.bin`, the run's policy, after [`Run::record`] asked for it: with evaluation
+    /// on, `policy` (the one just validated) joins the last validated policies and `best.bin` is
+    /// the weight average of the last `eval.average` of them; else `policy` itself (the highest
+    /// mean training return so far).
+    pub fn save_best(&self, policy: WeightsBlob) -> Result<(), TrainError> {
+        let best = if self.config.eval.every > 0 {
+            let keep = if policy.architecture.agent == Agent::Vision { 1 } else { self.config.eval.average };
+            let kept = self.checkpoints.save_validated(&policy, self.progress.iteration, keep)?;
+            let policies = kept.iter().map(|p| learner::checkpoint::read_policy(p)).collect::<Result<Vec<_>, _>>()?;
+            policy::averaging::average(&policies)?
+        } else {
+            policy
+        };
+        let path = self.checkpoints.best();
+        racetracks::files::write_atomic(&path, &best.to_bytes()).map_err(|source| TrainError::Io { file: path.clone(), source })
     }
 
     /// Estimated seconds to the end of the run after `env_steps`, from the smoothed training
