@@ -53,7 +53,10 @@ wait_for_iteration 1 600 >/dev/null
 say "start to first iteration: $(elapsed "$start") s"
 wait_for_iteration 3 600 >/dev/null
 status | sed 's/^/  status: /'
-tasks=$(compose --profile tools run --rm -T client tasks --taskctl https://taskctl:50051 --config /deploy/cluster.toml 2>/dev/null)
+errors=$(mktemp)
+tasks=$(compose --profile tools run --rm -T client tasks --taskctl https://taskctl:50051 --config /deploy/cluster.toml 2>"$errors") ||
+    { say "the client's ListTasks failed:"; tail -20 "$errors"; exit 1; }
+rm -f "$errors"
 [ "$(echo "$tasks" | grep -c 'actor-')" -eq 96 ] || { say "ListTasks does not show 96 environments on the two actors:"; echo "$tasks"; exit 1; }
 say "ListTasks: 96 environments on actor-0 and actor-1"
 
