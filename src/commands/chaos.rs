@@ -64,9 +64,11 @@ pub struct ChaosReport {
     pub reports_acknowledged: u64,
     /// Acknowledged reports the controller no longer had after a restart (must be 0).
     pub reports_lost: u64,
-    /// Checkpoint files in the run directory.
+    /// Files of the run's `checkpoints/`: periodic checkpoints, `best.bin` and the validated
+    /// policies.
     pub checkpoints: usize,
-    /// Checkpoints that restore into a learner.
+    /// Those that read back: periodic checkpoints restoring into a learner, the others as
+    /// policies.
     pub checkpoints_readable: usize,
     /// Resident memory (MiB) per process when the faults began.
     pub rss_start_mib: BTreeMap<String, f64>,
@@ -231,15 +233,19 @@ pub fn run(args: ChaosArgs) -> anyhow::Result<()> {
     let snapshot_path = args.out.join("taskctl.snapshot");
     let snapshot = taskctl::TaskController::restore(&snapshot_path)?;
     let reports_acknowledged = snapshot.actors().iter().map(|a| a.next_rollout).sum();
-    let mut checkpoints = 0;
-    let mut checkpoints_readable = 0;
-    for entry in std::fs::read_dir(args.out.join("checkpoints"))?.flatten() {
-        if entry.path().extension().is_some_and(|e| e == "bin") {
-            checkpoints += 1;
-            let restored = Checkpoint::read(&entry.path()).ok().map(|c| learner::Learner::from_checkpoint(&c));
-            checkpoints_readable += usize::from(matches!(restored, Some(Ok(_))));
-        }
-    }
+    let checkpoint_dir = args.out.join("checkpoints");
+    let bins = |dir: &Path| -> Vec<PathBuf> {
+        let files = std::fs::read_dir(dir).into_iter().flatten().flatten().map(|e| e.path());
+        files.filter(|p| p.extension().is_some_and(|e| e == "bin")).collect()
+    };
+    let (periodic, policies): (Vec<PathBuf>, Vec<PathBuf>) = bins(&checkpoint_dir)
+        .into_iter()
+        .chain(bins(&checkpoint_dir.join("validated")))
+        .partition(|p| p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("ckpt-")));
+    let restores = |p: &PathBuf| Checkpoint::read(p).ok().is_some_and(|c| learner::Learner::from_checkpoint(&c).is_ok());
+    let checkpoints = periodic.len() + policies.len();
+    let checkpoints_readable =
+        periodic.iter().filter(|p| restores(p)).count() + policies.iter().filter(|p| learner::checkpoint::read_policy(p).is_ok()).count();
     let shm_left = shm_entries().into_iter().filter(|e| !shm_before.contains(e)).collect();
     let temporaries_left = [args.out.clone(), args.out.join("checkpoints")]
         .iter()
