@@ -1,8 +1,9 @@
 //! Experiments as files: a base run config plus named variants (each a set of config
 //! overrides) × seeds. Every run trains in its own run directory `<out>/<variant>/seed-<s>/`;
 //! when its budget is spent, its final policy and its `best.bin` (the average of its last
-//! validated policies) fly the test set and `test.json` marks the run done. Running the file again skips done runs
-//! and resumes interrupted ones from their newest checkpoint, so a grid can outlive a sitting.
+//! validated policies) fly the test set and `test.json` marks the run done. Running the file
+//! again skips done runs and resumes interrupted ones from their newest checkpoint, so a grid
+//! can outlive a sitting.
 //!
 //! ```toml
 //! description = "observation frame"
