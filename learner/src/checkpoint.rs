@@ -167,11 +167,7 @@ impl CheckpointDir {
 
     /// Periodic checkpoints, oldest first.
     pub fn periodic(&self) -> Vec<PathBuf> {
-        let mut files: Vec<PathBuf> =
-            std::fs::read_dir(&self.dir).map(|entries| entries.filter_map(|e| e.ok().map(|e| e.path())).collect()).unwrap_or_default();
-        files.retain(|p| p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("ckpt-") && n.ends_with(".bin")));
-        files.sort();
-        files
+        numbered_files(&self.dir, "ckpt-").unwrap_or_default()
     }
 
     /// The newest periodic checkpoint.
@@ -192,12 +188,7 @@ impl CheckpointDir {
         std::fs::create_dir_all(&dir).map_err(|source| CheckpointError::Io { file: dir.clone(), source })?;
         let path = dir.join(format!("v-{iteration:09}.bin"));
         racetracks::files::write_atomic(&path, &policy.to_bytes()).map_err(|source| CheckpointError::Io { file: path.clone(), source })?;
-        let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
-            .map_err(|source| CheckpointError::Io { file: dir.clone(), source })?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .collect();
-        files.retain(|p| p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("v-") && n.ends_with(".bin")));
-        files.sort();
+        let mut files = numbered_files(&dir, "v-").map_err(|source| CheckpointError::Io { file: dir.clone(), source })?;
         let later = files.split_off(files.iter().position(|p| *p > path).unwrap_or(files.len()));
         let stale = files.len().saturating_sub(keep.max(1));
         for old in later.iter().chain(&files[..stale]) {
@@ -216,6 +207,14 @@ impl CheckpointDir {
         }
         Ok(path)
     }
+}
+
+/// The `<prefix><iteration>.bin` files of `dir`, oldest first (iterations are zero-padded).
+fn numbered_files(dir: &Path, prefix: &str) -> std::io::Result<Vec<PathBuf>> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)?.filter_map(|e| e.ok().map(|e| e.path())).collect();
+    files.retain(|p| p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with(prefix) && n.ends_with(".bin")));
+    files.sort();
+    Ok(files)
 }
 
 /// The policy in a checkpoint file or a bare weights blob file.
