@@ -78,9 +78,12 @@ fn an_interrupted_experiment_resumes_without_redoing_finished_runs_and_reports()
     // Every deployment's ending is kept, for failure analyses without re-flying the policies.
     let kept: usize = resumed["best_policy"]["tracks"].as_array().unwrap().iter().map(|t| t["deployments"].as_array().unwrap().len()).sum();
     assert_eq!(kept, 40);
-    // The final policy also flew the validation set the variants are chosen by: 3 tracks × 10.
-    assert_eq!(resumed["final_validation"]["outcomes"]["deployments"], 30);
-    assert_eq!(resumed["final_validation"]["tracks"][0]["track"], "val-8000000");
+    // best.bin also flew the fresh validation tracks the variants are chosen by: 3 × 10, the
+    // validation range's tracks after the 2 the run validated on while training.
+    assert_eq!(resumed["fresh_validation"]["outcomes"]["deployments"], 30);
+    assert_eq!(resumed["fresh_validation"]["controller"], "best");
+    let fresh: Vec<&str> = resumed["fresh_validation"]["tracks"].as_array().unwrap().iter().map(|t| t["track"].as_str().unwrap()).collect();
+    assert_eq!(fresh, ["val-8000002", "val-8000003", "val-8000004"]);
 
     // A third call has nothing left to do.
     let third = run(&experiment, &out, None);
@@ -226,7 +229,7 @@ fn a_sequential_experiment_starts_each_stage_from_the_last_and_tracks_every_vali
     assert_eq!(first.init_from, None, "stage 1 starts fresh");
     let result: serde_json::Value =
         serde_json::from_slice(&std::fs::read(Experiment::run_dir(&out, "first", 0).join("test.json")).unwrap()).unwrap();
-    assert!(result["final_validation"].is_null(), "validation_tracks = 0 skips the final validation");
+    assert!(result["fresh_validation"].is_null(), "validation_tracks = 0 skips the fresh validation");
 
     let (curves, boundaries) = runtime::experiment::sequential_track_curves(&experiment, &out, 0).unwrap();
     assert_eq!(boundaries, vec![256]);

@@ -8,7 +8,7 @@
 A loop-around gate faces the drone as it leaves the previous gate: the previous gate's centre
 lies in front of it (on the side a pass leaves by), so the only way through is round its frame.
 For each report (a `dronerace eval` eval.json, or an experiment run's test.json, whose
-`final_validation` is read), the mean success over the tracks with none, one, and two or more
+`fresh_validation` is read, or an older one's `final_validation`), the mean success over the tracks with none, one, and two or more
 such gates; then over the tracks with no loop-around gate, with none sharper than 120° (the way in
 from the previous gate 90–120° off the gate's normal) and with a sharper one. Tracks are matched by name, or by the seed that ends a generated track's name
 (`val-8000000` in a run's validation, `informed-8000000` in the generated files).
@@ -71,7 +71,7 @@ def main():
         print("tracks: " + ", ".join(f"{g} {sum(1 for v in values.values() if test(v))}" for g, test in groups.items()))
     for report_path in sys.argv[2:]:
         report = json.loads(pathlib.Path(report_path).read_text())
-        report = report.get("final_validation") or report
+        report = report.get("fresh_validation") or report.get("final_validation") or report
         success = {seed_key(t["track"]): t["success_rate"] for t in report["tracks"]}
         missing = set(loops) - set(success)
         if missing:

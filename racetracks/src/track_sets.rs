@@ -32,17 +32,23 @@ pub enum TrackSetError {
     /// The library could not be read.
     #[error(transparent)]
     Library(#[from] TrackFileError),
-    /// More validation tracks than the range holds.
-    #[error("validation set of {0} tracks: at most 1,000,000")]
+    /// More validation tracks than the range holds (counted from its start).
+    #[error("validation tracks up to the {0}th asked for: the validation range holds 1,000,000")]
     TooLarge(usize),
 }
 
 /// `count` informed tracks from the validation range.
 pub fn validation_set(count: usize) -> Result<Vec<Track>, TrackSetError> {
-    if count > (TEST_SEED - VALIDATION_SEED) as usize {
-        return Err(TrackSetError::TooLarge(count));
+    validation_tracks(0, count)
+}
+
+/// `count` informed tracks of the validation range from its `first`-th on: tracks a run's
+/// validation (which reads the first ones) never saw, when `first` is at least its count.
+pub fn validation_tracks(first: usize, count: usize) -> Result<Vec<Track>, TrackSetError> {
+    if first.saturating_add(count) > (TEST_SEED - VALIDATION_SEED) as usize {
+        return Err(TrackSetError::TooLarge(first.saturating_add(count)));
     }
-    generated(VALIDATION_SEED, count, "val")
+    generated(VALIDATION_SEED + first as u64, count, "val")
 }
 
 /// The test set: the hand-designed library, then generated tracks from `seed`, `seed + 1`, …
@@ -80,6 +86,9 @@ mod tests {
         let names: Vec<&str> = v.iter().map(|t| t.name.as_str()).collect();
         assert_eq!(names, ["val-8000000", "val-8000001", "val-8000002"]);
         assert_eq!(v, validation_set(3).unwrap());
+        // Later tracks of the range continue the same sequence.
+        assert_eq!(validation_tracks(1, 2).unwrap(), v[1..]);
+        assert!(matches!(validation_tracks(999_999, 2), Err(TrackSetError::TooLarge(1_000_001))));
         let t = test_set(TEST_SEED).unwrap();
         assert_eq!(t.len(), TEST_SET_SIZE);
         assert_eq!(t.last().unwrap().name, format!("test-{}", TEST_SEED + (TEST_SET_SIZE - crate::library().unwrap().len()) as u64 - 1));

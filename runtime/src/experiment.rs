@@ -53,21 +53,23 @@ pub struct TestSettings {
     pub runs: usize,
     /// Steps per deployment. Default 1000.
     pub steps: u32,
-    /// Validation tracks (the validation seed range) the final policy also flies, 10
-    /// deployments each: the score variants are chosen by. A test score is ~40 nearly
-    /// all-or-nothing tracks (standard error ~8 points), training-time validation 20; 100
-    /// halve the first's noise. Default 100; 0 skips it.
+    /// Fresh validation tracks `best.bin` also flies, 10 deployments each: the score variants
+    /// are chosen by. They are the validation range's tracks after those the run validated on
+    /// while training, so no checkpoint was kept for them. Tracks are flown nearly all or
+    /// nothing, so a score over n of them has a standard error of ~45/√n points: ~8 for the
+    /// test set's 40, ~4.5 for training-time validation's 100, ~2.6 for 300 — below the
+    /// 3–5 points that separate one seed of the defaults from another. Default 300; 0 skips it.
     pub validation_tracks: usize,
 }
 
 impl Default for TestSettings {
     fn default() -> Self {
-        Self { track_seed: racetracks::track_sets::TEST_SEED, runs: 25, steps: 1000, validation_tracks: 100 }
+        Self { track_seed: racetracks::track_sets::TEST_SEED, runs: 25, steps: 1000, validation_tracks: 300 }
     }
 }
 
-/// Deployments per track of the final policy's validation ([`TestSettings::validation_tracks`]).
-const FINAL_VALIDATION_RUNS: usize = 10;
+/// Deployments per track of `best.bin`'s fresh validation ([`TestSettings::validation_tracks`]).
+const FRESH_VALIDATION_RUNS: usize = 10;
 
 /// An experiment file.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -206,10 +208,11 @@ pub struct RunResult {
     pub final_policy: EvalReport,
     /// `best.bin` on the test set, every deployment included.
     pub best_policy: EvalReport,
-    /// The final policy on [`TestSettings::validation_tracks`] validation tracks (none in
-    /// results written before it existed, or when switched off).
+    /// `best.bin` on [`TestSettings::validation_tracks`] fresh validation tracks (none when
+    /// switched off, or in results written before the change of 2026-12-05, whose `final_validation` flew
+    /// the final policy on the run's own validation tracks).
     #[serde(default)]
-    pub final_validation: Option<EvalReport>,
+    pub fresh_validation: Option<EvalReport>,
 }
 
 /// What one call of [`run_experiment`] did.
@@ -287,6 +290,8 @@ pub fn run_experiment(
                     .map_err(|e| ExperimentError::Run { run: previous.display().to_string(), source: Box::new(e.into()) })?;
                 config.init_from = checkpoints.latest();
             }
+            // The validation range's tracks the run reads while training; the fresh ones follow.
+            let validated = if config.eval.library.is_empty() && config.eval.files.is_empty() { config.eval.tracks } else { 0 };
             let failed = |source: TrainError| ExperimentError::Run { run: dir.display().to_string(), source: Box::new(source) };
             let has_checkpoint =
                 CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints).map_err(|e| failed(e.into()))?.latest().is_some();
@@ -307,7 +312,7 @@ pub fn run_experiment(
                 on_iteration(&dir, &summary);
             }
             trainer.checkpoint().map_err(failed)?;
-            let result = test_run(&trainer, &variant.name, seed, &experiment.test).map_err(failed)?;
+            let result = test_run(&trainer, &variant.name, seed, &experiment.test, validated).map_err(failed)?;
             let json = serde_json::to_vec_pretty(&result).map_err(|e| ExperimentError::Io(e.to_string()))?;
             racetracks::files::write_atomic(&dir.join("test.json"), &json)
                 .map_err(|e| ExperimentError::Io(format!("{}: {e}", dir.display())))?;
@@ -317,9 +322,9 @@ pub fn run_experiment(
     Ok(log)
 }
 
-/// Flies the final policy and `best.bin` of a finished run on the test set, and the final
-/// policy on the larger validation set.
-fn test_run(trainer: &Trainer, variant: &str, seed: u64, test: &TestSettings) -> Result<RunResult, TrainError> {
+/// Flies the final policy and `best.bin` of a finished run on the test set, and `best.bin` on
+/// the validation range's tracks after the first `validated` (those the run validated on).
+fn test_run(trainer: &Trainer, variant: &str, seed: u64, test: &TestSettings, validated: usize) -> Result<RunResult, TrainError> {
     let tracks: Vec<Arc<sim::Track>> = racetracks::test_set(test.track_seed)?.into_iter().map(Arc::new).collect();
     let config = EvalConfig { runs: test.runs, steps: test.steps, ..EvalConfig::default() };
     let fly_on =
@@ -343,12 +348,12 @@ fn test_run(trainer: &Trainer, variant: &str, seed: u64, test: &TestSettings) ->
         best_version: best_blob.version,
         final_policy: fly(&final_blob, "final")?,
         best_policy: fly(&best_blob, "best")?,
-        final_validation: if test.validation_tracks == 0 {
+        fresh_validation: if test.validation_tracks == 0 {
             None
         } else {
-            let validation: Vec<Arc<sim::Track>> = racetracks::validation_set(test.validation_tracks)?.into_iter().map(Arc::new).collect();
-            let config = EvalConfig { runs: FINAL_VALIDATION_RUNS, steps: test.steps, ..EvalConfig::default() };
-            Some(fly_on(&validation, &config, &final_blob, "final")?)
+            let tracks = racetracks::validation_tracks(validated, test.validation_tracks)?;
+            let config = EvalConfig { runs: FRESH_VALIDATION_RUNS, steps: test.steps, ..EvalConfig::default() };
+            Some(fly_on(&tracks.into_iter().map(Arc::new).collect::<Vec<_>>(), &config, &best_blob, "best")?)
         },
     })
 }
@@ -545,17 +550,19 @@ pub fn markdown_report(experiment: &Experiment, summaries: &[VariantSummary]) ->
         "Seeds {:?}; test set: library + generated from seed {}, {} deployments × {} steps per track. \
          `best` is the run's `best.bin` (runs before 2026-12-05: the checkpoint with the highest validation S_pw; since: \
          the weight average of the last validated policies); mean ± sample standard deviation over seeds, \
-         then each seed's value. The final policy also flies {} validation tracks × {FINAL_VALIDATION_RUNS} deployments \
-         (\"final, validation\"): choose variants by that, not by the test set.\n\n",
+         then each seed's value. `best` also flies {} fresh validation tracks × {FRESH_VALIDATION_RUNS} deployments, tracks of \
+         the validation range after those the run validated on (\"best, fresh validation\"): choose variants by that, not \
+         by the test set. Runs tested before 2026-12-05's change have none (they flew their final policy on their own \
+         validation tracks).\n\n",
         experiment.seeds, experiment.test.track_seed, experiment.test.runs, experiment.test.steps, experiment.test.validation_tracks
     ));
-    out.push_str("| variant | runs done | env steps | wall time (min) | best validation S_pw | test success (best) | test S_pw (best) | test success (final) | test S_pw (final) | success (final, validation) | S_pw (final, validation) |\n");
+    out.push_str("| variant | runs done | env steps | wall time (min) | best validation S_pw | test success (best) | test S_pw (best) | test success (final) | test S_pw (final) | success (best, fresh validation) | S_pw (best, fresh validation) |\n");
     out.push_str("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
     for v in summaries {
         let r = &v.results;
         let steps: Vec<String> = r.iter().map(|x| format!("{:.1}M", x.env_steps as f64 / 1e6)).collect();
         let minutes: Vec<String> = r.iter().map(|x| format!("{:.0}", x.wall_seconds / 60.0)).collect();
-        let validation: Vec<&EvalReport> = r.iter().filter_map(|x| x.final_validation.as_ref()).collect();
+        let validation: Vec<&EvalReport> = r.iter().filter_map(|x| x.fresh_validation.as_ref()).collect();
         out.push_str(&format!(
             "| {} | {} of {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
             v.name,
