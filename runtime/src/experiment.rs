@@ -56,8 +56,8 @@ pub struct TestSettings {
     /// Fresh validation tracks `best.bin` also flies, 10 deployments each: the score variants
     /// are chosen by. They are the validation range's tracks after those the run validated on
     /// while training, so no checkpoint was kept for them. Tracks are flown nearly all or
-    /// nothing, so a score over n of them has a standard error of ~45/√n points: ~8 for the
-    /// test set's 40, ~4.5 for training-time validation's 100, ~2.6 for 300 — below the
+    /// nothing, so at ~70 % success a score over n of them has a standard error of ~46/√n points:
+    /// ~7 for the test set's 40, ~4.6 for training-time validation's 100, ~2.6 for 300 — below the
     /// 3–5 points that separate one seed of the defaults from another. Default 300; 0 skips it.
     pub validation_tracks: usize,
 }
