@@ -291,7 +291,7 @@ pub fn run_experiment(
                 config.init_from = checkpoints.latest();
             }
             // The validation range's tracks the run reads while training; the fresh ones follow.
-            let validated = if config.eval.library.is_empty() && config.eval.files.is_empty() { config.eval.tracks } else { 0 };
+            let validated = config.eval.range_tracks();
             let failed = |source: TrainError| ExperimentError::Run { run: dir.display().to_string(), source: Box::new(source) };
             let has_checkpoint =
                 CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints).map_err(|e| failed(e.into()))?.latest().is_some();

@@ -47,6 +47,18 @@ impl Default for EvalSettings {
     }
 }
 
+impl EvalSettings {
+    /// True when validation flies tracks named in `library` or `files`, not the validation range.
+    pub fn chosen_tracks(&self) -> bool {
+        !self.library.is_empty() || !self.files.is_empty()
+    }
+
+    /// How many of the validation range's tracks (its first) the run validates on.
+    pub fn range_tracks(&self) -> usize {
+        if self.chosen_tracks() { 0 } else { self.tracks }
+    }
+}
+
 /// The validation tracks and how to fly them.
 pub struct Validator {
     every: u64,
@@ -57,7 +69,7 @@ pub struct Validator {
 impl Validator {
     /// The validator `settings` describe; `None` when evaluation is off.
     pub fn new(settings: &EvalSettings) -> Result<Option<Self>, ValidationSetError> {
-        let chosen = !settings.library.is_empty() || !settings.files.is_empty();
+        let chosen = settings.chosen_tracks();
         if settings.every == 0 || settings.runs == 0 || (settings.tracks == 0 && !chosen) {
             return Ok(None);
         }
