@@ -70,7 +70,8 @@ MOTOR_TIME_CONSTANT = 0.033
 DRAG = np.array([0.26, 0.28, 0.42])
 RATE_LIMITS = np.array([10.0, 10.0, 4.0])
 RATE_GAINS = np.array([20.0, 20.0, 40.0])
-COLLISION_RADIUS = 0.15
+COLLISION_RADIUS = 0.15  # SPEC's, which evaluation (randomize=False) keeps
+TRAINING_COLLISION_RADIUS = 0.25  # race.rs: the state-based agent's training environment
 DT, SUBSTEPS, MAX_EPISODE_STEPS = 0.02, 8, 1500
 SUBSTEP = DT / SUBSTEPS
 
@@ -436,6 +437,7 @@ class NumpyRaceEnv:
         # observations at some cost.
         self.atan2 = np.frompyfunc(math.atan2, 2, 1) if libm_atan2 else np.arctan2
         self.randomization = STATE_BASED if randomize else EVALUATION
+        self.collision_radius = TRAINING_COLLISION_RADIUS if randomize else COLLISION_RADIUS
         self.max_episode_steps = max_episode_steps
         geometry = TrackGeometry.resolve(tracks)
         geometry = [geometry[i % len(geometry)] for i in range(n)]  # cycled, as RaceVecEnv does
@@ -568,7 +570,7 @@ class NumpyRaceEnv:
         """race.rs `crash_cause`, whether any: ground, ceiling, walls, then gate frames."""
         out = (p < self.arena_min).any(axis=1) | (p > self.arena_max).any(axis=1) | (p[:, 2] < 0.0)
         local = to_gate_local(p[:, None, :], self.gate_position, self.gate_cos, self.gate_sin)
-        return out | (frame_touches(local, COLLISION_RADIUS) & self.gate_valid).any(axis=1)
+        return out | (frame_touches(local, self.collision_radius) & self.gate_valid).any(axis=1)
 
     # ------------------------------------------------------------------ one step
     def _approach_distance(self, gate_position, gcos, gsin, p):

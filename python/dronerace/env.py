@@ -56,7 +56,8 @@ class RaceVecEnv(gymnasium.vector.VectorEnv):
             reads) or "vision" (a dict of the 84x84 camera image and the 40 state numbers).
         rollout_steps: steps between the task controller's switching decisions (training's
             rollout length).
-        randomize: False flies the nominal vehicle from SPEC §9's perturbed starts (evaluation).
+        randomize: False flies the nominal vehicle from SPEC §9's perturbed starts (evaluation,
+            with SPEC's 0.15 m collision sphere; training's is 0.25 m).
         max_episode_steps: episode length (default 1,500 steps = 30 s at 50 Hz).
         switch_window, switch_alpha, switch_probability: SPEC §8's window l (rollouts), sensitivity
             α of the adaptive policy, and the random policy's switch probability per rollout.

@@ -144,7 +144,10 @@ impl VecEnv {
         let observation = Observation::parse(observation)?;
         let mut config = observation.env_config();
         if !randomize {
+            // Evaluation's setting as `dronerace eval` flies it: nominal draws and SPEC's vehicle,
+            // whose collision sphere is smaller than the one training uses.
             config.randomization = RandomizationParams::evaluation();
+            config.quadrotor = EnvConfig::evaluation().quadrotor;
         }
         if let Some(steps) = max_episode_steps {
             if steps == 0 {
