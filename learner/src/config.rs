@@ -46,6 +46,11 @@ pub struct PpoConfig {
     /// critic, whose first advantages would otherwise be noise that unlearns the imitation.
     /// Default 0.
     pub critic_warmup_iterations: u64,
+    /// Weight of the mirror-symmetry term ([`crate::ppo::MirrorTerm`]): the KL divergence between
+    /// the policy's actions on mirrored observations and its mirrored actions.
+    /// Beyond the thesis; 0 (off) by default, and left out of files when it is.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub mirror_coef: f64,
     /// Vision agent only: which of its image layers take no step in PPO (`nothing`, the
     /// `convolutions`, or the whole `encoder`: convolutions and embedding layer). Their outputs
     /// are computed once per iteration and the epochs train the rest on them — PPO on top of a
@@ -85,6 +90,11 @@ impl Frozen {
     }
 }
 
+/// True for 0, the mirror term's "off".
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
+}
+
 impl Default for PpoConfig {
     fn default() -> Self {
         Self {
@@ -104,6 +114,7 @@ impl Default for PpoConfig {
             adam_epsilon: 1e-5,
             initial_log_std: -0.5,
             critic_warmup_iterations: 0,
+            mirror_coef: 0.0,
             frozen: Frozen::Nothing,
         }
     }

@@ -10,7 +10,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::config::Profile;
-use crate::ppo::{GaeInput, TrainingBatch, UpdateStats, UpdateStep, gae, update};
+use crate::ppo::{GaeInput, MirrorTerm, TrainingBatch, UpdateStats, UpdateStep, gae, update};
 
 /// A batch of chunks the learner refuses.
 #[derive(Debug, thiserror::Error)]
@@ -204,7 +204,11 @@ impl Learner {
         let learning_rate = ppo.learning_rate(progress);
         let (optimizer, device) = (&mut self.optimizer, &self.device);
         // Built from this version's statistics, the ones the batch was normalised with.
-        let step = UpdateStep { learning_rate, train_policy: c.version >= ppo.critic_warmup_iterations };
+        let mirror = match c.profile.architecture.observation.mirror() {
+            Some(m) if ppo.mirror_coef > 0.0 => Some(MirrorTerm::new(&m, &c.normalizer, ppo.mirror_coef, &self.device)),
+            _ => None,
+        };
+        let step = UpdateStep { learning_rate, train_policy: c.version >= ppo.critic_warmup_iterations, mirror: mirror.as_ref() };
         // What a refused update rolls back to (cheap: the update copies what it writes instead
         // of writing in place while these are held).
         let kept = (self.model.clone(), optimizer.clone(), c.rng.clone());

@@ -88,10 +88,13 @@ metrics_row! {
     eval_no_lap => "eval/no_lap",
     /// Wall seconds of the evaluation.
     eval_seconds => "eval/seconds",
+    /// Divergence of the mirror-symmetry term, averaged (last, so that a run resumed by this
+    /// version keeps its earlier columns where they were).
+    mirror_loss => "losses/mirror",
 }
 
 /// Number of metric columns.
-const COLUMNS: usize = 28;
+const COLUMNS: usize = 29;
 
 /// Columns of `validation.csv`: one row per validation track per evaluation.
 pub const VALIDATION_COLUMNS: &str = "iteration,env_steps,track,success,s_pw,mean_lap,crash_gate,crash_other,no_lap";
@@ -254,13 +257,17 @@ mod tests {
     fn csv_rows_follow_the_header_and_events_are_framed() {
         let dir = tempfile::tempdir().unwrap();
         let mut w = MetricsWriter::open(dir.path()).unwrap();
-        w.write(3, 72_000, 9.5, &MetricsRow { episodic_return: 12.5, eval_seconds: 4.0, ..MetricsRow::default() }).unwrap();
+        w.write(3, 72_000, 9.5, &MetricsRow { episodic_return: 12.5, eval_seconds: 4.0, mirror_loss: 0.5, ..MetricsRow::default() })
+            .unwrap();
         let csv = std::fs::read_to_string(dir.path().join("metrics.csv")).unwrap();
         let lines: Vec<&str> = csv.lines().collect();
         assert_eq!(lines[0].split(',').count(), lines[1].split(',').count());
         assert!(lines[1].starts_with("3,72000,9.500,12.5,"));
-        assert!(lines[1].ends_with(",4"), "{}", lines[1]);
-        assert!(lines[0].starts_with("iteration,env_steps,wall_seconds,charts/episodic_return,") && lines[0].ends_with(",eval/seconds"));
+        assert!(lines[1].ends_with(",4,0.5"), "{}", lines[1]);
+        assert!(
+            lines[0].starts_with("iteration,env_steps,wall_seconds,charts/episodic_return,")
+                && lines[0].ends_with(",eval/seconds,losses/mirror")
+        );
         let event_file =
             std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().path()).find(|p| p.to_string_lossy().contains("tfevents")).unwrap();
         let bytes = std::fs::read(event_file).unwrap();

@@ -13,7 +13,7 @@ use serde::de::DeserializeOwned;
 /// existed — `None` when any value was a choice — and the last commit that has the option
 /// (docs/notebook/generalist-rejected.md, "Options removed from the core"; the distillation's
 /// top-level ones: docs/notebook/vision.md).
-const RETIRED: [(&str, Option<&str>, &str); 18] = [
+const RETIRED: [(&str, Option<&str>, &str); 17] = [
     ("warm_start", None, "9b48c91"),
     ("privileged_critic", Some("false"), "4f9e33d"),
     ("env.obstacle_gates", Some("0"), "4f9e33d"),
@@ -22,7 +22,6 @@ const RETIRED: [(&str, Option<&str>, &str); 18] = [
     ("env.proximity_range", Some("4.0"), "4f9e33d"),
     ("env.start_gate", Some("\"first\""), "8941555"),
     ("env.reward.progress_speed_cap", None, "8941555"),
-    ("ppo.mirror_coef", Some("0.0"), "8941555"),
     ("env.randomization.gate_perception", Some("0.0"), "7da1853"),
     ("env.randomization.gate_perception_floor", Some("0.0"), "7da1853"),
     ("crash_margin", Some("0"), "2482eeb"),

@@ -249,6 +249,17 @@ impl TrainConfig {
         }
         profile.architecture.set_observation_layout(self.env.observation);
         profile.architecture.agent = self.agent;
+        let mirror = profile.ppo.mirror_coef;
+        if mirror != 0.0 {
+            if !(mirror.is_finite() && mirror > 0.0) {
+                return Err(TrainError::Config(format!("ppo.mirror_coef: {mirror} must be a weight ≥ 0")));
+            }
+            if self.agent != Agent::State || self.env.observation.mirror().is_none() {
+                return Err(TrainError::Config(
+                    "ppo.mirror_coef: the mirror term needs the state-based agent and an observation frame with a mirror (world or heading, not body)".into(),
+                ));
+            }
+        }
         if !profile.ppo.frozen.is_nothing() && self.agent != Agent::Vision {
             return Err(TrainError::Config("ppo.frozen: only the vision agent has image layers to freeze (agent = \"vision\")".into()));
         }
@@ -628,6 +639,7 @@ impl Run {
             eval_crash_gate: eval_value(&|r| r.outcomes.fraction(r.outcomes.gate_total())),
             eval_no_lap: eval_value(&|r| r.outcomes.fraction(r.outcomes.no_lap)),
             eval_seconds: validation.map_or(f64::NAN, |v| v.seconds),
+            mirror_loss: s.mirror_loss,
         };
         self.metrics
             .write(self.progress.iteration, summary.report.env_steps, self.progress.wall_seconds, &row)
@@ -745,6 +757,16 @@ mod tests {
         assert_eq!(vision.resolved_profile().unwrap().ppo.frozen, learner::Frozen::Convolutions);
         assert!(refused("init_log_std = -1.5\n").contains("init_log_std: -1.5 needs init_from"));
         assert!(TrainConfig::from_toml("init_from = \"student.bin\"\ninit_log_std = -1.5\n").unwrap().resolved_profile().is_ok());
+    }
+
+    #[test]
+    fn the_mirror_term_needs_a_frame_with_a_mirror_and_a_state_based_agent() {
+        let resolved = |text: &str| TrainConfig::from_toml(text).unwrap().resolved_profile();
+        let refused = |text: &str| resolved(text).unwrap_err().to_string();
+        assert!(refused("[env.observation]\nframe = \"body\"\n[ppo]\nmirror_coef = 1.0\n").contains("not body"));
+        assert!(refused("agent = \"vision\"\n[ppo]\nmirror_coef = 1.0\n").contains("state-based agent"));
+        assert!(refused("[ppo]\nmirror_coef = -1.0\n").contains("ppo.mirror_coef: -1"));
+        assert_eq!(resolved("[env.observation]\nframe = \"heading\"\n[ppo]\nmirror_coef = 0.5\n").unwrap().ppo.mirror_coef, 0.5);
     }
 
     #[test]

@@ -3,6 +3,7 @@
 
 pub mod camera;
 pub mod eval;
+pub mod mirror;
 pub mod observation;
 pub mod params;
 pub mod pilot;
@@ -18,6 +19,7 @@ pub mod track;
 pub mod vec_env;
 
 pub use camera::CameraPose;
+pub use mirror::{ACTION_MIRROR_SIGNS, ObservationMirror};
 pub use nalgebra;
 pub use observation::{
     DEFAULT_LINE_SPACING, GateSight, LINE_POINT_DIM, NEXT_CORNERS_RANGE, ObservationFrame, ObservationLayout, PREVIOUS_ACTION_RANGE,

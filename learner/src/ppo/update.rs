@@ -12,6 +12,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::loss::{clipped_surrogate, gaussian_entropy, log_prob, normalize_advantages, value_loss};
+use super::mirror::MirrorTerm;
 use crate::config::{Frozen, PpoConfig};
 
 /// The samples of one rollout, flattened (`n` rows).
@@ -66,6 +67,9 @@ pub struct UpdateStats {
     pub critic_grad_norm: f64,
     /// Mean of the policy's log standard deviation after the update (`policy/log_std`).
     pub log_std: f64,
+    /// The mirror term's divergence before its weight, averaged (`losses/mirror`; NaN without
+    /// the term).
+    pub mirror_loss: f64,
     /// Gradient steps taken.
     pub gradient_steps: usize,
 }
@@ -110,6 +114,9 @@ pub trait PpoNetwork: Module {
     fn param_ids(&self) -> Vec<(ParamId, usize)>;
     /// Number of the critic's parameters, which come last before the log std in that order.
     fn critic_param_count(&self) -> usize;
+    /// Action means `[b, action_dim]` of normalised state observations alone, for the
+    /// mirror term; `None` for a network that needs more (the vision agent's images).
+    fn state_action_means(&self, states: Tensor<2>) -> Option<Tensor<2>>;
     /// The outputs of the `frozen` layers on every image of `batch` (`n × width`), without a
     /// graph, for an update that leaves those layers as they are; `None` for a network without
     /// such layers.
@@ -134,6 +141,10 @@ impl PpoNetwork for ActorCritic {
     fn critic_param_count(&self) -> usize {
         self.critic.param_ids().len()
     }
+
+    fn state_action_means(&self, states: Tensor<2>) -> Option<Tensor<2>> {
+        Some(self.action_means(states))
+    }
 }
 
 impl PpoNetwork for VisionActorCritic {
@@ -157,6 +168,10 @@ impl PpoNetwork for VisionActorCritic {
 
     fn critic_param_count(&self) -> usize {
         self.critic.param_ids().len()
+    }
+
+    fn state_action_means(&self, _states: Tensor<2>) -> Option<Tensor<2>> {
+        None
     }
 
     #[allow(clippy::expect_used, reason = "float outputs")]
@@ -285,16 +300,18 @@ impl UpdateStats {
 
 /// What one update does beyond the PPO settings.
 #[derive(Clone, Copy, Debug)]
-pub struct UpdateStep {
+pub struct UpdateStep<'a> {
     /// Adam's learning rate.
     pub learning_rate: f64,
     /// False: only the critic's parameters take the step (the policy's gradients are dropped
     /// before clipping, so neither Adam's moments nor weight decay touch them).
     pub train_policy: bool,
+    /// The mirror-symmetry term added to every minibatch's loss, when the policy trains.
+    pub mirror: Option<&'a MirrorTerm>,
 }
 
 /// One PPO update of `model` on `batch`: `n_epochs` × shuffled minibatches of
-/// [`minibatch_loss`] → backward → gradient-norm clipping → Adam
+/// [`minibatch_loss`] (plus the mirror term) → backward → gradient-norm clipping → Adam
 /// step, as `step` says. Returns the updated model and its statistics.
 pub fn update<N: PpoNetwork>(
     mut model: N,
@@ -306,9 +323,12 @@ pub fn update<N: PpoNetwork>(
     device: &Device,
 ) -> (N, UpdateStats) {
     let mut stats = UpdateStats::default();
+    let mut mirror_sum = 0.0;
     let mut indices: Vec<usize> = (0..batch.len()).collect();
     let ids = model.param_ids();
     let (groups, critic) = clip_groups(ids.len(), model.critic_param_count(), config);
+    // The mirror term moves the policy, so it is left out while only the critic trains.
+    let mirror = step.mirror.filter(|_| step.train_policy);
     // Frozen layers take no step, so their outputs are the same in every epoch: computed once
     // here, they replace the images, and no gradient reaches those layers' parameters.
     let frozen_outputs = model.frozen_outputs(batch, config.frozen, device);
@@ -318,7 +338,14 @@ pub fn update<N: PpoNetwork>(
         for rows in indices.chunks(config.batch_size.min(batch.len())) {
             let minibatch = batch.minibatch(rows, frozen, device);
             let (means, values) = model.outputs(&minibatch);
-            let (loss, parts) = ppo_loss(means.clone(), values, model.log_std(), minibatch, config);
+            // The mirror term reads the same observations, so it is taken before the PPO loss consumes them.
+            let mirrored = mirror.and_then(|term| model.state_action_means(term.mirrored(minibatch.observations())).map(|m| (term, m)));
+            let (mut loss, parts) = ppo_loss(means.clone(), values, model.log_std(), minibatch, config);
+            if let Some((term, mirrored_means)) = mirrored {
+                let divergence = term.divergence(means, mirrored_means, model.log_std());
+                mirror_sum += f64::from(scalar(divergence.clone()));
+                loss = loss + divergence.mul_scalar(term.weight);
+            }
             let mut grads = GradientsParams::from_grads(loss.backward(), &model);
             if !step.train_policy {
                 drop_gradients(&mut grads, ids.iter().enumerate().filter(|(i, _)| !critic.contains(i)).map(|(_, id)| *id));
@@ -329,6 +356,10 @@ pub fn update<N: PpoNetwork>(
         }
     }
     stats.average();
+    stats.mirror_loss = match mirror {
+        Some(_) => mirror_sum / stats.gradient_steps.max(1) as f64,
+        None => f64::NAN,
+    };
     stats.explained_variance = explained_variance(&batch.old_values, &batch.returns);
     stats.log_std = f64::from(scalar(model.log_std().mean()));
     (model, stats)
@@ -505,6 +536,42 @@ mod tests {
         }
     }
 
+    /// With zero advantages only the mirror term moves the actor, and it makes the policy's
+    /// actions on mirrored states the mirrors of its actions (its divergence falls).
+    #[test]
+    fn the_mirror_term_makes_the_policy_commute_with_the_reflection() {
+        let device = Device::flex().autodiff();
+        let layout = sim::ObservationLayout::spec(sim::ObservationFrame::Heading);
+        let arch = policy::Architecture { hidden: vec![16], ..policy::Architecture::paper() };
+        let n = 64;
+        let states: Vec<f32> = (0..n * 40).map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0).collect();
+        let batch = zero_advantage_batch(&states);
+        let term = MirrorTerm::new(&layout.mirror().unwrap(), &policy::ObsNormalizer::new(40), 1.0, &device);
+        let config = PpoConfig { batch_size: 32, n_epochs: 20, ..PpoConfig::default() };
+        let divergence = |model: &ActorCritic| {
+            let observations = Tensor::<2>::from_data(TensorData::new(states.clone(), [n, 40]), &device);
+            let means = model.action_means(observations.clone());
+            f64::from(scalar(term.divergence(means, model.action_means(term.mirrored(observations)), model.log_std.val())))
+        };
+        let run = |mirror: bool| {
+            let model = ActorCritic::new(&arch, -0.5, 1, &device);
+            let before = divergence(&model);
+            let mut optimizer = burn::optim::AdamConfig::new().init();
+            let step = UpdateStep { learning_rate: 1e-2, train_policy: true, mirror: mirror.then_some(&term) };
+            let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(0);
+            let (model, stats) = update(model, &mut optimizer, &batch, &config, &step, &mut rng, &device);
+            (before, divergence(&model), stats.mirror_loss)
+        };
+        let (before, after, logged) = run(true);
+        assert!(before > 1e-4, "a random network is not symmetric: {before}");
+        assert!(after < 0.3 * before, "made symmetric: {before} → {after}");
+        assert!(logged.is_finite() && logged > after, "the logged divergence averages along the way: {logged} > {after}");
+        let (before, after, logged) = run(false);
+        assert!((after - before).abs() < 1e-3 * before && logged.is_nan(), "without the term nothing moves: {before} → {after}");
+    }
+
+    /// With zero advantages, an entropy coefficient widens the policy's noise; without one the
+    /// log std stays where it was.
     #[test]
     fn the_entropy_term_raises_the_log_std() {
         let device = Device::flex().autodiff();
@@ -515,7 +582,7 @@ mod tests {
             let model = ActorCritic::new(&arch, -1.0, 1, &device);
             let mut optimizer = burn::optim::AdamConfig::new().init();
             let config = PpoConfig { batch_size: n, n_epochs: 5, ent_coef, ..PpoConfig::default() };
-            let step = UpdateStep { learning_rate: 1e-2, train_policy: true };
+            let step = UpdateStep { learning_rate: 1e-2, train_policy: true, mirror: None };
             let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(0);
             update(model, &mut optimizer, &batch, &config, &step, &mut rng, &device).1.log_std
         };
@@ -567,7 +634,7 @@ mod tests {
             let model = VisionActorCritic::new(&arch, -0.5, 3, &device);
             let mut optimizer = burn::optim::AdamConfig::new().init();
             let config = PpoConfig { batch_size: 12, n_epochs: 2, frozen, ..PpoConfig::default() };
-            let step = UpdateStep { learning_rate: 1e-3, train_policy: true };
+            let step = UpdateStep { learning_rate: 1e-3, train_policy: true, mirror: None };
             let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(0);
             let (model, stats) = update(model, &mut optimizer, &batch, &config, &step, &mut rng, &device);
             assert_eq!(stats.gradient_steps, 4);
