@@ -80,7 +80,7 @@ pub fn evaluate_callable(
                     "the callable's actions: expected a float32 array of shape ({n}, {ACTION_DIM}), got {answer}"
                 ))
             })?;
-            actions.copy_from_slice(finite_rows("the callable's actions", &answer, Some(n), ACTION_DIM)?);
+            actions.copy_from_slice(&finite_rows("the callable's actions", &answer, Some(n), ACTION_DIM)?);
             Ok(())
         })?;
     to_json(&report)

@@ -1,25 +1,37 @@
 //! Checks of what Python hands in — shapes, finite numbers, names — with errors that name the
 //! argument and the entry, so a wrong call fails at the call and says where.
 
-use numpy::{PyReadonlyArray2, PyUntypedArrayMethods};
+use std::borrow::Cow;
+
+use numpy::{Element, PyReadonlyArray, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use sim::EnvConfig;
 
-/// The rows of a C-contiguous float32 array of `cols` columns (and `rows` rows when given),
-/// every entry finite.
-pub fn finite_rows<'a>(name: &str, array: &'a PyReadonlyArray2<'_, f32>, rows: Option<usize>, cols: usize) -> PyResult<&'a [f32]> {
+/// The rows of a float32 array of `cols` columns (and `rows` rows when given), every entry
+/// finite, in row order whatever the array's memory layout.
+pub fn finite_rows<'a>(name: &str, array: &'a PyReadonlyArray2<'_, f32>, rows: Option<usize>, cols: usize) -> PyResult<Cow<'a, [f32]>> {
     let shape = array.shape();
     let expected_rows = rows.unwrap_or(shape[0]);
     if shape != [expected_rows, cols] {
         let rows = rows.map_or_else(|| "n".to_owned(), |r| r.to_string());
         return Err(PyValueError::new_err(format!("{name}: expected shape ({rows}, {cols}), got {shape:?}")));
     }
-    let values = array.as_slice().map_err(|_| PyValueError::new_err(format!("{name}: the array must be C-contiguous")))?;
+    let values = in_row_order(array);
     if let Some(i) = values.iter().position(|v| !v.is_finite()) {
         return Err(PyValueError::new_err(format!("{name}[{}, {}] is {} (every entry must be finite)", i / cols, i % cols, values[i])));
     }
     Ok(values)
+}
+
+/// An array's entries in row order (C order): borrowed when that is how they lie in memory, else
+/// copied. Reading the buffer as it lies would take a column-major array — what `obs[:, idx]`
+/// or a transpose gives — for different numbers, silently.
+pub fn in_row_order<'a, T: Element + Copy, D: numpy::ndarray::Dimension>(array: &'a PyReadonlyArray<'_, T, D>) -> Cow<'a, [T]> {
+    match array.as_slice() {
+        Ok(values) if array.is_c_contiguous() => Cow::Borrowed(values),
+        _ => Cow::Owned(array.as_array().iter().copied().collect()),
+    }
 }
 
 /// `values` as `N` finite numbers, named `name` in the error.

@@ -1,6 +1,7 @@
 //! Trained policies for Python: open a checkpoint or weights blob, act deterministically on a
 //! batch of raw observations (the policy's normaliser applied inside), as evaluation flies it.
 
+use std::borrow::Cow;
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -10,7 +11,7 @@ use pyo3::prelude::*;
 use sim::ACTION_DIM;
 use sim::camera::IMAGE_PIXELS;
 
-use crate::inputs::finite_rows;
+use crate::inputs::{finite_rows, in_row_order};
 
 /// A trained policy (state-based or vision), read from a checkpoint or weights blob.
 #[pyclass(name = "Policy", module = "dronerace._core", frozen)]
@@ -45,20 +46,20 @@ impl PyPolicy {
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let raw = finite_rows("observations", &observations, None, self.observation_dim())?;
         let n = observations.shape()[0];
-        let pixels: &[u8] = match (&images, self.acting.sees_images()) {
+        let pixels: Cow<'_, [u8]> = match (&images, self.acting.sees_images()) {
             (Some(images), true) => {
                 let shape = images.shape();
                 if shape != [n, 1, sim::camera::IMAGE_SIDE, sim::camera::IMAGE_SIDE] {
                     return Err(PyValueError::new_err(format!("images: expected shape ({n}, 1, 84, 84), got {shape:?}")));
                 }
-                images.as_slice().map_err(|_| PyValueError::new_err("images: the array must be C-contiguous"))?
+                in_row_order(images)
             }
             (None, true) => return Err(PyValueError::new_err("images: a vision policy acts on camera images too")),
-            (_, false) => &[],
+            (_, false) => Cow::Borrowed(&[]),
         };
         debug_assert!(pixels.is_empty() || pixels.len() == n * IMAGE_PIXELS);
         let acting = self.acting.clone();
-        let actions = py.detach(|| acting.deterministic_actions(raw, pixels));
+        let actions = py.detach(|| acting.deterministic_actions(&raw, &pixels));
         PyArray1::from_vec(py, actions).reshape([n, ACTION_DIM])
     }
 

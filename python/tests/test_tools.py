@@ -46,6 +46,11 @@ def test_policy_acts_deterministically_within_bounds_and_refuses_wrong_input():
     actions = policy.act(obs)
     assert actions.shape == (5, 4) and actions.dtype == np.float32 and np.abs(actions).max() <= 1.0
     assert np.array_equal(actions, policy.act(obs.copy()))
+    # The same numbers laid out column-major (what `obs[:, columns]` or a transpose gives) or
+    # strided are the same observations (the rows differ, so a misread would show).
+    assert not np.array_equal(actions[0], actions[1])
+    assert np.array_equal(actions, policy.act(np.asfortranarray(obs)))
+    assert np.array_equal(actions[::2], policy.act(obs[::2]))
     with pytest.raises(ValueError, match=r"observations: expected shape \(n, 52\)"):
         policy.act(np.zeros((2, 40), dtype=np.float32))
     with pytest.raises(OSError, match="nothing.bin"):
