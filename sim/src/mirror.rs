@@ -3,7 +3,9 @@
 //! quadrotor is symmetric about its x–z plane (rotors fr ↔ fl, br ↔ bl, which spin the other
 //! way), and the SPEC §5 reward depends on distances only. So the mirrored state with the
 //! mirrored action evolves into the mirror of what the original does, and a policy that is
-//! right on one side of a turn is right on the other if it commutes with the reflection.
+//! right on one side of a turn is right on the other if it commutes with the reflection. The
+//! pilot's racing line and the camera's view of the gates reflect with the track (the tests fly
+//! both), and the vehicle randomisation draws each side alike.
 //!
 //! In the world and heading frames the plane is the frame's x–z plane (y → −y): a vector `u`
 //! becomes `(u_x, −u_y, u_z)`; a pseudo-vector (body rates, and the attitude's second column,
