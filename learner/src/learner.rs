@@ -204,10 +204,11 @@ impl Learner {
         let learning_rate = ppo.learning_rate(progress);
         let (optimizer, device) = (&mut self.optimizer, &self.device);
         // Built from this version's statistics, the ones the batch was normalised with.
-        let mirror = match c.profile.architecture.observation.mirror() {
-            Some(m) if ppo.mirror_coef > 0.0 => Some(MirrorTerm::new(&m, &c.normalizer, ppo.mirror_coef, &self.device)),
-            _ => None,
-        };
+        // The term off (the default) builds no mirror map at all.
+        let mirror = (ppo.mirror_coef > 0.0)
+            .then(|| c.profile.architecture.observation.mirror())
+            .flatten()
+            .map(|m| MirrorTerm::new(&m, &c.normalizer, ppo.mirror_coef, &self.device));
         let step = UpdateStep { learning_rate, train_policy: c.version >= ppo.critic_warmup_iterations, mirror: mirror.as_ref() };
         // What a refused update rolls back to (cheap: the update copies what it writes instead
         // of writing in place while these are held).
