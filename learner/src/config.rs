@@ -47,9 +47,8 @@ pub struct PpoConfig {
     /// Default 0.
     pub critic_warmup_iterations: u64,
     /// Weight of the mirror-symmetry term ([`crate::ppo::MirrorTerm`]): the KL divergence between
-    /// the policy's actions on mirrored observations and its mirrored actions.
-    /// Beyond the thesis; 0 (off) by default, and left out of files when it is.
-    #[serde(skip_serializing_if = "is_zero")]
+    /// the policy's actions on mirrored observations and its mirrored actions. Beyond the
+    /// thesis: 0 (off) in SPEC's columns, 1 in the cpu profile (docs/notebook/generalist.md).
     pub mirror_coef: f64,
     /// Vision agent only: which of its image layers take no step in PPO (`nothing`, the
     /// `convolutions`, or the whole `encoder`: convolutions and embedding layer). Their outputs
@@ -88,11 +87,6 @@ impl Frozen {
             Self::Encoder => Some(policy::vision::EMBEDDING),
         }
     }
-}
-
-/// True for 0, the mirror term's "off".
-fn is_zero(x: &f64) -> bool {
-    *x == 0.0
 }
 
 impl Default for PpoConfig {
@@ -194,13 +188,15 @@ impl Profile {
     }
 
     /// For a 2-core CPU: 256×256 networks and 4000-sample minibatches over 5 epochs (more,
-    /// cheaper gradient steps per collected sample), and γ = 0.998 (a crash costs the ~8 s of
-    /// progress after it, not ~4 s: SPEC §9 scores 20 s flights); the rest as the paper.
+    /// cheaper gradient steps per collected sample), γ = 0.998 (a crash costs the ~8 s of
+    /// progress after it, not ~4 s: SPEC §9 scores 20 s flights), and the mirror-symmetry term
+    /// at weight 1 (every policy trained without it flies a manoeuvre and its mirror image
+    /// differently; with it, unseen tracks are flown more often); the rest as the paper.
     pub fn cpu() -> Self {
         Self {
             name: "cpu".into(),
             architecture: Architecture::cpu(),
-            ppo: PpoConfig { batch_size: 4000, n_epochs: 5, gamma: 0.998, ..PpoConfig::default() },
+            ppo: PpoConfig { batch_size: 4000, n_epochs: 5, gamma: 0.998, mirror_coef: 1.0, ..PpoConfig::default() },
             envs: 96,
         }
     }

@@ -256,7 +256,7 @@ impl TrainConfig {
             }
             if self.agent != Agent::State || self.env.observation.mirror().is_none() {
                 return Err(TrainError::Config(
-                    "ppo.mirror_coef: the mirror term needs the state-based agent and an observation frame with a mirror (world or heading, not body)".into(),
+                    "ppo.mirror_coef: the mirror term (on in the cpu profile) needs the state-based agent and an observation frame with a mirror (world or heading, not body); set ppo.mirror_coef = 0 to train without it".into(),
                 ));
             }
         }
@@ -767,6 +767,18 @@ mod tests {
         assert!(refused("agent = \"vision\"\n[ppo]\nmirror_coef = 1.0\n").contains("state-based agent"));
         assert!(refused("[ppo]\nmirror_coef = -1.0\n").contains("ppo.mirror_coef: -1"));
         assert_eq!(resolved("[env.observation]\nframe = \"heading\"\n[ppo]\nmirror_coef = 0.5\n").unwrap().ppo.mirror_coef, 0.5);
+        // On by default in the cpu profile, off in SPEC's columns, and refused in the body
+        // frame with a hint to turn it off.
+        assert_eq!(resolved("").unwrap().ppo.mirror_coef, 1.0);
+        assert_eq!(resolved("profile = \"paper\"\n").unwrap().ppo.mirror_coef, 0.0);
+        assert_eq!(resolved("agent = \"vision\"\n").unwrap().ppo.mirror_coef, 0.0);
+        assert!(refused("[env.observation]\nframe = \"body\"\n").contains("set ppo.mirror_coef = 0"));
+        assert!(resolved("[env.observation]\nframe = \"body\"\n[ppo]\nmirror_coef = 0.0\n").is_ok());
+        // An explicit 0 survives the run directory's config file, whose reader starts from
+        // the profile's 1.
+        let off = TrainConfig::from_toml("[ppo]\nmirror_coef = 0.0\n").unwrap();
+        let saved = TrainConfig::from_toml(&toml::to_string(&off).unwrap()).unwrap();
+        assert_eq!(saved.resolved_profile().unwrap().ppo.mirror_coef, 0.0);
     }
 
     #[test]
