@@ -636,6 +636,7 @@ mod tests {
         total_env_steps = 1000
         [base.ppo]
         n_epochs = 3
+        mirror_coef = 0.0   # the body frame has no mirror
         [[variant]]
         name = "world"
         [[variant]]
