@@ -50,6 +50,9 @@ pub struct PpoConfig {
     /// the policy's actions on mirrored observations and its mirrored actions. Beyond the
     /// thesis: 0 (off) in SPEC's columns, 1 in the cpu profile (docs/notebook/generalist.md).
     pub mirror_coef: f64,
+    /// Share of each minibatch's rows the mirror term is taken on, in (0, 1]: its extra actor
+    /// pass costs this share of a full one. 1 (every row).
+    pub mirror_fraction: f64,
     /// Vision agent only: which of its image layers take no step in PPO (`nothing`, the
     /// `convolutions`, or the whole `encoder`: convolutions and embedding layer). Their outputs
     /// are computed once per iteration and the epochs train the rest on them — PPO on top of a
@@ -109,6 +112,7 @@ impl Default for PpoConfig {
             initial_log_std: -0.5,
             critic_warmup_iterations: 0,
             mirror_coef: 0.0,
+            mirror_fraction: 1.0,
             frozen: Frozen::Nothing,
         }
     }
@@ -128,7 +132,7 @@ impl PpoConfig {
     /// Every number in its range, or the first that is not: a value outside would panic or
     /// make every update non-finite.
     pub fn check(&self) -> Result<(), InvalidPpoConfig> {
-        let ranges: [(&'static str, f64, f64, f64); 11] = [
+        let ranges: [(&'static str, f64, f64, f64); 12] = [
             ("gamma", self.gamma, 0.0, 1.0),
             ("gae_lambda", self.gae_lambda, 0.0, 1.0),
             ("clip_range", self.clip_range, 1e-6, 1.0),
@@ -140,6 +144,7 @@ impl PpoConfig {
             ("weight_decay", self.weight_decay, 0.0, 1.0),
             ("adam_epsilon", self.adam_epsilon, 1e-12, 1.0),
             ("initial_log_std", self.initial_log_std, -20.0, 5.0),
+            ("mirror_fraction", self.mirror_fraction, 1e-6, 1.0),
         ];
         for (name, value, low, high) in ranges {
             if !(value.is_finite() && (low..=high).contains(&value)) {

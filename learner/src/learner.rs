@@ -208,7 +208,7 @@ impl Learner {
         let mirror = (ppo.mirror_coef > 0.0)
             .then(|| c.profile.architecture.observation.mirror())
             .flatten()
-            .map(|m| MirrorTerm::new(&m, &c.normalizer, ppo.mirror_coef, &self.device));
+            .map(|m| MirrorTerm::new(&m, &c.normalizer, ppo.mirror_coef, &self.device).on_fraction(ppo.mirror_fraction));
         let step = UpdateStep { learning_rate, train_policy: c.version >= ppo.critic_warmup_iterations, mirror: mirror.as_ref() };
         // What a refused update rolls back to (cheap: the update copies what it writes instead
         // of writing in place while these are held).

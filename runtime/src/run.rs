@@ -737,6 +737,8 @@ mod tests {
             ("[ppo]\nmax_grad_norm = inf\n", "ppo.max_grad_norm"),
             ("[ppo]\nadam_epsilon = nan\n", "ppo.adam_epsilon"),
             ("[ppo]\nn_epochs = 0\n", "ppo.n_epochs"),
+            ("[ppo]\nmirror_fraction = 0.0\n", "ppo.mirror_fraction"),
+            ("[ppo]\nmirror_fraction = 1.5\n", "ppo.mirror_fraction"),
             ("[switching]\nalpha = -1.0\n", "switching.alpha"),
             ("[switching]\nrandom_probability = 2.0\n", "switching.random_probability"),
             ("[switching]\nwindow = 1\n", "switching.window"),

@@ -23,6 +23,10 @@ pub struct MirrorTerm {
     action_signs: Tensor<2>,
     /// Weight of the divergence in the loss.
     pub weight: f64,
+    /// Share of each minibatch's rows the divergence is taken on (its first rows, which the
+    /// shuffle makes a uniform sample): an unbiased estimate of the whole minibatch's at a
+    /// fraction of the extra actor pass's cost.
+    pub fraction: f64,
 }
 
 impl MirrorTerm {
@@ -43,7 +47,18 @@ impl MirrorTerm {
             offset: Tensor::from_data(TensorData::new(offset, [1, dim]), device),
             action_signs: Tensor::from_data(TensorData::new(ACTION_MIRROR_SIGNS.to_vec(), [1, ACTION_MIRROR_SIGNS.len()]), device),
             weight,
+            fraction: 1.0,
         }
+    }
+
+    /// The term taken on `fraction` ∈ (0, 1] of each minibatch's rows.
+    pub fn on_fraction(self, fraction: f64) -> Self {
+        Self { fraction, ..self }
+    }
+
+    /// How many of a minibatch's `rows` the divergence is taken on: at least one.
+    pub fn sampled_rows(&self, rows: usize) -> usize {
+        ((rows as f64 * self.fraction).ceil() as usize).clamp(1, rows.max(1))
     }
 
     /// The mirrors of normalised observations `[b, dim]`, normalised.
@@ -92,6 +107,18 @@ mod tests {
         for (i, (a, b)) in on_device.iter().zip(&expected).enumerate() {
             assert!((a - b).abs() < 1e-4, "number {i}: {a} vs {b}");
         }
+    }
+
+    /// A fraction of a minibatch rounds up to whole rows, never none and never more than it has.
+    #[test]
+    fn the_sampled_rows_are_the_fraction_rounded_up() {
+        let device = Device::flex();
+        let term =
+            MirrorTerm::new(&ObservationLayout::spec(ObservationFrame::Heading).mirror().unwrap(), &ObsNormalizer::new(40), 1.0, &device);
+        assert_eq!(term.sampled_rows(4000), 4000);
+        let quarter = term.on_fraction(0.25);
+        assert_eq!((quarter.sampled_rows(4000), quarter.sampled_rows(4001), quarter.sampled_rows(3)), (1000, 1001, 1));
+        assert_eq!(quarter.on_fraction(1e-6).sampled_rows(10), 1);
     }
 
     /// A policy that commutes with the mirror has no divergence; one that does not, has, in units

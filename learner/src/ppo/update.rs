@@ -339,9 +339,16 @@ pub fn update<N: PpoNetwork>(
             let minibatch = batch.minibatch(rows, frozen, device);
             let (means, values) = model.outputs(&minibatch);
             // The mirror term reads the same observations, so it is taken before the PPO loss consumes them.
-            let mirrored = mirror.and_then(|term| model.state_action_means(term.mirrored(minibatch.observations())).map(|m| (term, m)));
+            let mirrored = mirror.and_then(|term| {
+                let observations = minibatch.observations();
+                let rows = term.sampled_rows(rows.len());
+                let observations = if rows < observations.dims()[0] { observations.slice([0..rows]) } else { observations };
+                model.state_action_means(term.mirrored(observations)).map(|m| (term, m))
+            });
             let (mut loss, parts) = ppo_loss(means.clone(), values, model.log_std(), minibatch, config);
             if let Some((term, mirrored_means)) = mirrored {
+                let sampled = mirrored_means.dims()[0];
+                let means = if sampled < means.dims()[0] { means.slice([0..sampled]) } else { means };
                 let divergence = term.divergence(means, mirrored_means, model.log_std());
                 mirror_sum += f64::from(scalar(divergence.clone()));
                 loss = loss + divergence.mul_scalar(term.weight);
@@ -553,20 +560,25 @@ mod tests {
             let means = model.action_means(observations.clone());
             f64::from(scalar(term.divergence(means, model.action_means(term.mirrored(observations)), model.log_std.val())))
         };
-        let run = |mirror: bool| {
+        let run = |mirror: Option<&MirrorTerm>| {
             let model = ActorCritic::new(&arch, -0.5, 1, &device);
             let before = divergence(&model);
             let mut optimizer = burn::optim::AdamConfig::new().init();
-            let step = UpdateStep { learning_rate: 1e-2, train_policy: true, mirror: mirror.then_some(&term) };
+            let step = UpdateStep { learning_rate: 1e-2, train_policy: true, mirror };
             let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(0);
             let (model, stats) = update(model, &mut optimizer, &batch, &config, &step, &mut rng, &device);
             (before, divergence(&model), stats.mirror_loss)
         };
-        let (before, after, logged) = run(true);
+        let (before, after, logged) = run(Some(&term));
         assert!(before > 1e-4, "a random network is not symmetric: {before}");
         assert!(after < 0.3 * before, "made symmetric: {before} → {after}");
         assert!(logged.is_finite() && logged > after, "the logged divergence averages along the way: {logged} > {after}");
-        let (before, after, logged) = run(false);
+        // Taken on a quarter of each minibatch's rows (8 of 32), it still makes the policy
+        // symmetric on every state, the ones it was never taken on included.
+        let quarter = MirrorTerm::new(&layout.mirror().unwrap(), &policy::ObsNormalizer::new(40), 1.0, &device).on_fraction(0.25);
+        let (_, after_quarter, _) = run(Some(&quarter));
+        assert!(after_quarter < 0.3 * before && after_quarter != after, "a quarter of the rows: {before} → {after_quarter}");
+        let (before, after, logged) = run(None);
         assert!((after - before).abs() < 1e-3 * before && logged.is_nan(), "without the term nothing moves: {before} → {after}");
     }
 
