@@ -28,6 +28,14 @@ type Tracked = Autodiff<Flex, NoCheckpointing>;
 /// added in the same order whatever the thread count (exact resume relies on it).
 const PART_ROWS: usize = 1024;
 
+/// Rows per part of a training pass over `rows` rows: [`PART_ROWS`], but a pass of 257 to
+/// 1,024 rows is cut in two, so that both cores work on it (the mirror term's share of a
+/// minibatch is such a pass). A function of `rows` alone, for the same reason as `PART_ROWS`.
+/// Inference keeps `PART_ROWS`: an evaluation's actions stay what they were, bit for bit.
+fn training_part_rows(rows: usize) -> usize {
+    if rows <= PART_ROWS { rows.div_ceil(2).max(PART_ROWS / 4) } else { PART_ROWS }
+}
+
 /// `activation(x · weight + bias)` for `x: [batch, in]`, `weight: [in, out]`, `bias: [out]`;
 /// `leaky_slope` `Some(s)` applies LeakyReLU with negative slope `s`, `None` none.
 pub fn dense(x: Tensor<2>, weight: Tensor<2>, bias: Tensor<1>, leaky_slope: Option<f64>) -> Tensor<2> {
@@ -42,7 +50,7 @@ pub fn dense(x: Tensor<2>, weight: Tensor<2>, bias: Tensor<1>, leaky_slope: Opti
     if let (Ok(x), Ok(w), Ok(b)) =
         (x.clone().try_into_primitive::<Flex>(), weight.clone().try_into_primitive::<Flex>(), bias.clone().try_into_primitive::<Flex>())
     {
-        return Tensor::from_primitive::<Flex>(forward(&x, &w, &b, slope));
+        return Tensor::from_primitive::<Flex>(forward(&x, &w, &b, slope, PART_ROWS));
     }
     dense_by_burn_ops(x, weight, bias, leaky_slope)
 }
@@ -97,7 +105,8 @@ fn tracked_dense(
     bias: FloatTensor<Tracked>,
     slope: Option<f32>,
 ) -> FloatTensor<Tracked> {
-    let y = forward(x.primitive(), weight.primitive(), bias.primitive(), slope);
+    let part_rows = training_part_rows(x.primitive().layout().shape()[0]);
+    let y = forward(x.primitive(), weight.primitive(), bias.primitive(), slope, part_rows);
     match DenseBackward.prepare::<NoCheckpointing>([x.node(), weight.node(), bias.node()]).compute_bound().stateful() {
         OpsKind::Tracked(prep) => {
             let saved = Saved { x: x.into_primitive(), weight: weight.into_primitive(), y: y.clone(), slope };
@@ -120,16 +129,17 @@ fn tensor(values: Vec<f32>, shape: &[usize]) -> FlexTensor {
     FlexTensor::from_data(TensorData::new(values, shape.to_vec()))
 }
 
-fn forward(x: &FlexTensor, weight: &FlexTensor, bias: &FlexTensor, slope: Option<f32>) -> FlexTensor {
+/// The layer's output, computed in parts of `part_rows` rows, one parallel region.
+fn forward(x: &FlexTensor, weight: &FlexTensor, bias: &FlexTensor, slope: Option<f32>, part_rows: usize) -> FlexTensor {
     let ((x, xs), (w, ws), (b, _)) = (values(x), values(weight), values(bias));
     let (rows, inputs, outputs) = (xs[0], xs[1], ws[1]);
     // Slope 1 is the identity: one branch-free loop (a vector blend) serves both kinds of layer.
     let s = slope.unwrap_or(1.0);
     let mut y = Vec::with_capacity(rows * outputs);
     if outputs > 0 {
-        y.spare_capacity_mut()[..rows * outputs].par_chunks_mut(PART_ROWS * outputs).enumerate().for_each(|(p, y)| {
+        y.spare_capacity_mut()[..rows * outputs].par_chunks_mut(part_rows * outputs).enumerate().for_each(|(p, y)| {
             let part = y.len() / outputs;
-            let x = &x[p * PART_ROWS * inputs..][..part * inputs];
+            let x = &x[p * part_rows * inputs..][..part * inputs];
             // y = x · w: all row-major (column stride 1, row stride the width).
             let y = product_into(y, part, outputs, inputs, (x, 1, inputs as isize), (&w, 1, outputs as isize));
             for row in y.chunks_exact_mut(outputs) {
@@ -176,23 +186,24 @@ fn backward(saved: &Saved, dy: &FlexTensor, input_gradient: bool) -> (Option<Fle
         return (dx, tensor(vec![0.0; inputs * outputs], &[inputs, outputs]), tensor(Vec::new(), &[0]));
     }
     let s = saved.slope.unwrap_or(1.0);
+    let part_rows = training_part_rows(rows);
     let (mut dz, mut dx) = (Vec::with_capacity(rows * outputs), Vec::with_capacity(if input_gradient { rows * inputs } else { 0 }));
     let mut dx_parts: Vec<Option<&mut [MaybeUninit<f32>]>> = Vec::new();
     if input_gradient && inputs > 0 {
-        dx_parts.extend(dx.spare_capacity_mut()[..rows * inputs].chunks_mut(PART_ROWS * inputs).map(Some));
+        dx_parts.extend(dx.spare_capacity_mut()[..rows * inputs].chunks_mut(part_rows * inputs).map(Some));
     }
     // One input-gradient part per part of dz (the zip below would silently drop a mismatch).
-    debug_assert!(dx_parts.is_empty() || dx_parts.len() == rows.div_ceil(PART_ROWS));
-    dx_parts.resize_with(rows.div_ceil(PART_ROWS), || None);
+    debug_assert!(dx_parts.is_empty() || dx_parts.len() == rows.div_ceil(part_rows));
+    dx_parts.resize_with(rows.div_ceil(part_rows), || None);
     // Per part of the rows, on one thread: dz = dy ⊙ activation'(z), the part's bias and weight
     // gradients (Σ_rows dz, xᵀ·dz) and its rows of the input gradient (dz · wᵀ).
     let partials: Vec<(Vec<f32>, Vec<f32>)> = dz.spare_capacity_mut()[..rows * outputs]
-        .par_chunks_mut(PART_ROWS * outputs)
+        .par_chunks_mut(part_rows * outputs)
         .zip(dx_parts)
         .enumerate()
         .map(|(p, (dz, dx))| {
             let part = dz.len() / outputs;
-            let (start, end) = (p * PART_ROWS, p * PART_ROWS + part);
+            let (start, end) = (p * part_rows, p * part_rows + part);
             let mut db = vec![0.0f32; outputs];
             for ((dz, dy), y) in dz
                 .chunks_exact_mut(outputs)
@@ -326,12 +337,18 @@ mod tests {
 
     /// Value and every gradient of a two-layer stack (the input tracked too) agree with burn's
     /// own ops, for shapes that are not multiples of the part or kernel sizes (three parts, the
-    /// last short, so the partial gradients are summed).
+    /// last short, so the partial gradients are summed; and a short pass cut in two).
     #[test]
     fn fused_layers_match_burns_ops_in_value_and_gradients() {
+        for rows in [2 * PART_ROWS + 203, 701] {
+            fused_layers_match_burns_ops_at(rows);
+        }
+    }
+
+    fn fused_layers_match_burns_ops_at(rows: usize) {
         let device = Device::flex().autodiff();
         let mut rng = ChaCha8Rng::seed_from_u64(3);
-        let (rows, inputs, hidden, outputs) = (2 * PART_ROWS + 203, 7, 33, 5);
+        let (inputs, hidden, outputs) = (7, 33, 5);
         let leaf = |v: Vec<f32>, shape: [usize; 2]| Tensor::<2>::from_data(TensorData::new(v, shape), &device).require_grad();
         let x = leaf(random(rows, inputs, &mut rng), [rows, inputs]);
         let w1 = leaf(random(inputs, hidden, &mut rng), [inputs, hidden]);
@@ -352,8 +369,18 @@ mod tests {
             assert_eq!(a.len(), b.len(), "{name}");
             let scale = b.iter().fold(1.0f32, |m, v| m.max(v.abs()));
             let worst = a.iter().zip(b).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
-            assert!(worst <= 1e-5 * scale, "{name}: fused and burn's ops differ by {worst} (scale {scale})");
+            assert!(worst <= 1e-5 * scale, "{rows} rows, {name}: fused and burn's ops differ by {worst} (scale {scale})");
         }
+    }
+
+    /// A training pass is cut into parts by its row count alone: short passes in two, long
+    /// ones in parts of `PART_ROWS`, the smallest in one.
+    #[test]
+    fn training_passes_are_cut_by_their_row_count() {
+        let parts = |rows: usize| rows.div_ceil(training_part_rows(rows));
+        assert_eq!([parts(32), parts(256), parts(257), parts(701), parts(1000), parts(1024)], [1, 1, 2, 2, 2, 2]);
+        assert_eq!([parts(1025), parts(4000), parts(24_000)], [2, 4, 24]);
+        assert_eq!(training_part_rows(1000), 500);
     }
 
     /// LeakyReLU's value and gradient per element, through an identity layer, on both paths:
