@@ -342,13 +342,13 @@ pub fn update<N: PpoNetwork>(
             let mirrored = mirror.and_then(|term| {
                 let observations = minibatch.observations();
                 let rows = term.sampled_rows(rows.len());
-                let observations = if rows < observations.dims()[0] { observations.slice([0..rows]) } else { observations };
+                let observations = if rows < observations.dims()[0] { observations.narrow(0, 0, rows) } else { observations };
                 model.state_action_means(term.mirrored(observations)).map(|m| (term, m))
             });
             let (mut loss, parts) = ppo_loss(means.clone(), values, model.log_std(), minibatch, config);
             if let Some((term, mirrored_means)) = mirrored {
                 let sampled = mirrored_means.dims()[0];
-                let means = if sampled < means.dims()[0] { means.slice([0..sampled]) } else { means };
+                let means = if sampled < means.dims()[0] { means.narrow(0, 0, sampled) } else { means };
                 let divergence = term.divergence(means, mirrored_means, model.log_std());
                 mirror_sum += f64::from(scalar(divergence.clone()));
                 loss = loss + divergence.mul_scalar(term.weight);
