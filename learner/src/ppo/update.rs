@@ -340,16 +340,13 @@ pub fn update<N: PpoNetwork>(
             let (means, values) = model.outputs(&minibatch);
             // The mirror term reads the same observations, so it is taken before the PPO loss consumes them.
             let mirrored = mirror.and_then(|term| {
-                let observations = minibatch.observations();
-                let rows = term.sampled_rows(rows.len());
-                let observations = if rows < observations.dims()[0] { observations.narrow(0, 0, rows) } else { observations };
-                model.state_action_means(term.mirrored(observations)).map(|m| (term, m))
+                let sampled = term.sampled_rows(rows.len());
+                let observations = first_rows(minibatch.observations(), sampled);
+                model.state_action_means(term.mirrored(observations)).map(|m| (term, m, sampled))
             });
             let (mut loss, parts) = ppo_loss(means.clone(), values, model.log_std(), minibatch, config);
-            if let Some((term, mirrored_means)) = mirrored {
-                let sampled = mirrored_means.dims()[0];
-                let means = if sampled < means.dims()[0] { means.narrow(0, 0, sampled) } else { means };
-                let divergence = term.divergence(means, mirrored_means, model.log_std());
+            if let Some((term, mirrored_means, sampled)) = mirrored {
+                let divergence = term.divergence(first_rows(means, sampled), mirrored_means, model.log_std());
                 mirror_sum += f64::from(scalar(divergence.clone()));
                 loss = loss + divergence.mul_scalar(term.weight);
             }
@@ -370,6 +367,11 @@ pub fn update<N: PpoNetwork>(
     stats.explained_variance = explained_variance(&batch.old_values, &batch.returns);
     stats.log_std = f64::from(scalar(model.log_std().mean()));
     (model, stats)
+}
+
+/// The first `n` rows of `t`; `t` itself, with no op added to the graph, when that is all of it.
+fn first_rows(t: Tensor<2>, n: usize) -> Tensor<2> {
+    if n < t.dims()[0] { t.narrow(0, 0, n) } else { t }
 }
 
 /// The clipping group of each of `params` parameters in export order (the actor's, then the
