@@ -772,6 +772,8 @@ mod tests {
         // On by default in the cpu profile, off in SPEC's columns, and refused in the body
         // frame with a hint to turn it off.
         assert_eq!(resolved("").unwrap().ppo.mirror_coef, 1.0);
+        assert_eq!(resolved("").unwrap().ppo.mirror_fraction, 0.25, "on a quarter of each minibatch");
+        assert_eq!(resolved("profile = \"paper\"\n").unwrap().ppo.mirror_fraction, 1.0);
         assert_eq!(resolved("profile = \"paper\"\n").unwrap().ppo.mirror_coef, 0.0);
         assert_eq!(resolved("agent = \"vision\"\n").unwrap().ppo.mirror_coef, 0.0);
         assert!(refused("[env.observation]\nframe = \"body\"\n").contains("set ppo.mirror_coef = 0"));
