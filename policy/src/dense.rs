@@ -1,9 +1,11 @@
-//! A dense layer — matrix product, bias and optional LeakyReLU — as one autodiff node on the flex
-//! backend. Through burn's ops the same layer is a matrix product plus five element-wise ops
-//! forward and as many backward, each a full pass over a `batch × width` activation; here it is one
-//! product and one pass forward, and two products and one pass backward
-//! (docs/notebook/throughput.md, "The fused dense layer"). Other devices take burn's ops, which
-//! compute the same function.
+//! Dense layers — matrix product, bias and optional LeakyReLU — as one autodiff node on the flex
+//! backend, a whole stack of them (an MLP) at once. Through burn's ops each layer is a matrix
+//! product plus five element-wise ops forward and as many backward, each a full pass over a
+//! `batch × width` activation; here a layer is one product and one pass forward, two products and
+//! one pass backward (docs/notebook/throughput.md, "The fused dense layer"). A stack runs a part
+//! of the rows through every layer on one thread, so a layer's output, and backward its input
+//! gradient, is still in cache when the next layer reads it, and the stack is one parallel region
+//! each way. Other devices take burn's ops, which compute the same function.
 
 use std::mem::MaybeUninit;
 
@@ -21,12 +23,16 @@ use rayon::prelude::*;
 /// The autodiff flex backend that training runs on.
 type Tracked = Autodiff<Flex, NoCheckpointing>;
 
-/// Rows per part of a layer's pass. Each pass is one parallel region over parts of this many
+/// Rows per part of a stack's pass. Each pass is one parallel region over parts of this many
 /// rows, a part's products and element-wise work on one thread: per product and pass, waking
 /// the other thread cost more than its share of a product at 4,000 rows
 /// (docs/notebook/throughput.md). Fixed, so that the weight and bias gradients' partial sums are
 /// added in the same order whatever the thread count (exact resume relies on it).
 const PART_ROWS: usize = 1024;
+
+/// Layers per autodiff node: the node's parents (input, then each layer's weight and bias) are
+/// a fixed-size array, so a stack is cut into nodes of up to this many layers.
+const NODE_LAYERS: usize = 4;
 
 /// Rows per part of a training pass over `rows` rows: [`PART_ROWS`], but a pass of 257 to
 /// 1,024 rows is cut in two, so that both cores work on it (the mirror term's share of a
@@ -36,23 +42,62 @@ fn training_part_rows(rows: usize) -> usize {
     if rows <= PART_ROWS { rows.div_ceil(2).max(PART_ROWS / 4) } else { PART_ROWS }
 }
 
+/// One layer of a [`dense_stack`]: `weight: [in, out]`, `bias: [out]`, and LeakyReLU with
+/// negative slope `leaky_slope` after it (`None`: no activation).
+#[derive(Clone, Debug)]
+pub struct Dense {
+    /// `[in, out]`.
+    pub weight: Tensor<2>,
+    /// `[out]`.
+    pub bias: Tensor<1>,
+    /// The LeakyReLU's negative slope, or none.
+    pub leaky_slope: Option<f64>,
+}
+
 /// `activation(x · weight + bias)` for `x: [batch, in]`, `weight: [in, out]`, `bias: [out]`;
 /// `leaky_slope` `Some(s)` applies LeakyReLU with negative slope `s`, `None` none.
 pub fn dense(x: Tensor<2>, weight: Tensor<2>, bias: Tensor<1>, leaky_slope: Option<f64>) -> Tensor<2> {
-    let slope = leaky_slope.map(|s| s as f32);
-    if let (Ok(x), Ok(w), Ok(b)) = (
-        x.clone().try_into_primitive::<Tracked>(),
-        weight.clone().try_into_primitive::<Tracked>(),
-        bias.clone().try_into_primitive::<Tracked>(),
-    ) {
-        return Tensor::from_primitive::<Tracked>(tracked_dense(x, w, b, slope));
+    dense_stack(x, &[Dense { weight, bias, leaky_slope }])
+}
+
+/// `x` through each layer in turn. The same values as [`dense`] layer by layer, bit for bit.
+pub fn dense_stack(mut x: Tensor<2>, layers: &[Dense]) -> Tensor<2> {
+    // A layer without outputs or inputs has nothing to cut into parts: burn's ops take it.
+    if layers.iter().any(|l| l.weight.dims().contains(&0)) {
+        return layers.iter().fold(x, |x, l| dense_by_burn_ops(x, l.weight.clone(), l.bias.clone(), l.leaky_slope));
     }
-    if let (Ok(x), Ok(w), Ok(b)) =
-        (x.clone().try_into_primitive::<Flex>(), weight.clone().try_into_primitive::<Flex>(), bias.clone().try_into_primitive::<Flex>())
-    {
-        return Tensor::from_primitive::<Flex>(forward(&x, &w, &b, slope, PART_ROWS));
+    for node in layers.chunks(NODE_LAYERS) {
+        x = stack_node(x, node);
     }
-    dense_by_burn_ops(x, weight, bias, leaky_slope)
+    x
+}
+
+/// Up to [`NODE_LAYERS`] layers as one node on flex (with autodiff or without), burn's ops
+/// elsewhere.
+fn stack_node(x: Tensor<2>, layers: &[Dense]) -> Tensor<2> {
+    let slopes: Vec<Option<f32>> = layers.iter().map(|l| l.leaky_slope.map(|s| s as f32)).collect();
+    let tracked: Option<Vec<_>> = layers
+        .iter()
+        .map(|l| Some((l.weight.clone().try_into_primitive::<Tracked>().ok()?, l.bias.clone().try_into_primitive::<Tracked>().ok()?)))
+        .collect();
+    if let (Ok(x), Some(params)) = (x.clone().try_into_primitive::<Tracked>(), tracked) {
+        let y = match params.len() {
+            1 => tracked_stack::<3>(x, params, slopes),
+            2 => tracked_stack::<5>(x, params, slopes),
+            3 => tracked_stack::<7>(x, params, slopes),
+            _ => tracked_stack::<9>(x, params, slopes),
+        };
+        return Tensor::from_primitive::<Tracked>(y);
+    }
+    let untracked: Option<Vec<_>> = layers
+        .iter()
+        .map(|l| Some((l.weight.clone().try_into_primitive::<Flex>().ok()?, l.bias.clone().try_into_primitive::<Flex>().ok()?)))
+        .collect();
+    if let (Ok(x), Some(params)) = (x.clone().try_into_primitive::<Flex>(), untracked) {
+        let outputs = forward(&x, &params, &slopes, PART_ROWS);
+        return outputs.into_iter().last().map_or_else(|| Tensor::from_primitive::<Flex>(x), Tensor::from_primitive::<Flex>);
+    }
+    layers.iter().fold(x, |x, l| dense_by_burn_ops(x, l.weight.clone(), l.bias.clone(), l.leaky_slope))
 }
 
 /// LeakyReLU with negative slope `s` as `s·z + (1 − s)·relu(z)`: burn's own `leaky_relu` is a
@@ -70,47 +115,61 @@ pub fn dense_by_burn_ops(x: Tensor<2>, weight: Tensor<2>, bias: Tensor<1>, leaky
     }
 }
 
-/// What the backward pass needs: the layer's input, weight and output (the output's sign is the
-/// pre-activation's, as the slope is positive).
+/// What the backward pass needs: the stack's input, each layer's weight and output (an
+/// output's sign is its pre-activation's, as the slope is positive) and slope.
 #[derive(Clone, Debug)]
 struct Saved {
     x: FlexTensor,
-    weight: FlexTensor,
-    y: FlexTensor,
-    slope: Option<f32>,
+    weights: Vec<FlexTensor>,
+    outputs: Vec<FlexTensor>,
+    slopes: Vec<Option<f32>>,
 }
 
-/// The layer's node in burn's autodiff graph; parents are input, weight and bias.
+/// The stack's node in burn's autodiff graph; its `N` parents are the input, then each layer's
+/// weight and bias.
 #[derive(Debug)]
-struct DenseBackward;
+struct StackBackward;
 
-impl Backward<Flex, 3> for DenseBackward {
+impl<const N: usize> Backward<Flex, N> for StackBackward {
     type State = Saved;
 
-    fn backward(self, ops: Ops<Saved, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
+    fn backward(self, ops: Ops<Saved, N>, grads: &mut Gradients, _: &mut Checkpointer) {
         let dy = grads.consume::<Flex>(&ops.node);
-        let [x_node, weight_node, bias_node] = ops.parents;
-        let (dx, dw, db) = backward(&ops.state, &dy, x_node.is_some());
-        for (node, grad) in [(x_node, dx), (weight_node, Some(dw)), (bias_node, Some(db))] {
-            if let (Some(node), Some(grad)) = (node, grad) {
-                grads.register::<Flex>(node.id, grad);
+        let x_node = ops.parents[0].clone();
+        let (dx, params) = backward(&ops.state, &dy, x_node.is_some());
+        if let (Some(node), Some(dx)) = (x_node, dx) {
+            grads.register::<Flex>(node.id, dx);
+        }
+        for (l, (dw, db)) in params.into_iter().enumerate() {
+            for (parent, grad) in [(1 + 2 * l, dw), (2 + 2 * l, db)] {
+                if let Some(node) = &ops.parents[parent] {
+                    grads.register::<Flex>(node.id, grad);
+                }
             }
         }
     }
 }
 
-fn tracked_dense(
+/// `N = 1 + 2 × layers` parents: the input, then each layer's weight and bias.
+fn tracked_stack<const N: usize>(
     x: FloatTensor<Tracked>,
-    weight: FloatTensor<Tracked>,
-    bias: FloatTensor<Tracked>,
-    slope: Option<f32>,
+    params: Vec<(FloatTensor<Tracked>, FloatTensor<Tracked>)>,
+    slopes: Vec<Option<f32>>,
 ) -> FloatTensor<Tracked> {
+    assert_eq!(N, 1 + 2 * params.len(), "one parent for the input and two a layer");
+    let flex: Vec<(FlexTensor, FlexTensor)> = params.iter().map(|(w, b)| (w.primitive().clone(), b.primitive().clone())).collect();
     let part_rows = training_part_rows(x.primitive().layout().shape()[0]);
-    let y = forward(x.primitive(), weight.primitive(), bias.primitive(), slope, part_rows);
-    match DenseBackward.prepare::<NoCheckpointing>([x.node(), weight.node(), bias.node()]).compute_bound().stateful() {
+    let outputs = forward(x.primitive(), &flex, &slopes, part_rows);
+    let nodes: [_; N] = std::array::from_fn(|i| match i {
+        0 => x.node(),
+        i if i % 2 == 1 => params[(i - 1) / 2].0.node(),
+        i => params[(i - 2) / 2].1.node(),
+    });
+    let y = outputs[outputs.len() - 1].clone();
+    match <StackBackward as Backward<Flex, N>>::prepare::<NoCheckpointing>(StackBackward, nodes).compute_bound().stateful() {
         OpsKind::Tracked(prep) => {
-            let saved = Saved { x: x.into_primitive(), weight: weight.into_primitive(), y: y.clone(), slope };
-            prep.finish(saved, y)
+            let weights = flex.into_iter().map(|(w, _)| w).collect();
+            prep.finish(Saved { x: x.into_primitive(), weights, outputs, slopes }, y)
         }
         OpsKind::UnTracked(prep) => prep.finish(y),
     }
@@ -129,27 +188,44 @@ fn tensor(values: Vec<f32>, shape: &[usize]) -> FlexTensor {
     FlexTensor::from_data(TensorData::new(values, shape.to_vec()))
 }
 
-/// The layer's output, computed in parts of `part_rows` rows, one parallel region.
-fn forward(x: &FlexTensor, weight: &FlexTensor, bias: &FlexTensor, slope: Option<f32>, part_rows: usize) -> FlexTensor {
-    let ((x, xs), (w, ws), (b, _)) = (values(x), values(weight), values(bias));
-    let (rows, inputs, outputs) = (xs[0], xs[1], ws[1]);
-    // Slope 1 is the identity: one branch-free loop (a vector blend) serves both kinds of layer.
-    let s = slope.unwrap_or(1.0);
-    let mut y = Vec::with_capacity(rows * outputs);
-    if outputs > 0 {
-        y.spare_capacity_mut()[..rows * outputs].par_chunks_mut(part_rows * outputs).enumerate().for_each(|(p, y)| {
-            let part = y.len() / outputs;
-            let x = &x[p * part_rows * inputs..][..part * inputs];
-            // y = x · w: all row-major (column stride 1, row stride the width).
-            let y = product_into(y, part, outputs, inputs, (x, 1, inputs as isize), (&w, 1, outputs as isize));
-            for row in y.chunks_exact_mut(outputs) {
-                bias_and_activation(row, &b, s);
-            }
-        });
+/// Each layer's output, computed in parts of `part_rows` rows, every layer of a part on one
+/// thread: one parallel region. `params` are (weight, bias) pairs; every width is ≥ 1.
+fn forward(x: &FlexTensor, params: &[(FlexTensor, FlexTensor)], slopes: &[Option<f32>], part_rows: usize) -> Vec<FlexTensor> {
+    let (x, xs) = values(x);
+    let weights: Vec<_> = params.iter().map(|(w, _)| values(w)).collect();
+    let biases: Vec<_> = params.iter().map(|(_, b)| values(b).0).collect();
+    let rows = xs[0];
+    let inputs: Vec<usize> = weights.iter().map(|(_, shape)| shape[0]).collect();
+    let widths: Vec<usize> = weights.iter().map(|(_, shape)| shape[1]).collect();
+    let mut ys: Vec<Vec<f32>> = widths.iter().map(|w| Vec::with_capacity(rows * w)).collect();
+    let mut parts: Vec<Vec<&mut [MaybeUninit<f32>]>> = (0..rows.div_ceil(part_rows)).map(|_| Vec::new()).collect();
+    for (y, width) in ys.iter_mut().zip(&widths) {
+        for (part, chunk) in parts.iter_mut().zip(y.spare_capacity_mut()[..rows * width].chunks_mut(part_rows * width)) {
+            part.push(chunk);
+        }
     }
-    // SAFETY: the parts cover all rows × outputs values and `product_into` wrote each of them.
-    unsafe { y.set_len(rows * outputs) };
-    tensor(y, &[rows, outputs])
+    parts.into_par_iter().enumerate().for_each(|(p, outputs)| {
+        let part = outputs[0].len() / widths[0];
+        let mut input: &[f32] = &x[p * part_rows * inputs[0]..][..part * inputs[0]];
+        for (l, y) in outputs.into_iter().enumerate() {
+            // Slope 1 is the identity: one branch-free loop (a vector blend) serves both kinds of layer.
+            let (k, n, s) = (inputs[l], widths[l], slopes[l].unwrap_or(1.0));
+            // y = input · w: all row-major (column stride 1, row stride the width).
+            let y = product_into(y, part, n, k, (input, 1, k as isize), (&weights[l].0, 1, n as isize));
+            for row in y.chunks_exact_mut(n) {
+                bias_and_activation(row, &biases[l], s);
+            }
+            input = y;
+        }
+    });
+    ys.into_iter()
+        .zip(&widths)
+        .map(|(mut y, width)| {
+            // SAFETY: the parts cover all rows × width values and `product_into` wrote each of them.
+            unsafe { y.set_len(rows * width) };
+            tensor(y, &[rows, *width])
+        })
+        .collect()
 }
 
 /// `row = leaky(row + bias)` with slope `s`. Written without branches (max/min, and a select
@@ -164,80 +240,100 @@ fn bias_and_activation(row: &mut [f32], bias: &[f32], s: f32) {
     }
 }
 
-/// `dz = dy ⊙ leaky'(y)` for one row, added into `sum` (the bias gradient).
-fn activation_gradient(dz: &mut [MaybeUninit<f32>], dy: &[f32], y: &[f32], sum: &mut [f32], s: f32) {
+/// `dz = dy ⊙ leaky'(y)` for one row, in place (`dz` holds `dy`), added into `sum` (the bias
+/// gradient).
+fn activation_gradient(dz: &mut [f32], y: &[f32], sum: &mut [f32], s: f32) {
     let n = dz.len();
-    assert!(dy.len() == n && y.len() == n && sum.len() == n, "one row of each");
+    assert!(y.len() == n && sum.len() == n, "one row of each");
     for j in 0..n {
-        let d = dy[j] * if y[j] > 0.0 { 1.0 } else { s };
-        dz[j].write(d);
+        let d = dz[j] * if y[j] > 0.0 { 1.0 } else { s };
+        dz[j] = d;
         sum[j] += d;
     }
 }
 
-/// Gradients of input (if asked), weight and bias from the output's gradient `dy`.
-fn backward(saved: &Saved, dy: &FlexTensor, input_gradient: bool) -> (Option<FlexTensor>, FlexTensor, FlexTensor) {
-    let ((x, xs), (w, ws), (y, _), (dy, _)) = (values(&saved.x), values(&saved.weight), values(&saved.y), values(dy));
-    let (rows, inputs, outputs) = (xs[0], xs[1], ws[1]);
-    assert!(dy.len() == rows * outputs && y.len() == rows * outputs, "output and its gradient are {rows}×{outputs}");
-    if outputs == 0 {
-        // Nothing flows back through a layer without outputs.
-        let dx = input_gradient.then(|| tensor(vec![0.0; rows * inputs], &[rows, inputs]));
-        return (dx, tensor(vec![0.0; inputs * outputs], &[inputs, outputs]), tensor(Vec::new(), &[0]));
-    }
-    let s = saved.slope.unwrap_or(1.0);
+/// Gradients of the input (if asked) and of each layer's weight and bias from the output's
+/// gradient `dy`. Per part of the rows, on one thread, from the top layer down: the layer's
+/// `dz = dy ⊙ activation'(z)` and bias gradient (Σ_rows dz), its weight gradient (xᵀ·dz), and
+/// `dz · wᵀ`, the layer below's `dy`, whose `dz` is then made in place while it is in cache.
+fn backward(saved: &Saved, dy: &FlexTensor, input_gradient: bool) -> (Option<FlexTensor>, Vec<(FlexTensor, FlexTensor)>) {
+    let ((x, xs), (dy, _)) = (values(&saved.x), values(dy));
+    let weights: Vec<_> = saved.weights.iter().map(values).collect();
+    let outputs: Vec<_> = saved.outputs.iter().map(|y| values(y).0).collect();
+    let slopes: Vec<f32> = saved.slopes.iter().map(|s| s.unwrap_or(1.0)).collect();
+    let rows = xs[0];
+    let inputs: Vec<usize> = weights.iter().map(|(_, shape)| shape[0]).collect();
+    let widths: Vec<usize> = weights.iter().map(|(_, shape)| shape[1]).collect();
+    let (top, last) = (widths.len() - 1, widths[widths.len() - 1]);
+    assert!(dy.len() == rows * last && outputs[top].len() == rows * last, "output and its gradient are {rows}×{last}");
     let part_rows = training_part_rows(rows);
-    let (mut dz, mut dx) = (Vec::with_capacity(rows * outputs), Vec::with_capacity(if input_gradient { rows * inputs } else { 0 }));
+    let mut dx = Vec::with_capacity(if input_gradient { rows * inputs[0] } else { 0 });
     let mut dx_parts: Vec<Option<&mut [MaybeUninit<f32>]>> = Vec::new();
-    if input_gradient && inputs > 0 {
-        dx_parts.extend(dx.spare_capacity_mut()[..rows * inputs].chunks_mut(part_rows * inputs).map(Some));
+    if input_gradient && inputs[0] > 0 {
+        dx_parts.extend(dx.spare_capacity_mut()[..rows * inputs[0]].chunks_mut(part_rows * inputs[0]).map(Some));
     }
-    // One input-gradient part per part of dz (the zip below would silently drop a mismatch).
+    // One input-gradient part per part of the rows (the zip below would silently drop a mismatch).
     debug_assert!(dx_parts.is_empty() || dx_parts.len() == rows.div_ceil(part_rows));
     dx_parts.resize_with(rows.div_ceil(part_rows), || None);
-    // Per part of the rows, on one thread: dz = dy ⊙ activation'(z), the part's bias and weight
-    // gradients (Σ_rows dz, xᵀ·dz) and its rows of the input gradient (dz · wᵀ).
-    let partials: Vec<(Vec<f32>, Vec<f32>)> = dz.spare_capacity_mut()[..rows * outputs]
-        .par_chunks_mut(part_rows * outputs)
-        .zip(dx_parts)
+    // Per part: each layer's (bias, weight) gradient partial sums, top layer first.
+    let partials: Vec<Vec<(Vec<f32>, Vec<f32>)>> = dx_parts
+        .into_par_iter()
         .enumerate()
-        .map(|(p, (dz, dx))| {
-            let part = dz.len() / outputs;
-            let (start, end) = (p * part_rows, p * part_rows + part);
-            let mut db = vec![0.0f32; outputs];
-            for ((dz, dy), y) in dz
-                .chunks_exact_mut(outputs)
-                .zip(dy[start * outputs..end * outputs].chunks_exact(outputs))
-                .zip(y[start * outputs..end * outputs].chunks_exact(outputs))
-            {
-                activation_gradient(dz, dy, y, &mut db, s);
+        .map(|(p, dx)| {
+            let (start, end) = (p * part_rows, (p * part_rows + part_rows).min(rows));
+            let part = end - start;
+            let rows_of = |values, width| row_range(values, start..end, width);
+            let mut dz = rows_of(&dy, last).to_vec();
+            let mut db = vec![0.0f32; last];
+            for (dz, y) in dz.chunks_exact_mut(last).zip(rows_of(&outputs[top], last).chunks_exact(last)) {
+                activation_gradient(dz, y, &mut db, slopes[top]);
             }
-            // SAFETY: `activation_gradient` wrote every element of every row of the part.
-            let dz = unsafe { assume_init(dz) };
-            let x = &x[start * inputs..end * inputs];
-            // xᵀ read from x's storage with its strides swapped.
-            let dw = product(inputs, outputs, part, (x, inputs as isize, 1), (dz, 1, outputs as isize));
-            if let Some(dx) = dx {
-                product_into(dx, part, inputs, outputs, (dz, 1, outputs as isize), (&w, outputs as isize, 1));
+            let mut layers = Vec::with_capacity(widths.len());
+            for l in (0..widths.len()).rev() {
+                let (k, n) = (inputs[l], widths[l]);
+                let input = if l == 0 { rows_of(&x, k) } else { rows_of(&outputs[l - 1], k) };
+                // xᵀ read from x's storage with its strides swapped.
+                let dw = product(k, n, part, (input, k as isize, 1), (&dz, 1, n as isize));
+                if l == 0 {
+                    if let Some(dx) = dx {
+                        product_into(dx, part, k, n, (&dz, 1, n as isize), (&weights[l].0, n as isize, 1));
+                    }
+                    layers.push((db, dw));
+                    break;
+                }
+                let mut below = product(part, k, n, (&dz, 1, n as isize), (&weights[l].0, n as isize, 1));
+                layers.push((std::mem::replace(&mut db, vec![0.0f32; k]), dw));
+                for (dz, y) in below.chunks_exact_mut(k).zip(input.chunks_exact(k)) {
+                    activation_gradient(dz, y, &mut db, slopes[l - 1]);
+                }
+                dz = below;
             }
-            (db, dw)
+            layers
         })
         .collect();
-    // SAFETY: the parts cover all rows and wrote every value of dz, and of dx when it is asked.
-    unsafe {
-        dz.set_len(rows * outputs);
-        if input_gradient && inputs > 0 {
-            dx.set_len(rows * inputs);
-        }
+    // SAFETY: the parts cover all rows and wrote every value of dx when it is asked.
+    if input_gradient && inputs[0] > 0 {
+        unsafe { dx.set_len(rows * inputs[0]) };
     }
     // Partial sums added in part order.
-    let (mut db, mut dw) = (vec![0.0f32; outputs], vec![0.0f32; inputs * outputs]);
-    for (pdb, pdw) in &partials {
-        add(&mut db, pdb);
-        add(&mut dw, pdw);
-    }
-    let dx = input_gradient.then(|| tensor(dx, &[rows, inputs]));
-    (dx, tensor(dw, &[inputs, outputs]), tensor(db, &[outputs]))
+    let params = (0..widths.len())
+        .map(|l| {
+            let (mut db, mut dw) = (vec![0.0f32; widths[l]], vec![0.0f32; inputs[l] * widths[l]]);
+            for part in &partials {
+                let (pdb, pdw) = &part[top - l];
+                add(&mut db, pdb);
+                add(&mut dw, pdw);
+            }
+            (tensor(dw, &[inputs[l], widths[l]]), tensor(db, &[widths[l]]))
+        })
+        .collect();
+    let dx = input_gradient.then(|| tensor(dx, &[rows, inputs[0]]));
+    (dx, params)
+}
+
+/// Rows `range` of a row-major matrix `width` values wide.
+fn row_range(values: &[f32], range: std::ops::Range<usize>, width: usize) -> &[f32] {
+    &values[range.start * width..range.end * width]
 }
 
 /// `sum += part`, element by element.
@@ -370,6 +466,64 @@ mod tests {
             let scale = b.iter().fold(1.0f32, |m, v| m.max(v.abs()));
             let worst = a.iter().zip(b).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
             assert!(worst <= 1e-5 * scale, "{rows} rows, {name}: fused and burn's ops differ by {worst} (scale {scale})");
+        }
+    }
+
+    /// A stack gives its layers' values and every gradient bit for bit as the layers one node
+    /// each: the same products over the same parts, the same sums in the same order. Three
+    /// layers (one node) and six (two nodes), passes of three parts, two, and one; the input
+    /// tracked and not.
+    #[test]
+    fn a_stack_is_its_layers_one_by_one_bit_for_bit() {
+        for (widths, rows, track_input) in
+            [(&[7, 33, 29, 5][..], 2 * PART_ROWS + 203, true), (&[7, 33, 29, 5], 701, false), (&[4, 9, 8, 7, 6, 5, 3], 40, true)]
+        {
+            let device = Device::flex().autodiff();
+            let mut rng = ChaCha8Rng::seed_from_u64(5);
+            let x = Tensor::<2>::from_data(TensorData::new(random(rows, widths[0], &mut rng), [rows, widths[0]]), &device);
+            let x = if track_input { x.require_grad() } else { x };
+            let last = widths.len() - 2;
+            let layers: Vec<Dense> = widths
+                .windows(2)
+                .enumerate()
+                .map(|(i, w)| Dense {
+                    weight: Tensor::from_data(TensorData::new(random(w[0], w[1], &mut rng), [w[0], w[1]]), &device).require_grad(),
+                    bias: Tensor::from_data(TensorData::new(random(1, w[1], &mut rng), [w[1]]), &device).require_grad(),
+                    leaky_slope: (i != last).then_some(0.01),
+                })
+                .collect();
+            let scale = Tensor::<2>::from_data(
+                TensorData::new(random(rows, widths[widths.len() - 1], &mut rng), [rows, widths[widths.len() - 1]]),
+                &device,
+            );
+            let run = |y: Tensor<2>| {
+                let grads = (y.clone() * scale.clone()).sum().backward();
+                let mut all = vec![values_of(y)];
+                all.extend(x.grad(&grads).map(values_of));
+                for l in &layers {
+                    all.push(values_of(l.weight.grad(&grads).unwrap()));
+                    all.push(values_of(l.bias.grad(&grads).unwrap()));
+                }
+                all
+            };
+            let stacked = run(dense_stack(x.clone(), &layers));
+            let one_by_one = run(layers.iter().fold(x.clone(), |x, l| dense(x, l.weight.clone(), l.bias.clone(), l.leaky_slope)));
+            assert_eq!(stacked.len(), 1 + usize::from(track_input) + 2 * layers.len());
+            assert!(stacked == one_by_one, "{widths:?}, {rows} rows: the stack differs from its layers one by one");
+            // Without autodiff, the inference path.
+            let inference = |t: Tensor<2>| Tensor::<2>::from_data(t.into_data(), &Device::flex());
+            let plain: Vec<Dense> = layers
+                .iter()
+                .map(|l| Dense {
+                    weight: inference(l.weight.clone()),
+                    bias: Tensor::from_data(l.bias.clone().into_data(), &Device::flex()),
+                    leaky_slope: l.leaky_slope,
+                })
+                .collect();
+            let x = inference(x.clone());
+            let stacked = values_of(dense_stack(x.clone(), &plain));
+            let one_by_one = values_of(plain.iter().fold(x, |x, l| dense(x, l.weight.clone(), l.bias.clone(), l.leaky_slope)));
+            assert!(stacked == one_by_one, "{widths:?}, {rows} rows: inference differs");
         }
     }
 

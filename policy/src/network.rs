@@ -10,7 +10,7 @@ use rand_distr::StandardNormal;
 use sim::nalgebra::DMatrix;
 
 use crate::architecture::Architecture;
-use crate::dense::dense;
+use crate::dense::{Dense, dense_stack};
 
 /// A multilayer perceptron: LeakyReLU between layers, none after the last.
 #[derive(Module, Debug)]
@@ -91,13 +91,19 @@ impl Mlp {
     }
 
     /// `[batch, in] → [batch, out]`.
-    pub fn forward(&self, mut x: Tensor<2>) -> Tensor<2> {
+    pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
         let last = self.layers.len() - 1;
-        for (i, layer) in self.layers.iter().enumerate() {
-            let activation = (i != last).then_some(self.negative_slope);
-            x = dense(x, layer.weight.val(), layer_bias(layer), activation);
-        }
-        x
+        let layers: Vec<Dense> = self
+            .layers
+            .iter()
+            .enumerate()
+            .map(|(i, layer)| Dense {
+                weight: layer.weight.val(),
+                bias: layer_bias(layer),
+                leaky_slope: (i != last).then_some(self.negative_slope),
+            })
+            .collect();
+        dense_stack(x, &layers)
     }
 }
 
