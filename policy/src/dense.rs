@@ -4,8 +4,8 @@
 //! `batch × width` activation; here a layer is one product and one pass forward, two products and
 //! one pass backward (docs/notebook/throughput.md, "The fused dense layer"). A stack runs a part
 //! of the rows through every layer on one thread, so a layer's output, and backward its input
-//! gradient, is still in cache when the next layer reads it, and the stack is one parallel region
-//! each way. Other devices take burn's ops, which compute the same function.
+//! gradient, is still in cache when the next layer reads it, and a node (up to four layers) is
+//! one parallel region each way. Other devices take burn's ops, which compute the same function.
 
 use std::mem::MaybeUninit;
 
@@ -60,9 +60,10 @@ pub fn dense(x: Tensor<2>, weight: Tensor<2>, bias: Tensor<1>, leaky_slope: Opti
     dense_stack(x, &[Dense { weight, bias, leaky_slope }])
 }
 
-/// `x` through each layer in turn. The same values as [`dense`] layer by layer, bit for bit.
+/// `x` through each layer in turn. The same values as [`dense`] layer by layer, bit for bit
+/// (a stack with an empty layer — no inputs or outputs — goes through burn's ops instead).
 pub fn dense_stack(mut x: Tensor<2>, layers: &[Dense]) -> Tensor<2> {
-    // A layer without outputs or inputs has nothing to cut into parts: burn's ops take it.
+    // A layer without outputs or inputs has nothing to cut into parts.
     if layers.iter().any(|l| l.weight.dims().contains(&0)) {
         return layers.iter().fold(x, |x, l| dense_by_burn_ops(x, l.weight.clone(), l.bias.clone(), l.leaky_slope));
     }
@@ -85,7 +86,8 @@ fn stack_node(x: Tensor<2>, layers: &[Dense]) -> Tensor<2> {
             1 => tracked_stack::<3>(x, params, slopes),
             2 => tracked_stack::<5>(x, params, slopes),
             3 => tracked_stack::<7>(x, params, slopes),
-            _ => tracked_stack::<9>(x, params, slopes),
+            4 => tracked_stack::<9>(x, params, slopes),
+            n => unreachable!("a node has 1 to NODE_LAYERS = 4 layers, not {n}"),
         };
         return Tensor::from_primitive::<Tracked>(y);
     }
@@ -95,7 +97,7 @@ fn stack_node(x: Tensor<2>, layers: &[Dense]) -> Tensor<2> {
         .collect();
     if let (Ok(x), Some(params)) = (x.clone().try_into_primitive::<Flex>(), untracked) {
         let outputs = forward(&x, &params, &slopes, PART_ROWS);
-        return outputs.into_iter().last().map_or_else(|| Tensor::from_primitive::<Flex>(x), Tensor::from_primitive::<Flex>);
+        return Tensor::from_primitive::<Flex>(outputs[outputs.len() - 1].clone());
     }
     layers.iter().fold(x, |x, l| dense_by_burn_ops(x, l.weight.clone(), l.bias.clone(), l.leaky_slope))
 }
@@ -197,6 +199,10 @@ fn forward(x: &FlexTensor, params: &[(FlexTensor, FlexTensor)], slopes: &[Option
     let rows = xs[0];
     let inputs: Vec<usize> = weights.iter().map(|(_, shape)| shape[0]).collect();
     let widths: Vec<usize> = weights.iter().map(|(_, shape)| shape[1]).collect();
+    // Each layer reads what the one before writes; a mismatch would read rows misaligned.
+    let fed: Vec<usize> = std::iter::once(xs[1]).chain(widths.iter().copied()).collect();
+    assert!(inputs == fed[..inputs.len()], "the input is {rows}×{}, the layers take {inputs:?} and give {widths:?}", xs[1]);
+    assert!(biases.iter().zip(&widths).all(|(b, w)| b.len() == *w), "one bias per output");
     let mut ys: Vec<Vec<f32>> = widths.iter().map(|w| Vec::with_capacity(rows * w)).collect();
     let mut parts: Vec<Vec<&mut [MaybeUninit<f32>]>> = (0..rows.div_ceil(part_rows)).map(|_| Vec::new()).collect();
     for (y, width) in ys.iter_mut().zip(&widths) {
@@ -269,10 +275,10 @@ fn backward(saved: &Saved, dy: &FlexTensor, input_gradient: bool) -> (Option<Fle
     let part_rows = training_part_rows(rows);
     let mut dx = Vec::with_capacity(if input_gradient { rows * inputs[0] } else { 0 });
     let mut dx_parts: Vec<Option<&mut [MaybeUninit<f32>]>> = Vec::new();
-    if input_gradient && inputs[0] > 0 {
+    if input_gradient {
         dx_parts.extend(dx.spare_capacity_mut()[..rows * inputs[0]].chunks_mut(part_rows * inputs[0]).map(Some));
     }
-    // One input-gradient part per part of the rows (the zip below would silently drop a mismatch).
+    // One input-gradient part per part of the rows: they drive the parallel loop.
     debug_assert!(dx_parts.is_empty() || dx_parts.len() == rows.div_ceil(part_rows));
     dx_parts.resize_with(rows.div_ceil(part_rows), || None);
     // Per part: each layer's (bias, weight) gradient partial sums, top layer first.
@@ -292,7 +298,7 @@ fn backward(saved: &Saved, dy: &FlexTensor, input_gradient: bool) -> (Option<Fle
             for l in (0..widths.len()).rev() {
                 let (k, n) = (inputs[l], widths[l]);
                 let input = if l == 0 { rows_of(&x, k) } else { rows_of(&outputs[l - 1], k) };
-                // xᵀ read from x's storage with its strides swapped.
+                // The layer's input transposed: read from its storage with the strides swapped.
                 let dw = product(k, n, part, (input, k as isize, 1), (&dz, 1, n as isize));
                 if l == 0 {
                     if let Some(dx) = dx {
@@ -312,7 +318,7 @@ fn backward(saved: &Saved, dy: &FlexTensor, input_gradient: bool) -> (Option<Fle
         })
         .collect();
     // SAFETY: the parts cover all rows and wrote every value of dx when it is asked.
-    if input_gradient && inputs[0] > 0 {
+    if input_gradient {
         unsafe { dx.set_len(rows * inputs[0]) };
     }
     // Partial sums added in part order.
@@ -525,6 +531,19 @@ mod tests {
             let one_by_one = values_of(plain.iter().fold(x, |x, l| dense(x, l.weight.clone(), l.bias.clone(), l.leaky_slope)));
             assert!(stacked == one_by_one, "{widths:?}, {rows} rows: inference differs");
         }
+    }
+
+    /// A layer that does not take what the one before gives is refused, not read misaligned.
+    #[test]
+    #[should_panic(expected = "the layers take")]
+    fn a_stack_whose_widths_do_not_chain_is_refused() {
+        let device = Device::flex();
+        let layer = |inputs: usize, outputs: usize| Dense {
+            weight: Tensor::zeros([inputs, outputs], &device),
+            bias: Tensor::zeros([outputs], &device),
+            leaky_slope: None,
+        };
+        dense_stack(Tensor::zeros([3, 4], &device), &[layer(4, 6), layer(5, 2)]);
     }
 
     /// A training pass is cut into parts by its row count alone: short passes in two, long
