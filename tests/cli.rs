@@ -44,6 +44,23 @@ fn tracks_show_draws_one_cell_per_track() {
     assert_eq!(png_size(&four), (2 * w1, 2 * h1), "a 2 × 2 grid of cells");
 }
 
+/// The racing line's clearance to the frames: through a frame on three of the test set's
+/// generated tracks (which no policy flies), clear of every frame in the library.
+#[test]
+fn tracks_clearance_names_the_tracks_whose_racing_line_runs_through_a_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let ts = dir.path().join("ts");
+    assert!(dronerace(&["tracks", "testset", "--out", ts.to_str().unwrap()]).status.success());
+    let o = dronerace(&["tracks", "clearance", ts.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = String::from_utf8_lossy(&o.stdout).into_owned();
+    let through: Vec<&str> = text.lines().filter(|l| l.contains(" 0.000 m from")).map(|l| l.split_whitespace().next().unwrap()).collect();
+    assert_eq!(through, ["test-9000020", "test-9000023", "test-9000026"], "{text}");
+    assert!(text.ends_with("4 of 40 tracks have a racing line within 0.2 m of a frame\n"), "{text}");
+    let library = dronerace(&["tracks", "clearance"]);
+    assert!(String::from_utf8_lossy(&library.stdout).ends_with("0 of 9 tracks have a racing line within 0.2 m of a frame\n"));
+}
+
 #[test]
 fn eval_prints_and_writes_json_and_markdown() {
     let dir = tempfile::tempdir().unwrap();

@@ -29,7 +29,7 @@ pub use params::{GRAVITY, QuadrotorParams, RaceParams};
 pub use pilot::{Controller, PilotMemory, PilotParams, ReferencePilot};
 pub use race::{ControllerModel, CrashCause, EnvConfig, EpisodeStats, RaceEnv, StepOutcome};
 pub use racer::Racer;
-pub use racing_line::{LinePoint, PathLimits, RacingLine};
+pub use racing_line::{FrameClearance, LinePoint, PathLimits, RacingLine};
 pub use randomization::RandomizationParams;
 pub use reward::{ProgressDistance, RewardParams, RewardTerms};
 pub use track::{Arena, Gate, Pose, Track};

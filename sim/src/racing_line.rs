@@ -5,7 +5,7 @@
 
 use nalgebra::Vector3;
 
-use crate::track::{Arena, Track};
+use crate::track::{Arena, Gate, Track};
 
 /// The limits a path's shape and speed profile obey (the path half of the pilot's tuning,
 /// [`crate::PilotParams`]).
@@ -229,6 +229,17 @@ pub struct LinePoint {
     pub target: usize,
 }
 
+/// Where a racing line comes closest to a gate frame ([`RacingLine::frame_clearance`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameClearance {
+    /// Distance from the line's nearest sample to the frame (m); 0 where the line runs through it.
+    pub distance: f64,
+    /// The gate whose frame it is.
+    pub gate: usize,
+    /// The gate the line is flying to there.
+    pub target: usize,
+}
+
 /// The default-tuned reference pilot's closed racing line through a track's gates, sample by
 /// sample (each leg from gate i to gate i + 1 has the same number of samples), with its arc
 /// length: what the line observation reads ([`crate::ObservationLayout::line_points`]).
@@ -270,6 +281,22 @@ impl RacingLine {
         &self.points
     }
 
+    /// The line's closest approach to the frame of any of `gates`. The line goes through each
+    /// gate it races, so this is at most the opening's half-width; policies that read the line
+    /// fly few tracks where it comes within ~0.2 m of a frame (docs/notebook/generalist.md).
+    pub fn frame_clearance(&self, gates: &[Gate]) -> FrameClearance {
+        let mut nearest = FrameClearance { distance: f64::INFINITY, gate: 0, target: 0 };
+        for point in &self.points {
+            for (index, gate) in gates.iter().enumerate() {
+                let distance = (gate.nearest_frame_point(&point.position) - point.position).norm();
+                if distance < nearest.distance {
+                    nearest = FrameClearance { distance, gate: index, target: point.target };
+                }
+            }
+        }
+        nearest
+    }
+
     /// Index of the sample nearest to `p` on the leg that leads into gate `target`.
     ///
     /// Searching one leg only keeps the answer on the part of the line the drone is racing,
@@ -307,7 +334,6 @@ impl RacingLine {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::track::Gate;
     use std::sync::Arc;
 
     /// A four-gate oval (the pilot's tests fly it too).
@@ -317,6 +343,24 @@ pub(crate) mod tests {
             Track::new("oval", vec![g(0.0, -6.0, 0.0), g(9.0, 0.0, 90.0), g(0.0, 6.0, 180.0), g(-9.0, 0.0, -90.0)], None, Arena::default())
                 .unwrap(),
         )
+    }
+
+    /// Through its own gates' openings the line keeps clear of their frames; a gate whose bar
+    /// lies on the line is found at distance 0, and named.
+    #[test]
+    fn frame_clearance_finds_a_frame_on_the_line() {
+        let track = oval();
+        let line = RacingLine::new(&track);
+        let own = line.frame_clearance(&track.gates);
+        assert!(own.distance > 0.3 && own.distance <= 0.75 + 1e-9, "{own:?}");
+        // A fifth gate beside the line's sample 100, shifted so that its nearest bar is on it.
+        let on_line = line.points()[100].position;
+        let centred = Gate::new(on_line, 0.3);
+        let shift = centred.nearest_frame_point(&on_line) - on_line;
+        let mut gates = track.gates.clone();
+        gates.push(Gate::new(on_line - shift, 0.3));
+        let hit = line.frame_clearance(&gates);
+        assert!(hit.distance < 1e-9 && hit.gate == 4 && hit.target == line.points()[100].target, "{hit:?}");
     }
 
     #[test]

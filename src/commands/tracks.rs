@@ -27,6 +27,12 @@ pub enum TracksCommand {
         #[arg(long)]
         gallery: bool,
     },
+    /// Print how close the reference pilot's racing line — which state policies read — comes to
+    /// any gate frame, per track: policies fly few tracks where it comes within ~0.2 m.
+    Clearance {
+        /// Track files or directories; the built-in library when omitted.
+        files: Vec<PathBuf>,
+    },
     /// Fit a closed smoothing spline (scipy splprep per=1, k=3) and print it as JSON.
     Fit {
         /// CSV with one control point `x,y,z` per row, no header; the closing point is added.
@@ -115,6 +121,10 @@ impl From<Generator> for GeneratorKind {
     }
 }
 
+/// A racing line closer than this to a frame (m) marks a track policies seldom fly
+/// (docs/notebook/generalist.md: 11–43 % success there against 86–91 % elsewhere).
+const NEAR_FRAME: f64 = 0.2;
+
 /// Runs a track subcommand.
 pub fn run(command: TracksCommand) -> anyhow::Result<()> {
     match command {
@@ -123,6 +133,17 @@ pub fn run(command: TracksCommand) -> anyhow::Result<()> {
             let layout = if gallery { Layout::Gallery } else { Layout::TopAndSide };
             crate::plot::draw_tracks(&tracks, &out, layout)?;
             println!("wrote {} ({} tracks)", out.display(), tracks.len());
+            Ok(())
+        }
+        TracksCommand::Clearance { files } => {
+            let tracks = load_tracks(&files)?;
+            let mut near = 0;
+            for track in &tracks {
+                let c = ::sim::RacingLine::new(track).frame_clearance(&track.gates);
+                near += usize::from(c.distance < NEAR_FRAME);
+                println!("{:<24} {:.3} m from gate {}'s frame, flying to gate {}", track.name, c.distance, c.gate, c.target);
+            }
+            println!("{near} of {} tracks have a racing line within {NEAR_FRAME} m of a frame", tracks.len());
             Ok(())
         }
         TracksCommand::Fit { points, smoothing } => fit(&points, smoothing),
