@@ -65,7 +65,7 @@ pub fn dense(x: Tensor<2>, weight: Tensor<2>, bias: Tensor<1>, leaky_slope: Opti
 pub fn dense_stack(mut x: Tensor<2>, layers: &[Dense]) -> Tensor<2> {
     // A layer without outputs or inputs has nothing to cut into parts.
     if layers.iter().any(|l| l.weight.dims().contains(&0)) {
-        return layers.iter().fold(x, |x, l| dense_by_burn_ops(x, l.weight.clone(), l.bias.clone(), l.leaky_slope));
+        return stack_by_burn_ops(x, layers);
     }
     for node in layers.chunks(NODE_LAYERS) {
         x = stack_node(x, node);
@@ -99,6 +99,11 @@ fn stack_node(x: Tensor<2>, layers: &[Dense]) -> Tensor<2> {
         let outputs = forward(&x, &params, &slopes, PART_ROWS);
         return Tensor::from_primitive::<Flex>(outputs[outputs.len() - 1].clone());
     }
+    stack_by_burn_ops(x, layers)
+}
+
+/// `x` through each layer by burn's ops.
+fn stack_by_burn_ops(x: Tensor<2>, layers: &[Dense]) -> Tensor<2> {
     layers.iter().fold(x, |x, l| dense_by_burn_ops(x, l.weight.clone(), l.bias.clone(), l.leaky_slope))
 }
 
