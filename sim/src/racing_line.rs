@@ -1,7 +1,8 @@
 //! The racing line: a closed cubic Hermite path through a track's gate centres (tangent = gate
-//! normal), kept clear of the frames and the arena walls, with a speed profile limited by lateral
-//! and longitudinal acceleration. The reference pilot flies it ([`crate::pilot`]); the race
-//! environment reads it for the line observation ([`RacingLine`]).
+//! normal), kept clear of the frames and the arena walls (through a detour waypoint where one
+//! segment a leg cannot), with a speed profile limited by lateral and longitudinal acceleration.
+//! The reference pilot flies it ([`crate::pilot`]); the race environment reads it for the line
+//! observation ([`RacingLine`]).
 
 use nalgebra::Vector3;
 
@@ -187,10 +188,12 @@ fn hermite_samples(
         .collect()
 }
 
-/// The Hermite segment with the first tangent length (in [`TANGENT_SCALES`] order) that stays
-/// clear of every gate frame and inside the arena without a near-cusp turn; failing that, the
-/// one with the fewest samples too close, then without a cusp.
-#[allow(clippy::expect_used, reason = "TANGENT_SCALES is a non-empty constant")]
+/// The way from one (position, unit direction) end to the next: the Hermite segment with the
+/// first tangent length (in [`TANGENT_SCALES`] order) that stays clear of every gate frame and
+/// inside the arena without a near-cusp turn; failing that, the one with the fewest samples too
+/// close, then without a cusp. When no single segment keeps clear, two segments through a detour
+/// waypoint ([`detour_waypoints`]) replace it if they come closer to clear; either way the leg
+/// has [`SAMPLES_PER_SEGMENT`] samples.
 fn clear_segment(
     track: &Track,
     from: (&Vector3<f64>, &Vector3<f64>),
@@ -198,23 +201,97 @@ fn clear_segment(
     min_tangent: f64,
     p: &PathLimits,
 ) -> Vec<PathPoint> {
-    let chord = (to.0 - from.0).norm().max(min_tangent);
     let margin = Vector3::repeat(FRAME_CLEARANCE);
     let inside = Arena { min: track.arena.min + margin, max: track.arena.max - margin };
     let too_close =
         |q: &PathPoint| !inside.contains(&q.position) || track.gates.iter().any(|g| g.frame_touches_sphere(&q.position, FRAME_CLEARANCE));
     // A turn so tight that the drone must nearly stop in it.
     let cusp = |q: &PathPoint| p.max_lateral_accel / q.curvature.norm().max(1e-9) < MIN_TURN_SPEED.powi(2);
+    let score = |points: &[PathPoint]| (points.iter().filter(|q| too_close(q)).count(), points.iter().any(cusp));
+    let (direct_score, direct) = best_hermite(from, to, min_tangent, SAMPLES_PER_SEGMENT, &score);
+    if direct_score.0 == 0 {
+        return direct;
+    }
+    // Nearest the frame where the direct segment comes closest to one: the detour's anchor.
+    let (anchor, frame_point) = direct
+        .iter()
+        .flat_map(|q| track.gates.iter().map(move |g| (q, g.nearest_frame_point(&q.position))))
+        .min_by(|a, b| (a.1 - a.0.position).norm_squared().total_cmp(&(b.1 - b.0.position).norm_squared()))
+        .map(|(q, f)| (*q, f))
+        .unwrap_or((direct[0], direct[0].position));
+    let half = SAMPLES_PER_SEGMENT / 2;
+    detour_waypoints(from, to, &anchor, &frame_point)
+        .into_iter()
+        .map(|(w, d)| {
+            let (first_score, mut points) = best_hermite(from, (&w, &d), min_tangent / 2.0, half, &score);
+            let (second_score, second) = best_hermite((&w, &d), to, min_tangent / 2.0, SAMPLES_PER_SEGMENT - half, &score);
+            points.extend(second);
+            let length: f64 = points.windows(2).map(|q| (q[1].position - q[0].position).norm()).sum();
+            ((first_score.0 + second_score.0, first_score.1 || second_score.1, length), points)
+        })
+        .filter(|((close, _, _), _)| *close < direct_score.0)
+        .min_by(|(a, _), (b, _)| (a.0, a.1).cmp(&(b.0, b.1)).then(a.2.total_cmp(&b.2)))
+        .map_or(direct, |(_, points)| points)
+}
+
+/// The Hermite segment of `samples` samples with the tangent length (in [`TANGENT_SCALES`]
+/// order) whose `score` is least, with that score.
+#[allow(clippy::expect_used, reason = "TANGENT_SCALES is a non-empty constant")]
+fn best_hermite(
+    from: (&Vector3<f64>, &Vector3<f64>),
+    to: (&Vector3<f64>, &Vector3<f64>),
+    min_tangent: f64,
+    samples: usize,
+    score: &impl Fn(&[PathPoint]) -> (usize, bool),
+) -> ((usize, bool), Vec<PathPoint>) {
+    let chord = (to.0 - from.0).norm().max(min_tangent);
     TANGENT_SCALES
         .iter()
         .map(|s| {
-            let points = hermite_samples(from, to, s * chord, SAMPLES_PER_SEGMENT);
-            ((points.iter().filter(|q| too_close(q)).count(), points.iter().any(cusp)), points)
+            let points = hermite_samples(from, to, s * chord, samples);
+            (score(&points), points)
         })
         .min_by_key(|(key, _)| *key)
-        .map(|(_, points)| points)
         .expect("at least one tangent scale")
 }
+
+/// Waypoints (position, unit direction) a leg from `from` to `to` may detour through when its
+/// direct segment runs into a frame at `frame_point` near its sample `anchor`: points beside the
+/// frame, round it in the plane across the leg, flown in the leg's direction there; and points
+/// straight behind the gate ahead or beyond the gate behind, flown along their normals — the
+/// way round a gate approached from its side.
+fn detour_waypoints(
+    from: (&Vector3<f64>, &Vector3<f64>),
+    to: (&Vector3<f64>, &Vector3<f64>),
+    anchor: &PathPoint,
+    frame_point: &Vector3<f64>,
+) -> Vec<(Vector3<f64>, Vector3<f64>)> {
+    let along = anchor.tangent;
+    // A basis across the leg built from the vertical, so a track and its mirror image get
+    // mirror-image candidates.
+    let up = {
+        let u = Vector3::z() - along * along.z;
+        if u.norm() > 1e-6 { u.normalize() } else { Vector3::x() }
+    };
+    let side = along.cross(&up);
+    let mut waypoints = Vec::new();
+    for radius in DETOUR_RADII {
+        for k in 0..8 {
+            let angle = k as f64 * std::f64::consts::FRAC_PI_4;
+            waypoints.push((frame_point + (up * angle.cos() + side * angle.sin()) * radius, along));
+        }
+    }
+    for distance in DETOUR_GATE_DISTANCES {
+        waypoints.push((to.0 - to.1 * distance, *to.1));
+        waypoints.push((from.0 + from.1 * distance, *from.1));
+    }
+    waypoints
+}
+
+/// How far from the frame a detour waypoint beside it is placed (m).
+const DETOUR_RADII: [f64; 4] = [1.0, 1.5, 2.0, 3.0];
+/// How far behind the gate ahead, or beyond the gate behind, a detour waypoint is placed (m).
+const DETOUR_GATE_DISTANCES: [f64; 3] = [1.5, 2.5, 4.0];
 
 /// A sample of the reference pilot's closed racing line with the gate it leads to.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -282,8 +359,9 @@ impl RacingLine {
     }
 
     /// The line's closest approach to the frame of any of `gates`. The line goes through each
-    /// gate it races, so this is at most the opening's half-width; policies that read the line
-    /// fly few tracks where it comes within ~0.2 m of a frame (docs/notebook/generalist.md).
+    /// gate it races, so this is at most the opening's half-width; the planner keeps 0.45 m where
+    /// it can, and policies that read the line fly few tracks where it comes within ~0.2 m of a
+    /// frame (docs/notebook/generalist.md).
     pub fn frame_clearance(&self, gates: &[Gate]) -> FrameClearance {
         let mut nearest = FrameClearance { distance: f64::INFINITY, gate: 0, target: 0 };
         for point in &self.points {
@@ -361,6 +439,45 @@ pub(crate) mod tests {
         gates.push(Gate::new(on_line - shift, 0.3));
         let hit = line.frame_clearance(&gates);
         assert!(hit.distance < 1e-9 && hit.gate == 4 && hit.target == line.points()[100].target, "{hit:?}");
+    }
+
+    /// Gate 1 of this generated test track (test-9000026) lies beside the way from gate 0 and
+    /// must be entered from its far side: no single Hermite segment into it keeps clear of its
+    /// frame. The line detours through a waypoint, keeps the planner's clearance from every
+    /// frame, and still passes each gate centre along its normal with a leg's samples per leg.
+    #[test]
+    fn a_leg_no_single_segment_can_clear_detours_round_the_frame() {
+        let g = |x, y, z, yaw_deg: f64| Gate::new(Vector3::new(x, y, z), yaw_deg.to_radians());
+        let gates = vec![
+            g(1.0427228129891275, -2.300954824440629, 3.5374120404904597, 37.596926880012326),
+            g(3.4852791371524816, 0.28602631151845376, 2.6005356160013684, -97.33234907622831),
+            g(4.777112074287759, -5.894984567536946, 5.0, 62.83177486810378),
+            g(7.238632533763643, 4.327465080342394, 3.1204055151257424, 94.82402516651238),
+            g(-1.4046256275530424, 6.199639128457562, 1.1071710862863182, -154.4652069798395),
+            g(-8.70858514856067, -1.3303382918747704, 2.532738758941459, -80.07786576951582),
+        ];
+        let track = Track::new("test-9000026", gates, None, Arena::default()).unwrap();
+        let (a, b) = (&track.gates[0], &track.gates[1]);
+        let touching = |points: &[PathPoint]| {
+            let close = points.iter().filter(|q| track.gates.iter().any(|g| g.frame_touches_sphere(&q.position, FRAME_CLEARANCE)));
+            (close.count(), false)
+        };
+        let ((direct, _), _) = best_hermite(
+            (&a.position, &a.normal()),
+            (&b.position, &b.normal()),
+            PathLimits::default().min_tangent,
+            SAMPLES_PER_SEGMENT,
+            &touching,
+        );
+        assert!(direct > 0, "a single segment clears this leg: the fixture no longer needs a detour");
+        let line = RacingLine::new(&track);
+        let clearance = line.frame_clearance(&track.gates);
+        assert!(clearance.distance >= FRAME_CLEARANCE, "{clearance:?}");
+        assert_eq!(line.points().len(), track.gates.len() * SAMPLES_PER_SEGMENT);
+        for (i, gate) in track.gates.iter().enumerate() {
+            let q = line.points()[i * SAMPLES_PER_SEGMENT];
+            assert!((q.position - gate.position).norm() < 1e-12 && (q.direction - gate.normal()).norm() < 1e-12, "gate {i}");
+        }
     }
 
     #[test]
