@@ -95,7 +95,7 @@ pub enum GateSight {
 /// gates shown as `gate_sight` says), then `line_points` points of the reference pilot's racing
 /// line, `line_spacing` metres of arc apart.
 ///
-/// The racing-line points are the pilot's line (which keeps clear of every frame,
+/// The racing-line points are the pilot's line (which keeps clear of every frame where it can,
 /// [`RacingLine`]) from the point nearest the drone on the leg into the target gate, then every
 /// `line_spacing` metres of arc ahead. They show the policy a way round the gates it cannot
 /// see, in numbers whose meaning does not depend on the track's layout. Beyond the thesis.

@@ -191,9 +191,9 @@ fn hermite_samples(
 /// The way from one (position, unit direction) end to the next: the Hermite segment with the
 /// first tangent length (in [`TANGENT_SCALES`] order) that stays clear of every gate frame and
 /// inside the arena without a near-cusp turn; failing that, the one with the fewest samples too
-/// close, then without a cusp. When no single segment keeps clear, two segments through a detour
-/// waypoint ([`detour_waypoints`]) replace it if they come closer to clear; either way the leg
-/// has [`SAMPLES_PER_SEGMENT`] samples.
+/// close, then without a cusp. When no single segment keeps clear of the frames, two segments
+/// through a detour waypoint ([`detour_waypoints`]; each with half the shortest tangent) replace
+/// it if they come closer to clear; either way the leg has [`SAMPLES_PER_SEGMENT`] samples.
 fn clear_segment(
     track: &Track,
     from: (&Vector3<f64>, &Vector3<f64>),
@@ -203,15 +203,23 @@ fn clear_segment(
 ) -> Vec<PathPoint> {
     let margin = Vector3::repeat(FRAME_CLEARANCE);
     let inside = Arena { min: track.arena.min + margin, max: track.arena.max - margin };
-    let too_close =
-        |q: &PathPoint| !inside.contains(&q.position) || track.gates.iter().any(|g| g.frame_touches_sphere(&q.position, FRAME_CLEARANCE));
+    let touches_frame = |q: &PathPoint| track.gates.iter().any(|g| g.frame_touches_sphere(&q.position, FRAME_CLEARANCE));
+    let too_close = |q: &PathPoint| !inside.contains(&q.position) || touches_frame(q);
     // A turn so tight that the drone must nearly stop in it.
     let cusp = |q: &PathPoint| p.max_lateral_accel / q.curvature.norm().max(1e-9) < MIN_TURN_SPEED.powi(2);
     let score = |points: &[PathPoint]| (points.iter().filter(|q| too_close(q)).count(), points.iter().any(cusp));
     let (direct_score, direct) = best_hermite(from, to, min_tangent, SAMPLES_PER_SEGMENT, &score);
-    if direct_score.0 == 0 {
+    // Only a frame is gone round; a leg near a wall or the floor keeps its single segment.
+    if !direct.iter().any(touches_frame) {
         return direct;
     }
+    // A short piece with a long tangent can run back along itself, where the curvature (across
+    // the line) reads zero: count that as a cusp.
+    let turns_back = |points: &[PathPoint]| points.windows(2).any(|q| q[0].tangent.dot(&q[1].tangent) < 0.0);
+    let piece_score = |points: &[PathPoint]| {
+        let (close, cusp) = score(points);
+        (close, cusp || turns_back(points))
+    };
     // Nearest the frame where the direct segment comes closest to one: the detour's anchor.
     let (anchor, frame_point) = direct
         .iter()
@@ -223,8 +231,8 @@ fn clear_segment(
     detour_waypoints(from, to, &anchor, &frame_point)
         .into_iter()
         .map(|(w, d)| {
-            let (first_score, mut points) = best_hermite(from, (&w, &d), min_tangent / 2.0, half, &score);
-            let (second_score, second) = best_hermite((&w, &d), to, min_tangent / 2.0, SAMPLES_PER_SEGMENT - half, &score);
+            let (first_score, mut points) = best_hermite(from, (&w, &d), min_tangent / 2.0, half, &piece_score);
+            let (second_score, second) = best_hermite((&w, &d), to, min_tangent / 2.0, SAMPLES_PER_SEGMENT - half, &piece_score);
             points.extend(second);
             let length: f64 = points.windows(2).map(|q| (q[1].position - q[0].position).norm()).sum();
             ((first_score.0 + second_score.0, first_score.1 || second_score.1, length), points)
@@ -234,8 +242,8 @@ fn clear_segment(
         .map_or(direct, |(_, points)| points)
 }
 
-/// The Hermite segment of `samples` samples with the tangent length (in [`TANGENT_SCALES`]
-/// order) whose `score` is least, with that score.
+/// The Hermite segment of `samples` samples with the first tangent length (in
+/// [`TANGENT_SCALES`] order) whose `score` is least, with that score.
 #[allow(clippy::expect_used, reason = "TANGENT_SCALES is a non-empty constant")]
 fn best_hermite(
     from: (&Vector3<f64>, &Vector3<f64>),
@@ -245,14 +253,19 @@ fn best_hermite(
     score: &impl Fn(&[PathPoint]) -> (usize, bool),
 ) -> ((usize, bool), Vec<PathPoint>) {
     let chord = (to.0 - from.0).norm().max(min_tangent);
-    TANGENT_SCALES
-        .iter()
-        .map(|s| {
-            let points = hermite_samples(from, to, s * chord, samples);
-            (score(&points), points)
-        })
-        .min_by_key(|(key, _)| *key)
-        .expect("at least one tangent scale")
+    let mut best: Option<((usize, bool), Vec<PathPoint>)> = None;
+    for s in TANGENT_SCALES {
+        let points = hermite_samples(from, to, s * chord, samples);
+        let key = score(&points);
+        // Clear and without a cusp cannot be beaten: the remaining lengths need not be tried.
+        if key == (0, false) {
+            return (key, points);
+        }
+        if best.as_ref().is_none_or(|(least, _)| key < *least) {
+            best = Some((key, points));
+        }
+    }
+    best.expect("at least one tangent scale")
 }
 
 /// Waypoints (position, unit direction) a leg from `from` to `to` may detour through when its
@@ -274,11 +287,13 @@ fn detour_waypoints(
         if u.norm() > 1e-6 { u.normalize() } else { Vector3::x() }
     };
     let side = along.cross(&up);
+    // Eight directions 45° apart, exact, so that mirror-image candidates are exact mirror images.
+    let r = std::f64::consts::FRAC_1_SQRT_2;
+    let round = [(1.0, 0.0), (r, r), (0.0, 1.0), (-r, r), (-1.0, 0.0), (-r, -r), (0.0, -1.0), (r, -r)];
     let mut waypoints = Vec::new();
     for radius in DETOUR_RADII {
-        for k in 0..8 {
-            let angle = k as f64 * std::f64::consts::FRAC_PI_4;
-            waypoints.push((frame_point + (up * angle.cos() + side * angle.sin()) * radius, along));
+        for (cos, sin) in round {
+            waypoints.push((frame_point + (up * cos + side * sin) * radius, along));
         }
     }
     for distance in DETOUR_GATE_DISTANCES {
@@ -477,6 +492,14 @@ pub(crate) mod tests {
         for (i, gate) in track.gates.iter().enumerate() {
             let q = line.points()[i * SAMPLES_PER_SEGMENT];
             assert!((q.position - gate.position).norm() < 1e-12 && (q.direction - gate.normal()).norm() < 1e-12, "gate {i}");
+        }
+        // The track's mirror image (y → −y) gets the mirror image of the line, detour included.
+        let reflect = |v: &Vector3<f64>| Vector3::new(v.x, -v.y, v.z);
+        let mirrored =
+            Track::new("mirrored", track.gates.iter().map(|g| Gate::new(reflect(&g.position), -g.yaw)).collect(), None, Arena::default())
+                .unwrap();
+        for (q, m) in line.points().iter().zip(RacingLine::new(&mirrored).points()) {
+            assert!((reflect(&q.position) - m.position).norm() < 1e-9, "{q:?} against {m:?}");
         }
     }
 
