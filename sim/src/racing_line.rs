@@ -220,13 +220,9 @@ fn clear_segment(
         let (close, cusp) = score(points);
         (close, cusp || turns_back(points))
     };
-    // Nearest the frame where the direct segment comes closest to one: the detour's anchor.
-    let (anchor, frame_point) = direct
-        .iter()
-        .flat_map(|q| track.gates.iter().map(move |g| (q, g.nearest_frame_point(&q.position))))
-        .min_by(|a, b| (a.1 - a.0.position).norm_squared().total_cmp(&(b.1 - b.0.position).norm_squared()))
-        .map(|(q, f)| (*q, f))
-        .unwrap_or((direct[0], direct[0].position));
+    // Where the direct segment comes closest to a frame: the detour's anchor.
+    let (anchor, frame_point) = closest_frame_approach(direct.iter().map(|q| &q.position), &track.gates)
+        .map_or((direct[0], direct[0].position), |a| (direct[a.sample], a.frame_point));
     let half = SAMPLES_PER_SEGMENT / 2;
     detour_waypoints(from, to, &anchor, &frame_point)
         .into_iter()
@@ -301,6 +297,34 @@ fn detour_waypoints(
         waypoints.push((from.0 + from.1 * distance, *from.1));
     }
     waypoints
+}
+
+/// Where a sequence of positions comes closest to a gate frame ([`closest_frame_approach`]).
+struct FrameApproach {
+    /// Index of the position.
+    sample: usize,
+    /// Index of the gate whose frame it is.
+    gate: usize,
+    /// The frame's point nearest to that position.
+    frame_point: Vector3<f64>,
+    /// Their distance (m).
+    distance: f64,
+}
+
+/// The first of `positions` that comes closest to the frame of any of `gates`; `None` when there
+/// are no positions or no gates.
+fn closest_frame_approach<'a>(positions: impl Iterator<Item = &'a Vector3<f64>>, gates: &[Gate]) -> Option<FrameApproach> {
+    let mut nearest: Option<FrameApproach> = None;
+    for (sample, position) in positions.enumerate() {
+        for (gate, g) in gates.iter().enumerate() {
+            let frame_point = g.nearest_frame_point(position);
+            let distance = (frame_point - position).norm();
+            if nearest.as_ref().is_none_or(|n| distance < n.distance) {
+                nearest = Some(FrameApproach { sample, gate, frame_point, distance });
+            }
+        }
+    }
+    nearest
 }
 
 /// How far from the frame a detour waypoint beside it is placed (m).
@@ -378,16 +402,10 @@ impl RacingLine {
     /// it can, and policies that read the line fly few tracks where it comes within ~0.2 m of a
     /// frame (docs/notebook/generalist.md).
     pub fn frame_clearance(&self, gates: &[Gate]) -> FrameClearance {
-        let mut nearest = FrameClearance { distance: f64::INFINITY, gate: 0, target: 0 };
-        for point in &self.points {
-            for (index, gate) in gates.iter().enumerate() {
-                let distance = (gate.nearest_frame_point(&point.position) - point.position).norm();
-                if distance < nearest.distance {
-                    nearest = FrameClearance { distance, gate: index, target: point.target };
-                }
-            }
-        }
-        nearest
+        closest_frame_approach(self.points.iter().map(|p| &p.position), gates).map_or(
+            FrameClearance { distance: f64::INFINITY, gate: 0, target: 0 },
+            |a| FrameClearance { distance: a.distance, gate: a.gate, target: self.points[a.sample].target },
+        )
     }
 
     /// Index of the sample nearest to `p` on the leg that leads into gate `target`.
