@@ -1,14 +1,14 @@
 //! The learner: turns rollout chunks of its current policy version into the next version.
 
 use burn::module::Module;
-use burn::optim::decay::WeightDecayConfig;
-use burn::optim::{AdamConfig, ModuleOptimizer};
+use burn::optim::ModuleOptimizer;
 use burn::tensor::{Bytes, Device};
 use policy::{ActorCritic, Agent, Architecture, ObsNormalizer, RolloutChunk, VisionActorCritic, WeightsBlob};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use crate::adam::FusedAdam;
 use crate::config::Profile;
 use crate::ppo::{GaeInput, MirrorTerm, TrainingBatch, UpdateStats, UpdateStep, gae, update};
 
@@ -298,11 +298,12 @@ impl Learner {
     }
 }
 
-/// Adam with SPEC §10's ε and L2 weight decay added to the gradient (torch Adam semantics).
+/// Adam with SPEC §10's ε and L2 weight decay added to the gradient (torch Adam semantics),
+/// fused ([`FusedAdam`]).
 pub(crate) fn adam(profile: &Profile) -> ModuleOptimizer {
     let ppo = &profile.ppo;
-    let decay = (ppo.weight_decay > 0.0).then(|| WeightDecayConfig::new(ppo.weight_decay as f32));
-    AdamConfig::new().with_epsilon(ppo.adam_epsilon as f32).with_weight_decay(decay).init()
+    let decay = (ppo.weight_decay > 0.0).then_some(ppo.weight_decay as f32);
+    FusedAdam::new(ppo.adam_epsilon as f32, decay).init()
 }
 
 #[cfg(test)]

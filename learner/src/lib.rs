@@ -3,6 +3,7 @@
 //! gradient step. The run around it (directory, metrics, process loops) is the `runtime`
 //! crate; distillation, which trains the same networks by regression, the `distill` crate.
 
+pub mod adam;
 pub mod bench;
 pub mod checkpoint;
 pub mod config;
