@@ -52,7 +52,6 @@ struct Coefficients {
 }
 
 impl Coefficients {
-    /// Steps one element: `p` the parameter, `g` its gradient, `m` and `v` its moments.
     /// Steps every element of `p` (gradients `g`, moments `m` and `v`, the same length).
     fn step_all(&self, p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32]) {
         for (((p, g), m), v) in p.iter_mut().zip(g).zip(m.iter_mut()).zip(v.iter_mut()) {
@@ -60,6 +59,7 @@ impl Coefficients {
         }
     }
 
+    /// Steps one element: `p` the parameter, `g` its gradient, `m` and `v` its moments.
     #[inline(always)]
     fn step(&self, p: &mut f32, g: f32, m: &mut f32, v: &mut f32) {
         let g = match self.weight_decay {
@@ -93,12 +93,12 @@ impl Optimizer for FusedAdam {
     fn step<const D: usize>(
         &self,
         lr: LearningRate,
-        tensor_: Tensor<D>,
+        param: Tensor<D>,
         grad: Tensor<D>,
         state: Option<Self::State<D>>,
     ) -> (Tensor<D>, Option<Self::State<D>>) {
-        let (device, dims) = (tensor_.device(), tensor_.dims());
-        let mut params = values(tensor_);
+        let (device, dims) = (param.device(), param.dims());
+        let mut params = values(param);
         let grads = values(grad);
         let (time, mut m, mut v) = match state {
             Some(s) => (s.momentum.time + 1, values(s.momentum.moment_1), values(s.momentum.moment_2)),
