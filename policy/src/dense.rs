@@ -5,7 +5,9 @@
 //! one pass backward (docs/notebook/throughput.md, "The fused dense layer"). A stack runs a part
 //! of the rows through every layer on one thread, so a layer's output, and backward its input
 //! gradient, is still in cache when the next layer reads it, and a node (up to four layers) is
-//! one parallel region each way. Other devices take burn's ops, which compute the same function.
+//! one parallel region each way. In training, a layer of a few outputs (the actor's and the
+//! critic's last) goes row by row instead of through gemm (`policy::narrow`). Other devices take
+//! burn's ops, which compute the same function.
 
 use std::mem::MaybeUninit;
 
@@ -20,6 +22,8 @@ use burn::tensor::activation::relu;
 use burn::tensor::{Tensor, TensorData};
 use rayon::prelude::*;
 
+use crate::narrow::{self, NARROW};
+
 /// The autodiff flex backend that training runs on.
 type Tracked = Autodiff<Flex, NoCheckpointing>;
 
@@ -29,6 +33,10 @@ type Tracked = Autodiff<Flex, NoCheckpointing>;
 /// (docs/notebook/throughput.md). Fixed, so that the weight and bias gradients' partial sums are
 /// added in the same order whatever the thread count (exact resume relies on it).
 const PART_ROWS: usize = 1024;
+
+/// Values per chunk of a weight gradient's sum over parts; a gradient of more than two chunks
+/// is summed on the pool's threads, a chunk each.
+const SUM_CHUNK: usize = 16 * 1024;
 
 /// Layers per autodiff node: the node's parents (input, then each layer's weight and bias) are
 /// a fixed-size array, so a stack is cut into nodes of up to this many layers.
@@ -96,7 +104,7 @@ fn stack_node(x: Tensor<2>, layers: &[Dense]) -> Tensor<2> {
         .map(|l| Some((l.weight.clone().try_into_primitive::<Flex>().ok()?, l.bias.clone().try_into_primitive::<Flex>().ok()?)))
         .collect();
     if let (Ok(x), Some(params)) = (x.clone().try_into_primitive::<Flex>(), untracked) {
-        let outputs = forward(&x, &params, &slopes, PART_ROWS);
+        let outputs = forward(&x, &params, &slopes, PART_ROWS, false);
         return Tensor::from_primitive::<Flex>(outputs[outputs.len() - 1].clone());
     }
     stack_by_burn_ops(x, layers)
@@ -166,7 +174,7 @@ fn tracked_stack<const N: usize>(
     assert_eq!(N, 1 + 2 * params.len(), "one parent for the input and two a layer");
     let flex: Vec<(FlexTensor, FlexTensor)> = params.iter().map(|(w, b)| (w.primitive().clone(), b.primitive().clone())).collect();
     let part_rows = training_part_rows(x.primitive().layout().shape()[0]);
-    let outputs = forward(x.primitive(), &flex, &slopes, part_rows);
+    let outputs = forward(x.primitive(), &flex, &slopes, part_rows, true);
     let nodes: [_; N] = std::array::from_fn(|i| match i {
         0 => x.node(),
         i if i % 2 == 1 => params[(i - 1) / 2].0.node(),
@@ -196,8 +204,18 @@ fn tensor(values: Vec<f32>, shape: &[usize]) -> FlexTensor {
 }
 
 /// Each layer's output, computed in parts of `part_rows` rows, every layer of a part on one
-/// thread: one parallel region. `params` are (weight, bias) pairs; every width is ≥ 1.
-fn forward(x: &FlexTensor, params: &[(FlexTensor, FlexTensor)], slopes: &[Option<f32>], part_rows: usize) -> Vec<FlexTensor> {
+/// thread: one parallel region. `params` are (weight, bias) pairs; every width is ≥ 1. With
+/// `training`, a layer of at most [`NARROW`] outputs goes row by row ([`narrow`]); when the
+/// layer below is a gemm layer, the narrow one applies that layer's bias and activation to each
+/// row just before reading it (not in a pass of its own). Inference keeps
+/// gemm's products, so that an evaluation's actions stay what they were, bit for bit.
+fn forward(
+    x: &FlexTensor,
+    params: &[(FlexTensor, FlexTensor)],
+    slopes: &[Option<f32>],
+    part_rows: usize,
+    training: bool,
+) -> Vec<FlexTensor> {
     let (x, xs) = values(x);
     let weights: Vec<_> = params.iter().map(|(w, _)| values(w)).collect();
     let biases: Vec<_> = params.iter().map(|(_, b)| values(b).0).collect();
@@ -208,6 +226,9 @@ fn forward(x: &FlexTensor, params: &[(FlexTensor, FlexTensor)], slopes: &[Option
     let fed: Vec<usize> = std::iter::once(xs[1]).chain(widths.iter().copied()).collect();
     assert!(inputs == fed[..inputs.len()], "the input is {rows}×{}, the layers take {inputs:?} and give {widths:?}", xs[1]);
     assert!(biases.iter().zip(&widths).all(|(b, w)| b.len() == *w), "one bias per output");
+    let transposed = narrow_weights(&weights, training);
+    // A gemm layer's bias and activation are left to the layer above when that one goes row by row.
+    let deferred = |l: usize| transposed[l].is_none() && transposed.get(l + 1).is_some_and(Option::is_some);
     let mut ys: Vec<Vec<f32>> = widths.iter().map(|w| Vec::with_capacity(rows * w)).collect();
     let mut parts: Vec<Vec<&mut [MaybeUninit<f32>]>> = (0..rows.div_ceil(part_rows)).map(|_| Vec::new()).collect();
     for (y, width) in ys.iter_mut().zip(&widths) {
@@ -215,28 +236,63 @@ fn forward(x: &FlexTensor, params: &[(FlexTensor, FlexTensor)], slopes: &[Option
             part.push(chunk);
         }
     }
+    // Slope 1 is the identity: one branch-free loop (a vector blend) serves both kinds of layer.
+    let slope = |l: usize| slopes[l].unwrap_or(1.0);
     parts.into_par_iter().enumerate().for_each(|(p, outputs)| {
         let part = outputs[0].len() / widths[0];
-        let mut input: &[f32] = &x[p * part_rows * inputs[0]..][..part * inputs[0]];
+        let x = &x[p * part_rows * inputs[0]..][..part * inputs[0]];
+        // The layer below's output (none below the first layer).
+        let mut below: Option<&mut [f32]> = None;
         for (l, y) in outputs.into_iter().enumerate() {
-            // Slope 1 is the identity: one branch-free loop (a vector blend) serves both kinds of layer.
-            let (k, n, s) = (inputs[l], widths[l], slopes[l].unwrap_or(1.0));
-            // y = input · w: all row-major (column stride 1, row stride the width).
-            let y = product_into(y, part, n, k, (input, 1, k as isize), (&weights[l].0, 1, n as isize));
-            for row in y.chunks_exact_mut(n) {
-                bias_and_activation(row, &biases[l], s);
-            }
-            input = y;
+            let (k, n) = (inputs[l], widths[l]);
+            let y = if let Some(weights_t) = &transposed[l] {
+                for (i, y) in y.chunks_exact_mut(n).enumerate() {
+                    let row: &[f32] = match below.as_deref_mut() {
+                        Some(below) if deferred(l - 1) => {
+                            let row = &mut below[i * k..][..k];
+                            bias_and_activation(row, &biases[l - 1], slope(l - 1));
+                            row
+                        }
+                        Some(below) => &below[i * k..][..k],
+                        None => &x[i * k..][..k],
+                    };
+                    let mut z = [0.0f32; NARROW];
+                    narrow::dots(row, weights_t, &mut z[..n]);
+                    bias_and_activation(&mut z[..n], &biases[l], slope(l));
+                    for (y, z) in y.iter_mut().zip(z) {
+                        y.write(z);
+                    }
+                }
+                // SAFETY: every row of y was just written.
+                unsafe { assume_init(y) }
+            } else {
+                let input = below.as_deref().unwrap_or(x);
+                // y = input · w: all row-major (column stride 1, row stride the width).
+                let y = product_into(y, part, n, k, (input, 1, k as isize), (&weights[l].0, 1, n as isize));
+                if !deferred(l) {
+                    for row in y.chunks_exact_mut(n) {
+                        bias_and_activation(row, &biases[l], slope(l));
+                    }
+                }
+                y
+            };
+            below = Some(y);
         }
     });
     ys.into_iter()
         .zip(&widths)
         .map(|(mut y, width)| {
-            // SAFETY: the parts cover all rows × width values and `product_into` wrote each of them.
+            // SAFETY: the parts cover all rows × width values, and `product_into` or the row loop wrote each.
             unsafe { y.set_len(rows * width) };
             tensor(y, &[rows, *width])
         })
         .collect()
+}
+
+/// The weights of each layer of at most [`NARROW`] outputs, transposed for the row kernels, when
+/// `training`; `None` for the other layers (and every layer otherwise).
+fn narrow_weights(weights: &[(std::borrow::Cow<'_, [f32]>, Vec<usize>)], training: bool) -> Vec<Option<Vec<f32>>> {
+    weights.iter().map(|(w, shape)| (training && shape[1] <= NARROW).then(|| narrow::transpose(w, shape[0], shape[1]))).collect()
 }
 
 /// `row = leaky(row + bias)` with slope `s`. Written without branches (max/min, and a select
@@ -252,8 +308,9 @@ fn bias_and_activation(row: &mut [f32], bias: &[f32], s: f32) {
 }
 
 /// `dz = dy ⊙ leaky'(y)` for one row, in place (`dz` holds `dy`), added into `sum` (the bias
-/// gradient).
-fn activation_gradient(dz: &mut [f32], y: &[f32], sum: &mut [f32], s: f32) {
+/// gradient). Inlined, so that it takes the vector width of the function that calls it.
+#[inline(always)]
+pub(crate) fn activation_gradient(dz: &mut [f32], y: &[f32], sum: &mut [f32], s: f32) {
     let n = dz.len();
     assert!(y.len() == n && sum.len() == n, "one row of each");
     for j in 0..n {
@@ -270,6 +327,7 @@ fn activation_gradient(dz: &mut [f32], y: &[f32], sum: &mut [f32], s: f32) {
 fn backward(saved: &Saved, dy: &FlexTensor, input_gradient: bool) -> (Option<FlexTensor>, Vec<(FlexTensor, FlexTensor)>) {
     let ((x, xs), (dy, _)) = (values(&saved.x), values(dy));
     let weights: Vec<_> = saved.weights.iter().map(values).collect();
+    let transposed = narrow_weights(&weights, true);
     let outputs: Vec<_> = saved.outputs.iter().map(|y| values(y).0).collect();
     let slopes: Vec<f32> = saved.slopes.iter().map(|s| s.unwrap_or(1.0)).collect();
     let rows = xs[0];
@@ -290,7 +348,7 @@ fn backward(saved: &Saved, dy: &FlexTensor, input_gradient: bool) -> (Option<Fle
     let partials: Vec<Vec<(Vec<f32>, Vec<f32>)>> = dx_parts
         .into_par_iter()
         .enumerate()
-        .map(|(p, dx)| {
+        .map(|(p, mut dx)| {
             let (start, end) = (p * part_rows, (p * part_rows + part_rows).min(rows));
             let part = end - start;
             let rows_of = |values, width| row_range(values, start..end, width);
@@ -303,6 +361,28 @@ fn backward(saved: &Saved, dy: &FlexTensor, input_gradient: bool) -> (Option<Fle
             for l in (0..widths.len()).rev() {
                 let (k, n) = (inputs[l], widths[l]);
                 let input = if l == 0 { rows_of(&x, k) } else { rows_of(&outputs[l - 1], k) };
+                if let Some(weights_t) = &transposed[l] {
+                    // One pass over the rows: the weight gradient (transposed), and the input's
+                    // gradient with the layer below's activation derivative and bias gradient.
+                    let mut dw_t = vec![0.0f32; n * k];
+                    let rows = input.chunks_exact(k).zip(dz.chunks_exact(n));
+                    if l == 0 {
+                        for (i, (x, dz)) in rows.enumerate() {
+                            narrow::backward_row(x, dz, weights_t, &mut dw_t, dx.as_deref_mut().map(|dx| &mut dx[i * k..][..k]), None);
+                        }
+                        layers.push((db, narrow::transpose(&dw_t, n, k)));
+                        break;
+                    }
+                    let (mut below, mut db_below) = (Vec::with_capacity(part * k), vec![0.0f32; k]);
+                    for ((x, dz), dx) in rows.zip(below.spare_capacity_mut()[..part * k].chunks_exact_mut(k)) {
+                        narrow::backward_row(x, dz, weights_t, &mut dw_t, Some(dx), Some((slopes[l - 1], &mut db_below)));
+                    }
+                    // SAFETY: backward_row wrote every row of `below`.
+                    unsafe { below.set_len(part * k) };
+                    layers.push((std::mem::replace(&mut db, db_below), narrow::transpose(&dw_t, n, k)));
+                    dz = below;
+                    continue;
+                }
                 // The layer's input transposed: read from its storage with the strides swapped.
                 let dw = product(k, n, part, (input, k as isize, 1), (&dz, 1, n as isize));
                 if l == 0 {
@@ -326,14 +406,24 @@ fn backward(saved: &Saved, dy: &FlexTensor, input_gradient: bool) -> (Option<Fle
     if input_gradient {
         unsafe { dx.set_len(rows * inputs[0]) };
     }
-    // Partial sums added in part order.
+    // Partial sums added in part order, element by element; a large weight gradient in chunks on
+    // both threads (on one, the sums were ~2.5 % of the paper profile's step).
     let params = (0..widths.len())
         .map(|l| {
             let (mut db, mut dw) = (vec![0.0f32; widths[l]], vec![0.0f32; inputs[l] * widths[l]]);
-            for part in &partials {
-                let (pdb, pdw) = &part[top - l];
+            let parts: Vec<&(Vec<f32>, Vec<f32>)> = partials.iter().map(|part| &part[top - l]).collect();
+            for (pdb, _) in &parts {
                 add(&mut db, pdb);
-                add(&mut dw, pdw);
+            }
+            let add_chunk = |(c, chunk): (usize, &mut [f32])| {
+                for (_, pdw) in &parts {
+                    add(chunk, &pdw[c * SUM_CHUNK..]);
+                }
+            };
+            if dw.len() > 2 * SUM_CHUNK {
+                dw.par_chunks_mut(SUM_CHUNK).enumerate().for_each(add_chunk);
+            } else {
+                dw.chunks_mut(SUM_CHUNK).enumerate().for_each(add_chunk);
             }
             (tensor(dw, &[inputs[l], widths[l]]), tensor(db, &[widths[l]]))
         })
@@ -358,7 +448,7 @@ fn add(sum: &mut [f32], part: &[f32]) {
 ///
 /// # Safety
 /// Every element of `values` must be initialised.
-unsafe fn assume_init(values: &mut [MaybeUninit<f32>]) -> &mut [f32] {
+pub(crate) unsafe fn assume_init(values: &mut [MaybeUninit<f32>]) -> &mut [f32] {
     // SAFETY: MaybeUninit<f32> has f32's layout, and the caller vouches for every element.
     unsafe { std::slice::from_raw_parts_mut(values.as_mut_ptr().cast::<f32>(), values.len()) }
 }

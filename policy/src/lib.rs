@@ -8,6 +8,7 @@ pub mod blob;
 pub mod dense;
 pub mod ensemble;
 pub mod inference;
+mod narrow;
 pub mod network;
 pub mod normalizer;
 pub mod onnx;
