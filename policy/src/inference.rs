@@ -84,23 +84,25 @@ impl Policy {
     }
 
     /// Action means and values of raw observations (`n × obs_dim`).
-    #[allow(clippy::expect_used, reason = "float outputs")]
     pub fn means_and_values(&self, raw: &[f32]) -> (Vec<f32>, Vec<f32>) {
-        let dim = self.normalizer.dim();
-        let n = raw.len() / dim;
-        let mut normalized = vec![0.0; raw.len()];
-        self.normalizer.normalize(raw, &mut normalized);
-        let obs = Tensor::<2>::from_data(TensorData::new(normalized, [n, dim]), &self.device);
-        let (mean, value) = self.model.forward(obs);
-        let to_vec = |d: TensorData| d.try_into_vec::<f32>().expect("float outputs");
-        (to_vec(mean.into_data()), to_vec(value.into_data()))
+        let (mean, value) = self.model.forward(self.normalized(raw));
+        (float_values(mean.into_data()), float_values(value.into_data()))
     }
 
     /// The deterministic actions evaluation takes for raw observations (`n × obs_dim`): the
-    /// action means clipped to [-1, 1].
+    /// action means clipped to [-1, 1]. The actor alone: flying needs no value, and the critic
+    /// was half of every evaluation step's products.
     pub fn deterministic_actions(&self, raw: &[f32]) -> Vec<f32> {
-        let (means, _) = self.means_and_values(raw);
+        let means = float_values(self.model.action_means(self.normalized(raw)).into_data());
         means.into_iter().map(|a| a.clamp(-1.0, 1.0)).collect()
+    }
+
+    /// Raw observations (`n × obs_dim`) normalised, as a tensor.
+    fn normalized(&self, raw: &[f32]) -> Tensor<2> {
+        let dim = self.normalizer.dim();
+        let mut normalized = vec![0.0; raw.len()];
+        self.normalizer.normalize(raw, &mut normalized);
+        Tensor::<2>::from_data(TensorData::new(normalized, [raw.len() / dim, dim]), &self.device)
     }
 
     /// Samples actions for a batch, with their log-probabilities and the values.
@@ -108,6 +110,12 @@ impl Policy {
         let (means, values) = self.means_and_values(raw);
         sample(&means, values, &self.log_std, rng)
     }
+}
+
+/// The values of an output tensor's data: the networks compute in f32.
+#[allow(clippy::expect_used, reason = "the networks' outputs are f32")]
+fn float_values(data: TensorData) -> Vec<f32> {
+    data.try_into_vec::<f32>().expect("float outputs")
 }
 
 /// Samples around action means `means` (rows of `log_std.len()`) with the state-independent
@@ -180,10 +188,9 @@ impl VisionPolicy {
     /// them) and their raw state observations (`n × 40`,
     /// in the policy's frame; their proprioceptive part feeds the actor), one row of means per
     /// observation.
-    #[allow(clippy::expect_used, reason = "float outputs")]
     pub fn mean_actions(&self, images: &[u8], raw_states: &[f32]) -> Vec<f32> {
         let (images, states) = self.inputs(images, raw_states);
-        self.model.actor_mean(images, states).into_data().try_into_vec::<f32>().expect("float outputs")
+        float_values(self.model.actor_mean(images, states).into_data())
     }
 
     /// The deterministic actions evaluation takes (as [`Policy::deterministic_actions`]): the
@@ -193,19 +200,17 @@ impl VisionPolicy {
     }
 
     /// The critic's values of raw state observations (`n × 40`): it reads the state only.
-    #[allow(clippy::expect_used, reason = "float outputs")]
     pub fn values(&self, raw_states: &[f32]) -> Vec<f32> {
         let states = self.states(raw_states);
-        self.model.critic.forward(states).into_data().try_into_vec::<f32>().expect("float outputs")
+        float_values(self.model.critic.forward(states).into_data())
     }
 
     /// Samples actions for a batch of images and raw states, with log-probabilities and values.
-    #[allow(clippy::expect_used, reason = "float outputs")]
     pub fn act(&self, images: &[u8], raw_states: &[f32], rng: &mut impl Rng) -> Acting {
         let (images, states) = self.inputs(images, raw_states);
         let (means, values) = self.model.forward(images, states);
-        let means = means.into_data().try_into_vec::<f32>().expect("float outputs");
-        sample(&means, values.into_data().try_into_vec::<f32>().expect("float outputs"), &self.log_std, rng)
+        let means = float_values(means.into_data());
+        sample(&means, float_values(values.into_data()), &self.log_std, rng)
     }
 
     /// Normalised states `[n, 40]` of raw ones.
