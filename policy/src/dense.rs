@@ -23,6 +23,7 @@ use burn::tensor::{Tensor, TensorData};
 use rayon::prelude::*;
 
 use crate::narrow::{self, NARROW};
+use crate::rows::{activation_gradient, add, assume_init, bias_and_activation};
 
 /// The autodiff flex backend that training runs on.
 type Tracked = Autodiff<Flex, NoCheckpointing>;
@@ -295,31 +296,6 @@ fn narrow_weights(weights: &[(std::borrow::Cow<'_, [f32]>, Vec<usize>)], trainin
     weights.iter().map(|(w, shape)| (training && shape[1] <= NARROW).then(|| narrow::transpose(w, shape[0], shape[1]))).collect()
 }
 
-/// `row = leaky(row + bias)` with slope `s`. Written without branches (max/min, and a select
-/// between constants below) so that the compiler vectorises it: signs are random, and a branch
-/// per element mispredicts half the time.
-fn bias_and_activation(row: &mut [f32], bias: &[f32], s: f32) {
-    let n = row.len().min(bias.len());
-    let (row, bias) = (&mut row[..n], &bias[..n]);
-    for j in 0..n {
-        let z = row[j] + bias[j];
-        row[j] = z.max(0.0) + s * z.min(0.0);
-    }
-}
-
-/// `dz = dy ⊙ leaky'(y)` for one row, in place (`dz` holds `dy`), added into `sum` (the bias
-/// gradient). Inlined, so that it takes the vector width of the function that calls it.
-#[inline(always)]
-pub(crate) fn activation_gradient(dz: &mut [f32], y: &[f32], sum: &mut [f32], s: f32) {
-    let n = dz.len();
-    assert!(y.len() == n && sum.len() == n, "one row of each");
-    for j in 0..n {
-        let d = dz[j] * if y[j] > 0.0 { 1.0 } else { s };
-        dz[j] = d;
-        sum[j] += d;
-    }
-}
-
 /// Gradients of the input (if asked) and of each layer's weight and bias from the output's
 /// gradient `dy`. Per part of the rows, on one thread, from the top layer down: the layer's
 /// `dz = dy ⊙ activation'(z)` and bias gradient (Σ_rows dz), its weight gradient (xᵀ·dz), and
@@ -435,22 +411,6 @@ fn backward(saved: &Saved, dy: &FlexTensor, input_gradient: bool) -> (Option<Fle
 /// Rows `range` of a row-major matrix `width` values wide.
 fn row_range(values: &[f32], range: std::ops::Range<usize>, width: usize) -> &[f32] {
     &values[range.start * width..range.end * width]
-}
-
-/// `sum += part`, element by element.
-fn add(sum: &mut [f32], part: &[f32]) {
-    for (s, p) in sum.iter_mut().zip(part) {
-        *s += p;
-    }
-}
-
-/// The values of a slice every element of which has been written.
-///
-/// # Safety
-/// Every element of `values` must be initialised.
-pub(crate) unsafe fn assume_init(values: &mut [MaybeUninit<f32>]) -> &mut [f32] {
-    // SAFETY: MaybeUninit<f32> has f32's layout, and the caller vouches for every element.
-    unsafe { std::slice::from_raw_parts_mut(values.as_mut_ptr().cast::<f32>(), values.len()) }
 }
 
 /// `lhs[m × k] · rhs[k × n]`, row-major, each operand given as (values, column stride, row

@@ -13,6 +13,7 @@ pub mod network;
 pub mod normalizer;
 pub mod onnx;
 pub mod rollout;
+mod rows;
 pub mod run_length;
 pub mod safetensors;
 pub mod surgery;

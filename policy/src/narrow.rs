@@ -14,7 +14,7 @@
 
 use std::mem::MaybeUninit;
 
-use crate::dense::{activation_gradient, assume_init};
+use crate::rows::{activation_gradient, assume_init};
 
 /// The most outputs a layer may have to take this path; wider layers go through gemm.
 pub const NARROW: usize = 8;
