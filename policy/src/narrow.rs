@@ -1,7 +1,7 @@
 //! A training pass through a layer with few outputs — the actor's action means, the critic's
 //! value — one row at a time. gemm tiles its output in blocks of 64 × 6 (AVX-512), so a
-//! product with four outputs or one ran at 15–50 GFLOP/s, a few per cent of the step for a
-//! thousandth of its arithmetic; here each output is a dot product vectorised over the input's
+//! product with four outputs or one ran at 15–50 GFLOP/s, a few per cent of the step for under
+//! half a per cent of its arithmetic; here each output is a dot product vectorised over the input's
 //! width. Backward, one pass over a row makes the layer's weight gradient, the gradient of the
 //! layer below and that layer's activation derivative and bias gradient together, while the
 //! row is in cache (gemm's products and a separate pass read it three times).
