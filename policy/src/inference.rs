@@ -99,10 +99,7 @@ impl Policy {
 
     /// Raw observations (`n × obs_dim`) normalised, as a tensor.
     fn normalized(&self, raw: &[f32]) -> Tensor<2> {
-        let dim = self.normalizer.dim();
-        let mut normalized = vec![0.0; raw.len()];
-        self.normalizer.normalize(raw, &mut normalized);
-        Tensor::<2>::from_data(TensorData::new(normalized, [raw.len() / dim, dim]), &self.device)
+        normalized(&self.normalizer, raw, &self.device)
     }
 
     /// Samples actions for a batch, with their log-probabilities and the values.
@@ -110,6 +107,15 @@ impl Policy {
         let (means, values) = self.means_and_values(raw);
         sample(&means, values, &self.log_std, rng)
     }
+}
+
+/// Raw observations (rows of `normalizer.dim()`) normalised by `normalizer`, as a tensor on
+/// `device`: what both kinds of policy feed their networks' state inputs.
+fn normalized(normalizer: &ObsNormalizer, raw: &[f32], device: &Device) -> Tensor<2> {
+    let dim = normalizer.dim();
+    let mut normalized = vec![0.0; raw.len()];
+    normalizer.normalize(raw, &mut normalized);
+    Tensor::<2>::from_data(TensorData::new(normalized, [raw.len() / dim, dim]), device)
 }
 
 /// The values of an output tensor's data: the networks compute in f32.
@@ -215,10 +221,7 @@ impl VisionPolicy {
 
     /// Normalised states `[n, 40]` of raw ones.
     fn states(&self, raw_states: &[f32]) -> Tensor<2> {
-        let dim = self.normalizer.dim();
-        let mut states = vec![0.0; raw_states.len()];
-        self.normalizer.normalize(raw_states, &mut states);
-        Tensor::<2>::from_data(TensorData::new(states, [raw_states.len() / dim, dim]), &self.device)
+        normalized(&self.normalizer, raw_states, &self.device)
     }
 
     /// The network's inputs: images `[n, 1, 84, 84]` in [0, 1] and normalised states.
