@@ -260,6 +260,15 @@ fn bad_inputs_are_refused_naming_the_file_and_the_field_or_line() {
     let o = dronerace(&["eval", "--policy", missing.to_str().unwrap()]);
     let e = stderr(&o);
     assert!(!o.status.success() && e.contains("missing.bin") && e.matches("No such file").count() == 1, "{e}");
+
+    // What aborted the process (exit 134) or would read until memory ran out: a trillion
+    // gates, and a "policy" that is a device.
+    let o = dronerace(&["tracks", "generate", "--seed", "0", "--gates", "1000000000000", "--out", dir.path().join("g").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("gates = 1000000000000: a track has 2 to 64 gates"), "{}", stderr(&o));
+    let o = dronerace(&["eval", "--policy", "/dev/zero"]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("/dev/zero") && stderr(&o).contains("not a regular file"), "{}", stderr(&o));
 }
 
 #[test]

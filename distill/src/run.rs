@@ -159,7 +159,8 @@ impl DistillConfig {
     /// Reads a config file over the defaults of the student it names; errors name the file and
     /// the field.
     pub fn read(path: &Path) -> anyhow::Result<Self> {
-        let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let text = racetracks::files::read_text_limited(path, racetracks::files::MAX_TEXT_FILE_BYTES)
+            .with_context(|| format!("reading {}", path.display()))?;
         let error = |e: runtime::overrides::OverrideError| anyhow::anyhow!("{}: {e}", path.display());
         let student = runtime::overrides::parse_over(&Self::default(), &text).map_err(error)?.student;
         runtime::overrides::parse_over(&Self::defaults_for(student), &text).map_err(error)

@@ -141,10 +141,15 @@ impl Checkpoint {
 
     /// Reads and verifies a checkpoint file.
     pub fn read(path: &Path) -> Result<Self, CheckpointError> {
-        let bytes = std::fs::read(path).map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })?;
+        let bytes = racetracks::files::read_limited(path, MAX_FILE_BYTES)
+            .map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })?;
         Self::from_bytes(&bytes, path)
     }
 }
+
+/// Largest checkpoint or policy file read (bytes): today's are 0.6–3 MB, a checkpoint of the
+/// paper network with its optimiser state ~10 MB.
+pub const MAX_FILE_BYTES: u64 = 256 << 20;
 
 /// Checkpoint files of a run directory: `ckpt-<iteration>.bin`, `best.bin`, and the last
 /// validated policies in `validated/`.
@@ -219,7 +224,8 @@ fn numbered_files(dir: &Path, prefix: &str) -> std::io::Result<Vec<PathBuf>> {
 
 /// The policy in a checkpoint file or a bare weights blob file.
 pub fn read_policy(path: &Path) -> Result<policy::WeightsBlob, CheckpointError> {
-    let bytes = std::fs::read(path).map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })?;
+    let bytes =
+        racetracks::files::read_limited(path, MAX_FILE_BYTES).map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })?;
     // A checkpoint is a policy file with more in it: read as one, the rest is ignored.
     policy::WeightsBlob::from_bytes(&bytes)
         .map_err(|reason| CheckpointError::Corrupt { file: path.to_path_buf(), reason: reason.to_string() })

@@ -1,6 +1,7 @@
-//! Crash-safe file writing shared by every file dronerace produces.
+//! Crash-safe file writing shared by every file dronerace produces, and bounded reading of
+//! every file it is given.
 
-use std::io::Write;
+use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
 /// The temporary sibling `write_atomic` writes `path` through.
@@ -26,6 +27,38 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
         return written;
     }
     sync_directory(path)
+}
+
+/// Largest text file dronerace reads (a run configuration, an experiment, a CSV of gates): a
+/// generous multiple of any real one.
+pub const MAX_TEXT_FILE_BYTES: u64 = 1 << 20;
+
+/// Reads `path` whole if it is a regular file of at most `max` bytes; anything else (a device
+/// such as `/dev/zero`, a pipe, a file too large) is refused before it can fill memory.
+pub fn read_limited(path: &Path, max: u64) -> std::io::Result<Vec<u8>> {
+    // Asked before opening: opening a FIFO would wait for a writer.
+    if !std::fs::metadata(path)?.is_file() {
+        return Err(std::io::Error::new(std::io::ErrorKind::InvalidInput, "not a regular file"));
+    }
+    let file = std::fs::File::open(path)?;
+    let metadata = file.metadata()?;
+    let too_large =
+        |size: u64| std::io::Error::new(std::io::ErrorKind::InvalidData, format!("{size} bytes, more than the {max} this file may have"));
+    if metadata.len() > max {
+        return Err(too_large(metadata.len()));
+    }
+    // The file may grow between the check and the read: read one byte past the bound at most.
+    let mut bytes = Vec::with_capacity(metadata.len() as usize);
+    file.take(max + 1).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > max {
+        return Err(too_large(bytes.len() as u64));
+    }
+    Ok(bytes)
+}
+
+/// [`read_limited`] as UTF-8 text.
+pub fn read_text_limited(path: &Path, max: u64) -> std::io::Result<String> {
+    String::from_utf8(read_limited(path, max)?).map_err(|_| std::io::Error::new(std::io::ErrorKind::InvalidData, "not UTF-8 text"))
 }
 
 /// fsyncs the directory holding `path`, making a rename into it durable.
@@ -93,5 +126,20 @@ mod tests {
         assert_eq!(remove_stale_temporary(&path).unwrap(), None);
         assert_eq!(remove_stale_temporaries(dir.path()).unwrap(), vec![dir.path().join("c.bin.tmp")]);
         assert!(dir.path().join("taken").is_dir(), "only temporaries go");
+    }
+
+    #[test]
+    fn a_device_or_an_oversized_file_is_refused_before_it_is_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("f.toml");
+        std::fs::write(&path, b"0123456789").unwrap();
+        assert_eq!(read_limited(&path, 10).unwrap(), b"0123456789");
+        assert!(read_limited(&path, 9).unwrap_err().to_string().contains("10 bytes, more than the 9"));
+        assert!(read_limited(Path::new("/dev/zero"), 1 << 30).unwrap_err().to_string().contains("not a regular file"));
+        let fifo = dir.path().join("fifo");
+        assert!(std::process::Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+        assert!(read_limited(&fifo, 10).unwrap_err().to_string().contains("not a regular file"), "a FIFO is refused, not waited on");
+        std::fs::write(&path, [0xff, 0xfe]).unwrap();
+        assert!(read_text_limited(&path, 10).unwrap_err().to_string().contains("UTF-8"));
     }
 }

@@ -89,6 +89,14 @@ pub enum Rejection {
         /// `gates` given.
         gates: usize,
     },
+    /// A gate count outside 2..=[`sim::track::MAX_GATES`].
+    #[error("{field} = {value}: a track has 2 to {} gates", sim::track::MAX_GATES)]
+    GateCount {
+        /// `gates` or `gates_max`.
+        field: &'static str,
+        /// The count given.
+        value: usize,
+    },
     /// `max_attempts` is 0.
     #[error("no attempt made (max_attempts is 0)")]
     NoAttempt,
@@ -149,6 +157,10 @@ impl TrackGenerator {
     /// Generates the track of `seed`, named `name`.
     pub fn generate(&self, seed: u64, name: &str) -> Result<Generated, GenerateError> {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let counts = [("gates", Some(self.params.gates)), ("gates_max", self.params.gates_max)];
+        if let Some((field, Some(value))) = counts.into_iter().find(|(_, n)| n.is_some_and(|n| !(2..=sim::track::MAX_GATES).contains(&n))) {
+            return Err(GenerateError { kind: self.kind, seed, attempts: 0, last_reason: Rejection::GateCount { field, value } });
+        }
         let gates = match self.params.gates_max {
             None => self.params.gates,
             Some(max) if max >= self.params.gates => rng.random_range(self.params.gates..=max),
@@ -291,6 +303,19 @@ mod tests {
         let below = TrackGenParams { gates_max: Some(5), ..TrackGenParams::default() };
         let err = TrackGenerator { kind: GeneratorKind::Uniform, params: below }.generate(1, "x").unwrap_err();
         assert!(err.to_string().contains("gates_max (5) is below gates (6)"), "{err}");
+    }
+
+    #[test]
+    fn a_gate_count_beyond_the_bound_is_refused_before_anything_is_allocated() {
+        for (gates, gates_max, field) in [(1_000_000_000_000, None, "gates"), (0, None, "gates"), (6, Some(1 << 62), "gates_max")] {
+            let params = TrackGenParams { gates, gates_max, ..TrackGenParams::default() };
+            for kind in [GeneratorKind::Informed, GeneratorKind::Uniform] {
+                let err = TrackGenerator { kind, params }.generate(0, "x").unwrap_err();
+                assert_eq!(err.attempts, 0);
+                assert!(matches!(err.last_reason, Rejection::GateCount { field: f, .. } if f == field), "{err}");
+                assert!(err.to_string().contains("a track has 2 to 64 gates"), "{err}");
+            }
+        }
     }
 
     #[test]

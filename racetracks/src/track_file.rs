@@ -75,8 +75,17 @@ impl PoseToml {
     }
 }
 
+/// Largest track file (bytes): a track of [`sim::track::MAX_GATES`] gates takes ~5 kB.
+pub const MAX_TRACK_FILE_BYTES: usize = 64 << 10;
+
 /// Parses track TOML; `file` names the source in errors and gives the default name (its stem).
 pub fn parse_track(text: &str, file: &Path) -> Result<Track, TrackFileError> {
+    if text.len() > MAX_TRACK_FILE_BYTES {
+        return Err(TrackFileError::Syntax {
+            file: file.to_path_buf(),
+            message: format!("{} bytes, more than the {MAX_TRACK_FILE_BYTES} a track file may have", text.len()),
+        });
+    }
     let raw: TrackToml = toml::from_str(text)
         .map_err(|e| TrackFileError::Syntax { file: file.to_path_buf(), message: e.to_string().trim_end().to_owned() })?;
     let name = raw.name.unwrap_or_else(|| file.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default());
@@ -137,7 +146,8 @@ pub fn track_from_csv(name: &str, text: &str, file: &Path) -> Result<Track, Trac
 
 /// Reads and validates a track file.
 pub fn read_track(path: &Path) -> Result<Track, TrackFileError> {
-    let text = std::fs::read_to_string(path).map_err(|source| TrackFileError::Io { file: path.to_path_buf(), source })?;
+    let text = crate::files::read_text_limited(path, MAX_TRACK_FILE_BYTES as u64)
+        .map_err(|source| TrackFileError::Io { file: path.to_path_buf(), source })?;
     parse_track(&text, path)
 }
 
@@ -181,6 +191,12 @@ yaw_deg = 0.0
 position = [6.0, 3.0, 2.5]
 yaw_deg = 90.0
 "#;
+
+    /// A valid-looking file of `n` gates in a row, 2.5 m apart, in an arena that holds them.
+    fn many_gates(n: usize) -> String {
+        let gates: String = (0..n).map(|i| format!("[[gate]]\nposition = [{}.0, 0.0, 2.0]\nyaw_deg = 0.0\n", 3 * i)).collect();
+        format!("{gates}[arena]\nmin = [-10.0, -10.0, 0.0]\nmax = [{}.0, 10.0, 6.0]\n", 3 * n + 10)
+    }
 
     fn err(text: &str) -> String {
         parse_track(text, Path::new("tracks/bad.toml")).unwrap_err().to_string()
@@ -236,12 +252,22 @@ yaw_deg = 90.0
             (format!("{VALID}[arena]\nmin = [0.0, 0.0, 0.0]\nmax = [0.0, 10.0, 6.0]\n"), "arena"),
             (format!("{VALID}[arena]\nmin = [-5.0, -5.0, 0.0]\nmax = [5.0, 5.0, 6.0]\n"), "gate[1].position"),
             ("name = \"Pair\"\n[[gate]\n".into(), "line 2"),
+            (format!("{VALID}[arena]\nmin = [-1e308, -5.0, 0.0]\nmax = [5.0, 5.0, 6.0]\n"), "±1000 m"),
+            (many_gates(65), "at most 64 gates, found 65"),
+            (format!("{VALID}# {}\n", "x".repeat(MAX_TRACK_FILE_BYTES)), "more than the 65536"),
         ];
         for (text, field) in cases {
             let message = err(&text);
             assert!(message.starts_with("tracks/bad.toml: "), "{message}");
             assert!(message.contains(field), "expected {field:?} in: {message}");
         }
+    }
+
+    #[test]
+    fn a_track_of_max_gates_parses_and_one_more_is_refused_naming_the_bound() {
+        assert_eq!(parse_track(&many_gates(sim::track::MAX_GATES), Path::new("m.toml")).unwrap().gates.len(), 64);
+        let message = err(&many_gates(sim::track::MAX_GATES + 1));
+        assert!(message.contains("gate: a track has at most 64 gates"), "{message}");
     }
 
     #[test]

@@ -117,7 +117,8 @@ pub enum ExperimentError {
 impl Experiment {
     /// Reads and checks an experiment file: every variant's config must resolve.
     pub fn read(path: &Path) -> Result<Self, ExperimentError> {
-        let text = std::fs::read_to_string(path).map_err(|e| ExperimentError::Invalid(format!("{}: {e}", path.display())))?;
+        let text = racetracks::files::read_text_limited(path, racetracks::files::MAX_TEXT_FILE_BYTES)
+            .map_err(|e| ExperimentError::Invalid(format!("{}: {e}", path.display())))?;
         let experiment: Self = toml::from_str(&text).map_err(|e| ExperimentError::Invalid(format!("{}: {e}", path.display())))?;
         experiment.check().map_err(|e| ExperimentError::Invalid(format!("{}: {e}", path.display())))?;
         Ok(experiment)

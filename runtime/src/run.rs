@@ -186,7 +186,8 @@ impl TrainConfig {
 
     /// Reads a config file; errors name the file and the field.
     pub fn read(path: &Path) -> Result<Self, TrainError> {
-        let text = std::fs::read_to_string(path).map_err(|source| TrainError::Io { file: path.to_path_buf(), source })?;
+        let text = racetracks::files::read_text_limited(path, racetracks::files::MAX_TEXT_FILE_BYTES)
+            .map_err(|source| TrainError::Io { file: path.to_path_buf(), source })?;
         Self::from_toml(&text).map_err(|e| match e {
             TrainError::Config(message) => TrainError::Config(format!("{}: {message}", path.display())),
             other => other,

@@ -36,6 +36,20 @@ pub enum ReportedStateError {
         /// The number sent.
         value: f64,
     },
+    /// A number beyond what a drone can report: a position beyond
+    /// [`crate::track::MAX_COORDINATE`], a speed beyond [`MAX_REPORTED_SPEED`] or a body rate
+    /// beyond [`MAX_REPORTED_BODY_RATE`] (each component).
+    #[error("{field}[{index}] is {value}, beyond the ±{limit} a drone's state may have")]
+    OutOfRange {
+        /// The field.
+        field: &'static str,
+        /// Index within it.
+        index: usize,
+        /// The number sent.
+        value: f64,
+        /// The bound of that field.
+        limit: f64,
+    },
     /// The orientation is not a unit quaternion (within 1e-3).
     #[error("{field} has norm {norm}; it must be a unit quaternion (w, x, y, z)")]
     NotUnitQuaternion {
@@ -45,6 +59,12 @@ pub enum ReportedStateError {
         norm: f64,
     },
 }
+
+/// Largest velocity component a reported state may have (m/s): racing drones fly below 50.
+pub const MAX_REPORTED_SPEED: f64 = 100.0;
+/// Largest body-rate component a reported state may have (rad/s): the rate controller's
+/// commands stay within 10, and a tumbling airframe within a few tens.
+pub const MAX_REPORTED_BODY_RATE: f64 = 100.0;
 
 /// The body state of a reported drone state — position (3, m, world), velocity (3, m/s, world),
 /// orientation (4: w, x, y, z; body to world) and angular velocity (3, rad/s, body), under the
@@ -58,6 +78,13 @@ pub fn reported_body_state(values: [&[f64]; 4], names: [&'static str; 4]) -> Res
         }
         if let Some(index) = values.iter().position(|v| !v.is_finite()) {
             return Err(ReportedStateError::NotFinite { field, index, value: values[index] });
+        }
+    }
+    // The orientation is bounded by the unit-norm check below.
+    let limits = [crate::track::MAX_COORDINATE, MAX_REPORTED_SPEED, f64::INFINITY, MAX_REPORTED_BODY_RATE];
+    for (field, (values, limit)) in names.into_iter().zip(values.into_iter().zip(limits)) {
+        if let Some(index) = values.iter().position(|v| v.abs() > limit) {
+            return Err(ReportedStateError::OutOfRange { field, index, value: values[index], limit });
         }
     }
     let [p, v, q, w] = values;
@@ -148,6 +175,13 @@ mod tests {
         assert!(matches!(nan, ReportedStateError::NotFinite { field: "w", index: 1, .. }), "{nan}");
         let skewed = reported_body_state([&ok, &ok, &[2.0, 0.0, 0.0, 0.0], &ok], names).unwrap_err();
         assert_eq!(skewed, ReportedStateError::NotUnitQuaternion { field: "q", norm: 2.0 });
+        // Finite but beyond any drone: 1e308 m made every observation −inf before.
+        let far = reported_body_state([&[1e308, 0.0, 0.0], &ok, &unit, &ok], names).unwrap_err();
+        assert!(matches!(far, ReportedStateError::OutOfRange { field: "p", index: 0, .. }), "{far}");
+        let fast = reported_body_state([&ok, &[0.0, 0.0, -101.0], &unit, &ok], names).unwrap_err();
+        assert!(matches!(fast, ReportedStateError::OutOfRange { field: "v", index: 2, limit: 100.0, .. }), "{fast}");
+        let spinning = reported_body_state([&ok, &ok, &unit, &[0.0, 1e6, 0.0]], names).unwrap_err();
+        assert!(matches!(spinning, ReportedStateError::OutOfRange { field: "w", index: 1, .. }), "{spinning}");
     }
 
     /// The reference pilot flies three laps of a library-like track; a racer fed only the

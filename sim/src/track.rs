@@ -11,6 +11,14 @@ pub const GATE_HALF_OUTER: f64 = 1.0;
 pub const GATE_HALF_DEPTH: f64 = 0.05;
 /// Distance of the default start behind gate 0 (m, thesis A.1).
 pub const START_BEHIND_FIRST_GATE: f64 = 2.0;
+/// Most gates a track may have; every parser, generator and entry point refuses more. Real races
+/// have 6–20; the bound keeps the racing line's O(gates²) construction to milliseconds, so a
+/// track from outside (a `RaceStart`, a file, Python) cannot buy seconds of work.
+pub const MAX_GATES: usize = 64;
+/// Largest coordinate magnitude of anything on a track, arena bounds included (m): a hall 2 km
+/// across. Beyond it distances lose the precision the observation needs, and a hostile
+/// coordinate of 1e308 would make observations infinite.
+pub const MAX_COORDINATE: f64 = 1000.0;
 
 /// Inner-opening corners in gate-local (y, z), in the order observations use (SPEC §4).
 pub const GATE_CORNERS_LOCAL: [[f64; 2]; 4] = [
@@ -225,11 +233,17 @@ impl Track {
         if !finite(&self.arena.min) || !finite(&self.arena.max) {
             return err("arena".into(), "bounds must be finite numbers".into());
         }
+        if self.arena.min.iter().chain(self.arena.max.iter()).any(|x| x.abs() > MAX_COORDINATE) {
+            return err("arena".into(), format!("bounds must lie within ±{MAX_COORDINATE} m"));
+        }
         if (0..3).any(|i| self.arena.min[i] >= self.arena.max[i]) {
             return err("arena".into(), "min must be below max on every axis".into());
         }
         if self.gates.len() < 2 {
             return err("gate".into(), format!("a track needs at least 2 gates, found {}", self.gates.len()));
+        }
+        if self.gates.len() > MAX_GATES {
+            return err("gate".into(), format!("a track has at most {MAX_GATES} gates, found {}", self.gates.len()));
         }
         for (i, g) in self.gates.iter().enumerate() {
             if !finite(&g.position) {

@@ -8,7 +8,7 @@ use anyhow::Context;
 use clap::{Args, ValueEnum};
 use policy::ControllerFactory;
 
-use super::{load_tracks, write_atomic};
+use super::{load_tracks, read_text, write_atomic};
 
 /// Which controller flies.
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -109,7 +109,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         (None, ControllerKind::Policy) if args.policy.len() > 1 => ensemble_factory(&args.policy)?,
         (None, kind) => controller_factory(kind, args.policy.first().map(PathBuf::as_path))?,
         (Some(path), ControllerKind::Pilot) => {
-            let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+            let text = read_text(path).with_context(|| format!("reading {}", path.display()))?;
             let params = runtime::overrides::parse_over(&::sim::PilotParams::default(), &text)
                 .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
             let make: ControllerFactory = Box::new(move || Box::new(ReferencePilot::new(params)));

@@ -13,6 +13,7 @@ pub mod sim;
 pub mod status;
 pub mod supervisor;
 pub mod tasks;
+pub mod token;
 pub mod tracks;
 pub mod train;
 pub mod transport_bench;
@@ -50,4 +51,10 @@ pub fn write_atomic(path: &Path, contents: &[u8]) -> anyhow::Result<()> {
         std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
     }
     racetracks::files::write_atomic(path, contents).with_context(|| format!("writing {}", path.display()))
+}
+
+/// A text file a command is given, read whole if it is a regular file of at most
+/// [`racetracks::files::MAX_TEXT_FILE_BYTES`].
+pub fn read_text(path: &Path) -> std::io::Result<String> {
+    racetracks::files::read_text_limited(path, racetracks::files::MAX_TEXT_FILE_BYTES)
 }

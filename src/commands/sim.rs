@@ -9,7 +9,7 @@ use anyhow::{Context, bail};
 use clap::Subcommand;
 use rand::{Rng, SeedableRng};
 
-use super::{load_tracks, write_atomic};
+use super::{load_tracks, read_text, write_atomic};
 
 /// Simulator subcommands.
 #[derive(Subcommand)]
@@ -126,7 +126,7 @@ pub(super) fn parse_numbers(text: &str) -> anyhow::Result<Vec<f64>> {
 /// Reads one 4-number action per line; blank lines and `#` comments are skipped, and so is a
 /// first line with no numbers in it (a header).
 fn read_actions(path: &Path) -> anyhow::Result<Vec<[f64; 4]>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let text = read_text(path).with_context(|| format!("reading {}", path.display()))?;
     let mut actions = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let line = line.trim();

@@ -10,7 +10,7 @@ use clap::{Subcommand, ValueEnum};
 use racetracks::{GeneratorKind, TrackGenParams, TrackGenerator};
 use taskctl::{SwitchParams, TaskController};
 
-use super::load_tracks;
+use super::{load_tracks, read_text};
 use crate::plot::Layout;
 
 /// Track subcommands.
@@ -174,7 +174,7 @@ pub fn run(command: TracksCommand) -> anyhow::Result<()> {
             Ok(())
         }
         TracksCommand::Import { csv, name, out } => {
-            let text = std::fs::read_to_string(&csv).with_context(|| format!("reading {}", csv.display()))?;
+            let text = read_text(&csv).with_context(|| format!("reading {}", csv.display()))?;
             let name = name.unwrap_or_else(|| csv.file_stem().map_or_else(|| "imported".into(), |s| s.to_string_lossy().into_owned()));
             let track = racetracks::track_from_csv(&name, &text, &csv)?;
             racetracks::write_track(&track, &out)?;
@@ -214,7 +214,7 @@ fn generate_into(
 
 /// `tracks fit`: reads `x,y,z` rows and prints scipy's tck layout as JSON.
 fn fit(points: &Path, smoothing: f64) -> anyhow::Result<()> {
-    let text = std::fs::read_to_string(points).with_context(|| format!("reading {}", points.display()))?;
+    let text = read_text(points).with_context(|| format!("reading {}", points.display()))?;
     let mut control = Vec::new();
     for (i, line) in text.lines().enumerate() {
         if line.trim().is_empty() {
