@@ -355,9 +355,11 @@ mod tests {
         assert!(state_blob.with_log_std(-2.0).unwrap().params.last().unwrap().values == vec![-2.0; 4]);
     }
 
-    /// A rollout whose log-probabilities make the importance ratios overflow poisons the update
-    /// with non-finite losses: the update is refused, the weights, optimiser and normaliser stay
-    /// the last good ones (under the next version), and training goes on from them.
+    /// A rollout whose log-probabilities made the importance ratios overflow is refused before
+    /// the update, changing nothing. An update that diverges all the same (here: a learning rate
+    /// of 1e7, which no config admits, blowing the weights past ±1e6) is refused: the weights,
+    /// optimiser and normaliser stay the last good ones (under the next version), and training
+    /// goes on from them.
     #[test]
     fn a_poisoned_update_is_rolled_back_and_training_continues_from_the_last_good_weights() {
         let profile = Profile { architecture: Architecture { hidden: vec![16, 16], ..Architecture::cpu() }, ..Profile::cpu() };
@@ -372,13 +374,20 @@ mod tests {
             c
         };
         let good = learner.weights();
-        let report = learner.train(&[chunk(-1.0e9)]).unwrap();
-        let reason = report.refused_update.expect("the poisoned update is refused");
-        assert!(reason.contains("not") || reason.contains("NaN") || reason.contains("inf"), "{reason}");
+        let refused = learner.train(&[chunk(-1.0e9)]).unwrap_err().to_string();
+        assert!(refused.contains("log_probs[0]"), "{refused}");
+        assert_eq!((learner.version(), learner.weights()), (0, good.clone()), "a refused rollout changes nothing");
+        let sane = learner.counters.profile.ppo;
+        learner.counters.profile.ppo.learning_rate_start = 1e7;
+        learner.counters.profile.ppo.learning_rate_end = 1e7;
+        let report = learner.train(&[chunk(-3.0)]).unwrap();
+        let reason = report.refused_update.expect("the diverging update is refused");
+        assert!(reason.contains("1e6") || reason.contains("not") || reason.contains("NaN") || reason.contains("inf"), "{reason}");
         let kept = learner.weights();
         assert_eq!(kept.params, good.params, "the weights are the last good ones");
-        assert_eq!(kept.normalizer, good.normalizer, "the poisoned batch did not move the normaliser");
+        assert_eq!(kept.normalizer, good.normalizer, "the refused batch did not move the normaliser");
         assert_eq!((report.version, report.env_steps), (1, 0), "the next version, no steps learned");
+        learner.counters.profile.ppo = sane;
         let report = learner.train(&[chunk(-3.0)]).unwrap();
         assert_eq!(report.refused_update, None);
         assert_eq!((report.version, report.env_steps), (2, 128));

@@ -67,10 +67,21 @@ impl ChunkLimits {
     }
 }
 
-/// Largest magnitude any number in a rollout may have. Rewards are O(1) per step and values
-/// O(100) (SPEC §3, §6); a billion is far beyond anything a healthy run sends, yet small enough
-/// that f32 advantage sums over a whole rollout cannot overflow.
-pub const MAX_MAGNITUDE: f32 = 1.0e9;
+/// What a healthy actor can send, field by field: the physical envelope a rollout must lie in
+/// before any of it reaches the normaliser or the update (one rollout of 1e9s from an actor
+/// once moved the normaliser's mean to 5e8, so that every real observation normalised to −1).
+/// Observations: distances across the largest arena a track may have (±1 km a side, 3.5 km
+/// corner to corner), speeds and rates far below that, rotations and actions ±1.
+pub const OBSERVATION_LIMIT: f32 = 4.0e3;
+/// Actions: Gaussian samples around means that the clip to [-1, 1] keeps near it.
+pub const ACTION_LIMIT: f32 = 1.0e2;
+/// Log-probabilities: a 4-d Gaussian sample 20 σ from its mean is at −800.
+pub const LOG_PROB_LIMIT: f32 = 1.0e3;
+/// Rewards: SPEC §5's terms are O(1) a step (a crash −4).
+pub const REWARD_LIMIT: f32 = 1.0e4;
+/// Values: returns of such rewards, O(100); small enough that f32 advantage sums over a whole
+/// rollout cannot overflow.
+pub const VALUE_LIMIT: f32 = 1.0e6;
 
 /// One finished episode, for metrics.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -167,7 +178,8 @@ impl RolloutChunk {
 
     /// Checks every array's length against `envs × steps` and the given dimensions, that the
     /// camera images are there exactly when the agent acts on them (`images`: a vision agent),
-    /// and that all numbers are finite and at most [`MAX_MAGNITUDE`] in size.
+    /// and that all numbers are finite and within their field's envelope ([`OBSERVATION_LIMIT`]
+    /// and the limits beside it).
     pub fn check(&self, observation_dim: usize, action_dim: usize, images: bool) -> Result<(), RolloutCheckError> {
         let t = self.transitions();
         let expect = [
@@ -188,18 +200,35 @@ impl RolloutChunk {
             }
         }
         let arrays = [
-            ("observations", &self.observations),
-            ("actions", &self.actions),
-            ("log_probs", &self.log_probs),
-            ("values", &self.values),
-            ("rewards", &self.rewards),
-            ("truncation_values", &self.truncation_values),
-            ("last_values", &self.last_values),
+            ("observations", &self.observations, OBSERVATION_LIMIT),
+            ("actions", &self.actions, ACTION_LIMIT),
+            ("log_probs", &self.log_probs, LOG_PROB_LIMIT),
+            ("values", &self.values, VALUE_LIMIT),
+            ("rewards", &self.rewards, REWARD_LIMIT),
+            ("truncation_values", &self.truncation_values, VALUE_LIMIT),
+            ("last_values", &self.last_values, VALUE_LIMIT),
         ];
-        for (field, values) in arrays {
-            if let Some(index) = values.iter().position(|x| !x.is_finite() || x.abs() > MAX_MAGNITUDE) {
-                return Err(RolloutCheckError::Value { field, index, value: values[index] });
+        for (field, values, limit) in arrays {
+            if let Some(index) = values.iter().position(|x| !x.is_finite() || x.abs() > limit) {
+                return Err(RolloutCheckError::Value { field, index, value: values[index], limit });
             }
+        }
+        // Episode records feed the metrics and, with validation off, the choice of best.bin:
+        // each must be one an environment of this chunk could have flown.
+        if self.episodes.len() > t {
+            return Err(RolloutCheckError::Episode { index: t, reason: format!("more episodes than the {t} steps of the chunk") });
+        }
+        for (index, e) in self.episodes.iter().enumerate() {
+            let reason = if e.env.checked_sub(self.first_env).is_none_or(|i| i >= self.envs) {
+                format!("env {} is not one of the chunk's", e.env)
+            } else if !e.episode_return.is_finite() || e.episode_return.abs() > f64::from(REWARD_LIMIT) * f64::from(e.length) {
+                format!("return {} is beyond ±{REWARD_LIMIT:e} a step over {} steps", e.episode_return, e.length)
+            } else if e.fastest_lap.is_some_and(|lap| !(lap.is_finite() && lap > 0.0)) {
+                format!("fastest lap {:?} is not a positive time", e.fastest_lap)
+            } else {
+                continue;
+            };
+            return Err(RolloutCheckError::Episode { index, reason });
         }
         Ok(())
     }
@@ -219,8 +248,9 @@ pub enum RolloutCheckError {
         /// The length the run's shapes give.
         expected: usize,
     },
-    /// A number that is not finite, or beyond the ±[`MAX_MAGNITUDE`] any rollout number may have.
-    #[error("{field}[{index}] is {value}, not a finite number within ±{MAX_MAGNITUDE:e}")]
+    /// A number that is not finite, or outside the envelope of its field ([`OBSERVATION_LIMIT`]
+    /// and the limits beside it).
+    #[error("{field}[{index}] is {value}, not a finite number within ±{limit:e} (what a healthy actor sends)")]
     Value {
         /// The array.
         field: &'static str,
@@ -228,6 +258,16 @@ pub enum RolloutCheckError {
         index: usize,
         /// The number.
         value: f32,
+        /// The bound of its field.
+        limit: f32,
+    },
+    /// An episode record no environment of the chunk could have produced.
+    #[error("episodes[{index}]: {reason}")]
+    Episode {
+        /// Index of the record.
+        index: usize,
+        /// What is wrong with it.
+        reason: String,
     },
 }
 
@@ -523,9 +563,34 @@ mod tests {
     fn numbers_beyond_any_healthy_run_are_refused_by_field() {
         let mut c = chunk();
         c.rewards[3] = 2.0e9;
-        assert_eq!(c.check(5, 2, false), Err(RolloutCheckError::Value { field: "rewards", index: 3, value: 2.0e9 }));
+        assert_eq!(c.check(5, 2, false), Err(RolloutCheckError::Value { field: "rewards", index: 3, value: 2.0e9, limit: REWARD_LIMIT }));
         let mut c = chunk();
         c.last_values[1] = -1.0e10;
         assert!(c.check(5, 2, false).unwrap_err().to_string().starts_with("last_values[1] is -10000000000"));
+    }
+
+    /// The rollouts that blinded the learner and stopped a run: observations of 1e9 (which
+    /// moved the normaliser's mean to 5e8) and old log-probs of −1e9 (an infinite ratio). Each
+    /// is refused naming its field; the largest numbers a healthy run sends pass.
+    #[test]
+    fn observations_and_log_probs_outside_the_physical_envelope_are_refused() {
+        let mut c = chunk();
+        c.observations[7] = 1.0e9;
+        let e = c.check(5, 2, false).unwrap_err();
+        assert_eq!(e, RolloutCheckError::Value { field: "observations", index: 7, value: 1.0e9, limit: OBSERVATION_LIMIT });
+        let mut c = chunk();
+        c.log_probs[0] = -1.0e9;
+        assert!(matches!(c.check(5, 2, false), Err(RolloutCheckError::Value { field: "log_probs", index: 0, .. })));
+        let mut c = chunk();
+        c.actions[1] = 500.0;
+        assert!(matches!(c.check(5, 2, false), Err(RolloutCheckError::Value { field: "actions", .. })));
+        let mut c = chunk();
+        c.episodes[0].episode_return = 1.0e12;
+        assert!(c.check(5, 2, false).unwrap_err().to_string().starts_with("episodes[0]: return 1000000000000"));
+        c.episodes[0].episode_return = 12.0;
+        c.observations.fill(3464.0); // corner to corner of a 2 km arena
+        c.log_probs.fill(-800.0);
+        c.actions.fill(-5.0);
+        assert_eq!(c.check(5, 2, false), Ok(()));
     }
 }

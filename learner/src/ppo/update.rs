@@ -247,6 +247,9 @@ pub struct LossParts {
     pub log_ratio: Tensor<1>,
 }
 
+/// Largest log-ratio of new to old action probability the loss takes (see [`ppo_loss`]).
+pub const MAX_LOG_RATIO: f32 = 20.0;
+
 /// PPO's loss on one minibatch — clipped surrogate + vf_coef × value loss − ent_coef ×
 /// entropy, what is differentiated — and its parts (CleanRL's `ppo_continuous_action.py`). The
 /// entropy of a state-independent Gaussian depends on the log std alone, so the term only
@@ -260,7 +263,10 @@ pub fn minibatch_loss<N: PpoNetwork>(model: &N, m: Minibatch, config: &PpoConfig
 /// log std — whichever network produced them (the vision agent's reads images as well).
 pub fn ppo_loss(mean: Tensor<2>, values: Tensor<1>, log_std: Tensor<1>, m: Minibatch, config: &PpoConfig) -> (Tensor<1>, LossParts) {
     let new_log_probs = log_prob(m.actions, mean, log_std.clone());
-    let log_ratio = new_log_probs - m.old_log_probs;
+    // Clamped so that no rollout can make the ratio infinite (an old log-prob of −1e9 did, and
+    // three such updates stopped a run). e^±20 is far outside any clip range, so the clipped
+    // objective of every healthy sample is unchanged, bit for bit.
+    let log_ratio = (new_log_probs - m.old_log_probs).clamp(-MAX_LOG_RATIO, MAX_LOG_RATIO);
     let ratio = log_ratio.clone().exp();
     let policy_loss = clipped_surrogate(ratio.clone(), m.advantages, config.clip_range);
     let value_loss = value_loss(values, m.returns);
@@ -552,6 +558,29 @@ mod tests {
             old_values: vec![0.0; n],
             images: Vec::new(),
         }
+    }
+
+    /// Old log-probabilities of −1e9 made the ratio infinite and the loss NaN: three such
+    /// rollouts in a row stopped a run. With the log-ratio clamped the loss and its gradient
+    /// stay finite, and for a healthy sample nothing changes.
+    #[test]
+    fn an_old_log_prob_of_minus_1e9_leaves_the_loss_finite() {
+        let device = Device::flex().autodiff();
+        let arch = policy::Architecture { hidden: vec![8, 8], ..policy::Architecture::cpu() };
+        let model = ActorCritic::new(&arch, -0.5, 3, &device);
+        let mut batch = zero_advantage_batch(&vec![0.1; 4 * 40]);
+        batch.advantages = vec![1.0, -1.0, 0.5, -0.5];
+        let healthy = batch.clone();
+        batch.old_log_probs = vec![-1.0e9, 1.0e9, -1.0e9, 0.0];
+        let config = PpoConfig::default();
+        let (loss, parts) = minibatch_loss(&model, batch.minibatch(&[0, 1, 2, 3], None, &device), &config);
+        let ratios = parts.ratio.into_data().try_into_vec::<f32>().unwrap();
+        assert!(ratios.iter().all(|r| r.is_finite()), "{ratios:?}");
+        assert!(scalar(loss).is_finite());
+        // The clamp is the identity for a healthy sample's log-ratio.
+        let (_, parts) = minibatch_loss(&model, healthy.minibatch(&[0, 1, 2, 3], None, &device), &config);
+        let log_ratios = parts.log_ratio.into_data().try_into_vec::<f32>().unwrap();
+        assert!(log_ratios.iter().all(|l| l.abs() < MAX_LOG_RATIO), "{log_ratios:?}");
     }
 
     /// A minibatch holds the rows it is given, whole and in the order given.
