@@ -51,6 +51,8 @@ enum Command {
     Status(commands::status::StatusArgs),
     /// Run an actor process (environments, inference, rollouts).
     Actor(commands::processes::ActorArgs),
+    /// Print an actor's own bearer token, made from the run's, for that actor's machine.
+    Token(commands::token::TokenArgs),
     /// Measure speed: the PPO step, the transports, the simulator, track generation.
     #[command(subcommand)]
     Bench(commands::bench::BenchCommand),
@@ -101,6 +103,7 @@ fn main() -> std::process::ExitCode {
         Command::Taskctl(a) => commands::processes::taskctl(a),
         Command::Learner(a) => commands::processes::learner(a),
         Command::Actor(a) => commands::processes::actor(a),
+        Command::Token(a) => commands::token::run(a),
         Command::Tasks(a) => commands::tasks::run(a),
         Command::Status(a) => commands::status::run(a),
         Command::Chaos(a) => commands::chaos::run(a),

@@ -6,8 +6,9 @@
 //! - the same formats with the checksum recomputed after mutating (so the parser behind it is
 //!   reached; for the safetensors files, blob and checkpoint, their metadata values, tensor
 //!   shapes and data are mutated and the file re-sealed), and the formats without one (track
-//!   files, run configs, gRPC messages: rollout parts, reports, `ActRequest`s to a served
-//!   policy), may accept a mutation that still means something, but must never panic.
+//!   files, run configs, gRPC messages: rollout parts, reports to a task controller,
+//!   `ActRequest`s to a served policy, `RaceStart`s and drone states to a served race), may
+//!   accept a mutation that still means something, but must never panic.
 //!
 //! `cargo test --test decoders -- --nocapture` prints the counts (BENCHMARKS.md).
 
@@ -370,6 +371,64 @@ fn no_mutated_grpc_message_panics_its_decoders() {
             RolloutChunk::from_bytes(&payload, &admission.limits()).is_ok_and(|c| admission.check(&p.actor, p.learner_epoch, &c).is_ok())
         },
     );
+    // Reports go on to a task controller where actor-0 holds three environments: a mutated
+    // rollout index (2^64 − 1 froze a curriculum) or name is refused, never a panic.
+    let tasks = taskctl::LocalTasks::new(TaskController::new(3, TrackGenerator::default(), Default::default(), 7).unwrap(), None);
+    taskctl::TaskService::register(&tasks, "actor-0", 3).unwrap();
     let report = v1::ReportRequest { actor: "actor-0".into(), rollout: 9, cumulative_rewards: vec![1.5, -2.0, 0.25] };
-    fuzz("gRPC ReportRequest", 11, &report.encode_to_vec(), |b| b, |b| v1::ReportRequest::decode(b).is_ok());
+    fuzz(
+        "gRPC ReportRequest → the task controller",
+        11,
+        &report.encode_to_vec(),
+        |b| b,
+        |b| {
+            let Ok(r) = v1::ReportRequest::decode(b) else { return false };
+            proto::transport::check_actor_name(&r.actor).is_ok()
+                && taskctl::TaskService::report(&tasks, &r.actor, r.rollout, &r.cumulative_rewards).is_ok()
+        },
+    );
+}
+
+#[test]
+fn no_mutated_race_request_panics_the_served_race() {
+    use proto::v1::race_request::Kind;
+    use runtime::pilot::{DroneState, Pilot};
+    let blob = tiny_learner().weights();
+    let pilot = runtime::pilot::PolicyPilot::new(std::sync::Arc::new(policy::Policy::from_blob(&blob).unwrap()));
+    let track = racetracks::track_to_toml(&racetracks::library_track("Figure8").unwrap().unwrap());
+    let start = proto::v1::RaceRequest { kind: Some(Kind::Start(proto::v1::RaceStart { track_toml: track.clone() })) };
+    fuzz(
+        "gRPC RaceStart → the pilot",
+        18,
+        &start.encode_to_vec(),
+        |b| b,
+        |b| {
+            let Ok(proto::v1::RaceRequest { kind: Some(Kind::Start(s)) }) = proto::v1::RaceRequest::decode(b) else { return false };
+            pilot.start_race(&s.track_toml).is_ok()
+        },
+    );
+    let state = proto::v1::DroneState {
+        position: vec![-2.0, 0.5, 2.0],
+        velocity: vec![1.0, 0.0, 0.0],
+        orientation: vec![1.0, 0.0, 0.0, 0.0],
+        angular_velocity: vec![0.0, 0.1, 0.0],
+    };
+    let state = proto::v1::RaceRequest { kind: Some(Kind::State(state)) };
+    let racer = std::cell::RefCell::new(pilot.start_race(&track).unwrap());
+    fuzz(
+        "gRPC DroneState → the race (a finite command or a refusal)",
+        19,
+        &state.encode_to_vec(),
+        |b| b,
+        |b| {
+            let Ok(proto::v1::RaceRequest { kind: Some(Kind::State(s)) }) = proto::v1::RaceRequest::decode(b) else { return false };
+            let state = DroneState {
+                position: &s.position,
+                velocity: &s.velocity,
+                orientation: &s.orientation,
+                angular_velocity: &s.angular_velocity,
+            };
+            pilot.race_step(&mut racer.borrow_mut(), state).is_ok_and(|c| c.action.iter().all(|a| a.is_finite()))
+        },
+    );
 }

@@ -112,3 +112,54 @@ fn an_actor_left_without_a_newer_version_resends_after_its_timeout_then_waits_tw
     assert_eq!(actor.pass(&mut link, &tasks, &stop).unwrap(), Pass::Sent);
     assert_eq!(actor.sent(), 3);
 }
+
+/// Two rollouts that could poison training, each refused and counted while training goes on:
+/// one of 1e9s from an actor that never registered (it moved the normaliser's mean to 5e8, so
+/// every real observation normalised to −1), and a well-formed one from a registered actor for
+/// the other actor's environments.
+#[test]
+fn a_poisoned_rollout_and_one_for_another_actors_environments_are_refused_and_training_goes_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = TrainConfig {
+        profile: "cpu".into(),
+        envs: Some(4),
+        ppo: Some(PpoConfig { n_steps: 16, batch_size: 32, n_epochs: 1, ..PpoConfig::default() }),
+        ..TrainConfig::default()
+    };
+    let tasks = LocalTasks::new(config.task_controller(4).unwrap(), None);
+    let stop = AtomicBool::new(false);
+    let settings = |name: &str| ActorSettings {
+        name: name.into(),
+        envs: 2,
+        seed: 1,
+        env: config.env,
+        n_steps: 16,
+        weights_timeout: Duration::from_secs(60),
+        max_rollouts: None,
+    };
+    let (mut link0, learner_end) = memory_link();
+    let mut link1 = link0.clone();
+    let mut a0 = ActorLoop::register(&settings("a0"), &tasks, &stop).unwrap().unwrap();
+    let mut a1 = ActorLoop::register(&settings("a1"), &tasks, &stop).unwrap().unwrap();
+    let status = std::sync::Arc::new(LearnerBoard::default());
+    let learner_settings = LearnerSettings { expected_actors: 2, actor_timeout_seconds: 0.3, ..LearnerSettings::default() };
+    let run = Run::create(config.clone(), dir.path()).unwrap();
+    let mut learner = LearnerProcess::start(run, None, learner_end, status.clone(), learner_settings).unwrap();
+    let observation_dim = config.resolved_profile().unwrap().architecture.observation_dim;
+    let epoch = status.status().learner_epoch;
+
+    let mut poisoned = policy::RolloutChunk::zeroed(0, 0, 2, 8, observation_dim, sim::ACTION_DIM);
+    poisoned.observations.fill(1.0e9);
+    link1.send_rollout("ghost", epoch, &poisoned).unwrap();
+    // a1 holds environments 2..4: a rollout of 0..2 under its name is not its to send.
+    let borrowed = policy::RolloutChunk::zeroed(0, 0, 2, 16, observation_dim, sim::ACTION_DIM);
+    link1.send_rollout("a1", epoch, &borrowed).unwrap();
+    assert_eq!(a0.pass(&mut link0, &tasks, &stop).unwrap(), Pass::Sent);
+    assert_eq!(a1.pass(&mut link1, &tasks, &stop).unwrap(), Pass::Sent);
+    let summary = learner.iteration_step(&stop, Some(&tasks), &learner_only).unwrap().unwrap();
+    assert_eq!(summary.report.env_steps, 4 * 16, "trained on the two actors' own rollouts only");
+    assert_eq!(status.refused(), 2, "both refused and counted");
+    assert_eq!(summary.report.refused_update, None);
+    let normalizer = &learner.learner().weights().normalizer;
+    assert!(normalizer.mean.iter().all(|m| m.abs() < 100.0), "the normaliser never saw the 1e9s: {:?}", normalizer.mean);
+}

@@ -317,3 +317,79 @@ fn a_python_closed_loop_through_pilot_race_laps_as_eval_flies() {
     assert_eq!(flown["fastest_lap"].as_f64(), Some(fastest), "{flown}");
     assert_eq!(flown["steps"].as_u64(), Some(u64::from(reference.steps)), "{flown}");
 }
+
+/// A track file of `gates` gates in a row, 3 m apart, in an arena that holds them.
+fn track_of(gates: usize) -> String {
+    let rows: String = (0..gates).map(|i| format!("[[gate]]\nposition = [{}.0, 0.0, 2.0]\nyaw_deg = 0.0\n", 3 * i)).collect();
+    format!("{rows}[arena]\nmin = [-10.0, -10.0, 0.0]\nmax = [{}.0, 10.0, 6.0]\n", 3 * gates + 10)
+}
+
+/// The Race message that stalled `serve` (a 20,000-gate, 1 MB track: its racing line is
+/// O(gates²) and was built on the only async worker, > 75 s, SIGTERM ignored) is refused at
+/// once naming the bound; while the largest admitted tracks are being started on several
+/// streams, the server keeps answering within a second; races beyond the bound are refused
+/// rather than held; refusals quote a bounded part of what was sent.
+#[test]
+fn a_hostile_race_start_is_refused_and_the_server_keeps_answering() {
+    let _serial = serial();
+    let served = Served::start();
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let mut client = served.client(&rt);
+    let refusal = |mut client: PilotClient<tonic::transport::Channel>, toml: String| async move {
+        let mut stream = client.race(with_token(tokio_stream::iter([race_start(&toml)]))).await.unwrap().into_inner();
+        stream.message().await.unwrap_err()
+    };
+    rt.block_on(async {
+        let huge = refusal(client.clone(), track_of(20_000)).await;
+        assert_eq!(huge.code(), tonic::Code::InvalidArgument);
+        assert!(huge.message().contains("more than the 65536 a track file may have"), "{}", huge.message());
+        let many = refusal(client.clone(), track_of(65)).await;
+        assert!(many.message().contains("at most 64 gates, found 65"), "{}", many.message());
+        // An error that would quote a 60 kB line quotes at most 1 kB of it.
+        let echo = refusal(client.clone(), format!("name = \"{}", "x".repeat(60_000))).await;
+        assert_eq!(echo.code(), tonic::Code::InvalidArgument);
+        assert!(echo.message().len() <= proto::refusal::MAX_STATUS_MESSAGE, "{} bytes", echo.message().len());
+
+        // Sixteen streams (each on a connection of its own: a connection takes 16 streams at
+        // most) start the largest admitted track; the server answers meanwhile.
+        let url = format!("http://{}", served.addr);
+        let mut races = Vec::new();
+        for _ in 0..16 {
+            let (tx, rx) = tokio::sync::mpsc::channel(4);
+            tx.send(race_start(&track_of(64))).await.unwrap();
+            let mut own = PilotClient::connect(url.clone()).await.unwrap();
+            let reply = own.race(with_token(tokio_stream::wrappers::ReceiverStream::new(rx))).await.unwrap().into_inner();
+            races.push((tx, reply));
+        }
+        let asked = std::time::Instant::now();
+        let answer = tokio::time::timeout(Duration::from_secs(1), client.describe(with_token(DescribeRequest {}))).await;
+        assert!(matches!(answer, Ok(Ok(_))), "Describe while 16 races start: {answer:?} after {:?}", asked.elapsed());
+        // Up to the bound of 32 races at once; the 33rd is refused, not queued.
+        for _ in 16..32 {
+            let (tx, rx) = tokio::sync::mpsc::channel(4);
+            let mut own = PilotClient::connect(url.clone()).await.unwrap();
+            races.push((tx, own.race(with_token(tokio_stream::wrappers::ReceiverStream::new(rx))).await.unwrap().into_inner()));
+        }
+        let (_tx, rx) = tokio::sync::mpsc::channel::<proto::v1::RaceRequest>(1);
+        let full = client.race(with_token(tokio_stream::wrappers::ReceiverStream::new(rx))).await.unwrap_err();
+        assert_eq!(full.code(), tonic::Code::ResourceExhausted, "{full:?}");
+        // A race that ends gives its place back.
+        drop(races.pop());
+        let taken = wait_for_place(&mut client).await;
+        assert!(taken, "no place after a race ended");
+    });
+}
+
+/// Whether a new race is taken within a few seconds (an ended stream's place comes back once
+/// the server sees it close).
+async fn wait_for_place(client: &mut PilotClient<tonic::transport::Channel>) -> bool {
+    for _ in 0..50 {
+        let (tx, rx) = tokio::sync::mpsc::channel::<proto::v1::RaceRequest>(1);
+        if client.race(with_token(tokio_stream::wrappers::ReceiverStream::new(rx))).await.is_ok() {
+            drop(tx);
+            return true;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    false
+}

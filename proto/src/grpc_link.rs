@@ -19,12 +19,13 @@ use tokio_stream::Stream;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::codegen::InterceptedService;
 use tonic::transport::Channel;
-use tonic::{Request, Response, Status, Streaming};
+use tonic::{Code, Request, Response, Status, Streaming};
 
 use crate::board::LearnerBoard;
 use crate::budget::{ByteBudget, OverBudget, Reservation};
 use crate::chunking::{Reassembler, split};
-use crate::security::{AddToken, MAX_MESSAGE_BYTES, Security, SecurityError};
+use crate::refusal;
+use crate::security::{AddToken, Caller, MAX_MESSAGE_BYTES, Security, SecurityError};
 use crate::transport::{ActorLink, Admission, Delivery, LearnerLink, LinkError, Received, Refusal, WeightsUpdate};
 use crate::v1;
 use crate::v1::learner_client::LearnerClient;
@@ -139,11 +140,11 @@ fn check_on_arrival(board: &LearnerBoard, actor: &str, epoch: u64, chunk: &Rollo
         Refusal::Starting => Status::unavailable(r.to_string()),
         Refusal::Malformed(m) => {
             board.count_refused();
-            Status::invalid_argument(m)
+            refusal::status(Code::InvalidArgument, m)
         }
         wrong @ Refusal::WrongVersion { .. } => {
             board.count_refused();
-            Status::failed_precondition(wrong.to_string())
+            refusal::status(Code::FailedPrecondition, wrong.to_string())
         }
     })
 }
@@ -243,14 +244,19 @@ impl Learner for LearnerService {
     async fn push_rollouts(&self, request: Request<Streaming<v1::RolloutPart>>) -> Result<Response<v1::PushSummary>, Status> {
         let Some(deliveries) = &self.deliveries else { return Err(shm_only()) };
         let over_budget = |e: OverBudget| Status::resource_exhausted(e.to_string());
+        let caller = Caller::of(&request);
         let mut stream = request.into_inner();
         let mut parts = Reassembler::default();
         let mut held = Reservation::new(&self.budget);
         let mut accepted = 0;
         while let Some(part) = stream.message().await? {
+            // An actor's token speaks for that actor alone: checked before anything is kept.
+            caller.may_speak_for(&part.actor).inspect_err(|_| self.board.count_refused())?;
             // Reserved before the reassembler copies the part in.
             held.resize(parts.buffered() + part.data.len()).map_err(over_budget)?;
-            let Some(bytes) = parts.push(part.part, part.parts, &part.data).map_err(|e| Status::invalid_argument(e.to_string()))? else {
+            let Some(bytes) =
+                parts.push(part.part, part.parts, &part.data).map_err(|e| refusal::status(Code::InvalidArgument, e.to_string()))?
+            else {
                 continue;
             };
             // Nothing is decoded without an admission: its limits bound the header, and what the
@@ -259,7 +265,7 @@ impl Learner for LearnerService {
             let limits = admission.limits();
             let transitions = RolloutChunk::announced_transitions(&bytes, &limits).map_err(|e| {
                 self.board.count_refused();
-                Status::invalid_argument(e.to_string())
+                refusal::status(Code::InvalidArgument, e.to_string())
             })?;
             held.resize(bytes.len() + limits.decoded_bytes(transitions)).map_err(over_budget)?;
             // Decoding a large rollout takes milliseconds of CPU: not on the async workers, which
@@ -269,7 +275,7 @@ impl Learner for LearnerService {
                 .map_err(|e| Status::internal(format!("decoding a rollout: {e}")))?;
             let chunk = decoded.map_err(|e| {
                 self.board.count_refused();
-                Status::invalid_argument(e.to_string())
+                refusal::status(Code::InvalidArgument, e.to_string())
             })?;
             held.resize(limits.decoded_bytes(chunk.transitions())).map_err(over_budget)?;
             if chunk.policy_version != part.policy_version {
@@ -383,7 +389,11 @@ mod tests {
         let listener = rt.block_on(tokio::net::TcpListener::bind("127.0.0.1:0")).unwrap();
         let url = format!("http://{}", listener.local_addr().unwrap());
         let server = Security::default().server().unwrap().add_service(service.into_server());
-        rt.spawn(server.serve_with_incoming(crate::security::incoming(listener)));
+        let incoming = {
+            let _runtime = rt.enter();
+            crate::listener::incoming(listener)
+        };
+        rt.spawn(server.serve_with_incoming(incoming));
         (url, held)
     }
 

@@ -7,7 +7,9 @@ pub mod budget;
 pub mod chunking;
 pub mod convert;
 pub mod grpc_link;
+pub mod listener;
 pub mod memory;
+pub mod refusal;
 pub mod security;
 pub mod shm;
 pub mod task_client;
@@ -32,10 +34,15 @@ pub const DISCOVERY_SERVICES: [&str; 3] =
 
 /// `server` with gRPC health (each of `serving` reported SERVING) and server reflection in
 /// both versions — v1, and v1alpha, which grpcio-reflection and older grpcurl speak — each
-/// listing exactly what this server serves: `serving` and the discovery services. Add the
-/// server's own services to the returned router.
+/// listing exactly what this server serves: `serving` and the discovery services. Reflection
+/// answers only requests that pass `token` (it describes the whole API); health answers
+/// anyone, as probes carry no token. Add the server's own services to the returned router.
 #[allow(clippy::expect_used, reason = "the compiled-in descriptor sets are valid")]
-pub async fn with_discovery(mut server: tonic::transport::Server, serving: &[&str]) -> tonic::transport::server::Router {
+pub async fn with_discovery(
+    mut server: tonic::transport::Server,
+    serving: &[&str],
+    token: security::TokenCheck,
+) -> tonic::transport::server::Router {
     let (reporter, health) = tonic_health::server::health_reporter();
     for name in serving {
         reporter.set_service_status(*name, tonic_health::ServingStatus::Serving).await;
@@ -54,7 +61,8 @@ pub async fn with_discovery(mut server: tonic::transport::Server, serving: &[&st
     };
     let v1 = builder().build_v1().expect("the compiled-in descriptor sets are valid");
     let v1alpha = builder().build_v1alpha().expect("the compiled-in descriptor sets are valid");
-    server.add_service(health).add_service(v1).add_service(v1alpha)
+    use tonic::service::interceptor::InterceptedService;
+    server.add_service(health).add_service(InterceptedService::new(v1, token.clone())).add_service(InterceptedService::new(v1alpha, token))
 }
 
 /// Serves gRPC health alone, in plaintext, on `listener` (each of `serving` SERVING) until
@@ -73,7 +81,7 @@ pub async fn serve_health(
         .timeout(security::REQUEST_TIMEOUT)
         .max_concurrent_streams(security::STREAMS_PER_CONNECTION)
         .add_service(health)
-        .serve_with_incoming_shutdown(security::incoming(listener), shutdown)
+        .serve_with_incoming_shutdown(listener::incoming(listener), shutdown)
         .await
 }
 
@@ -112,11 +120,44 @@ mod tests {
         (v1_names, list.service.into_iter().map(|s| s.name).collect())
     }
 
+    /// Reflection describes the whole API: behind a token it answers only with the token,
+    /// while health still answers a probe that carries none.
+    #[tokio::test]
+    async fn reflection_needs_the_token_and_health_does_not() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("token"), "s3cret\n").unwrap();
+        let config = NetworkConfig { token_file: Some(dir.path().join("token")), ..NetworkConfig::default() };
+        let security = Security::load(&config).unwrap();
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let router = with_discovery(security.server().unwrap(), &["dronerace.v1.TaskController"], security.token_check()).await;
+        tokio::spawn(router.serve_with_incoming(listener::incoming(listener)));
+        let channel = tonic::transport::Endpoint::from_shared(format!("http://{addr}")).unwrap().connect().await.unwrap();
+        let health = tonic_health::pb::health_client::HealthClient::new(channel.clone())
+            .check(tonic_health::pb::HealthCheckRequest { service: "dronerace.v1.TaskController".into() })
+            .await
+            .unwrap();
+        assert_eq!(health.into_inner().status, tonic_health::pb::health_check_response::ServingStatus::Serving as i32);
+        use tonic_reflection::pb::v1;
+        let list = || v1::ServerReflectionRequest {
+            host: String::new(),
+            message_request: Some(v1::server_reflection_request::MessageRequest::ListServices(String::new())),
+        };
+        let mut client = v1::server_reflection_client::ServerReflectionClient::new(channel.clone());
+        let refused = client.server_reflection_info(tokio_stream::iter([list()])).await.unwrap_err();
+        assert_eq!(refused.code(), tonic::Code::Unauthenticated, "{refused:?}");
+        let mut request = tonic::Request::new(tokio_stream::iter([list()]));
+        request.metadata_mut().insert("authorization", "Bearer s3cret".parse().unwrap());
+        let mut answers = client.server_reflection_info(request).await.unwrap().into_inner();
+        assert!(answers.next().await.unwrap().is_ok(), "with the token, reflection answers");
+    }
+
     #[tokio::test]
     async fn both_reflection_versions_list_exactly_what_the_server_serves() {
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
         let addr = listener.local_addr().unwrap();
-        let router = with_discovery(tonic::transport::Server::builder(), &["dronerace.v1.TaskController"]).await;
+        let router =
+            with_discovery(tonic::transport::Server::builder(), &["dronerace.v1.TaskController"], Security::default().token_check()).await;
         tokio::spawn(router.serve_with_incoming(tokio_stream::wrappers::TcpListenerStream::new(listener)));
         let (v1, v1alpha) = listed(addr).await;
         let mut expected: Vec<String> = ["dronerace.v1.TaskController"].iter().chain(&DISCOVERY_SERVICES).map(|s| s.to_string()).collect();

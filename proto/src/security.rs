@@ -128,9 +128,30 @@ impl Security {
             .max_concurrent_streams(STREAMS_PER_CONNECTION)
             .concurrency_limit_per_connection(STREAMS_PER_CONNECTION as usize);
         if let Some((cert, key)) = &self.server_identity {
-            server = server.tls_config(ServerTlsConfig::new().identity(Identity::from_pem(cert, key)))?;
+            let tls = ServerTlsConfig::new().identity(Identity::from_pem(cert, key)).timeout(crate::listener::HANDSHAKE_TIMEOUT);
+            server = server.tls_config(tls)?;
         }
         Ok(server)
+    }
+
+    /// The token of actor `actor` under this run's token: what that actor's machine holds in
+    /// its `network.token_file` instead of the run's (`dronerace token --actor NAME`). It
+    /// proves the actor's name to the learner and the task controller, and nothing else.
+    pub fn actor_token(&self, actor: &str) -> Result<String, SecurityError> {
+        crate::transport::check_actor_name(actor).map_err(|e| SecurityError::Invalid(e.to_string()))?;
+        let token =
+            self.token.as_deref().ok_or_else(|| SecurityError::Invalid("an actor token is made from network.token_file: set it".into()))?;
+        if token.starts_with(ACTOR_TOKEN_PREFIX) {
+            return Err(SecurityError::Invalid("network.token_file holds an actor's token; actor tokens are made from the run's".into()));
+        }
+        let mac = hmac::Mac::finalize(actor_mac(token, actor)).into_bytes();
+        Ok(format!("{ACTOR_TOKEN_PREFIX}{actor}:{}", mac.iter().map(|b| format!("{b:02x}")).collect::<String>()))
+    }
+
+    /// The actor this process's token belongs to, if it is an actor's token: that process must
+    /// run under that name, or every call it makes is refused.
+    pub fn token_actor(&self) -> Option<&str> {
+        self.token.as_deref()?.strip_prefix(ACTOR_TOKEN_PREFIX)?.rsplit_once(':').map(|(actor, _)| actor)
     }
 
     /// The interceptor servers wrap their services in.
@@ -197,32 +218,94 @@ fn same_token(given: &[u8], token: &[u8]) -> bool {
     std::hint::black_box(diff) == 0
 }
 
-/// Connections accepted on a bound listener, with Nagle's algorithm off (tonic applies its own
-/// `tcp_nodelay` only to listeners it binds itself; without it, streamed parts wait out delayed
-/// ACKs of ~40 ms).
-pub fn incoming(listener: tokio::net::TcpListener) -> impl tokio_stream::Stream<Item = std::io::Result<tokio::net::TcpStream>> {
-    use tokio_stream::StreamExt;
-    tokio_stream::wrappers::TcpListenerStream::new(listener).map(|conn| {
-        let conn = conn?;
-        conn.set_nodelay(true)?;
-        Ok(conn)
-    })
+/// Who a request comes from, as its bearer token proves: [`TokenCheck`] puts it in the
+/// request's extensions, and a handler that takes an actor's name checks it with
+/// [`Caller::may_speak_for`].
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Caller {
+    /// The run's own token (or a server with no token, on loopback): may speak for any actor.
+    Operator,
+    /// An actor's own token ([`Security::actor_token`]): may speak for that actor only, so one
+    /// compromised actor machine cannot register, report or send rollouts as another.
+    Actor(String),
 }
 
-/// Server side: UNAUTHENTICATED unless the request carries `authorization: Bearer <token>`.
+impl Caller {
+    /// Who sent `request` (a request that passed no [`TokenCheck`] is the operator's: such a
+    /// server has no token and listens on loopback only).
+    pub fn of<T>(request: &Request<T>) -> Caller {
+        request.extensions().get::<Caller>().cloned().unwrap_or(Caller::Operator)
+    }
+
+    /// PERMISSION_DENIED unless this caller may speak for `actor` (the name a message carries).
+    pub fn may_speak_for(&self, actor: &str) -> Result<(), Status> {
+        match self {
+            Caller::Actor(me) if me != actor => Err(crate::refusal::status(
+                tonic::Code::PermissionDenied,
+                format!("this token is actor {me:?}'s: it cannot speak for actor {actor:?}"),
+            )),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// What an actor's token starts with: `actor:<name>:<64 hex digits of the MAC>`.
+const ACTOR_TOKEN_PREFIX: &str = "actor:";
+
+/// The MAC of an actor's name under the run's token (the key): HMAC-SHA-256, domain-separated.
+fn actor_mac(run_token: &str, actor: &str) -> hmac::Hmac<sha2::Sha256> {
+    use hmac::Mac;
+    #[allow(clippy::expect_used, reason = "HMAC takes a key of any length")]
+    let mut mac = hmac::Hmac::<sha2::Sha256>::new_from_slice(run_token.as_bytes()).expect("HMAC takes a key of any length");
+    mac.update(b"dronerace actor token v1\0");
+    mac.update(actor.as_bytes());
+    mac
+}
+
+/// Server side: UNAUTHENTICATED unless the request carries `authorization: Bearer <token>` with
+/// the run's token ([`Caller::Operator`]) or an actor's token made from it ([`Caller::Actor`]).
 #[derive(Clone, Debug)]
 pub struct TokenCheck {
     token: Option<Arc<str>>,
 }
 
+impl TokenCheck {
+    /// Who `given` (the bearer token) proves the caller to be, if anyone.
+    fn caller(&self, given: &str, token: &str) -> Option<Caller> {
+        if same_token(given.as_bytes(), token.as_bytes()) {
+            return Some(Caller::Operator);
+        }
+        let (actor, mac) = given.strip_prefix(ACTOR_TOKEN_PREFIX)?.rsplit_once(':')?;
+        let mac = decode_hex(mac)?;
+        crate::transport::check_actor_name(actor).ok()?;
+        // Constant-time comparison of the MAC (hmac's verify).
+        hmac::Mac::verify_slice(actor_mac(token, actor), &mac).ok()?;
+        Some(Caller::Actor(actor.to_owned()))
+    }
+}
+
+/// Lower-case hex of 32 bytes, or `None`.
+fn decode_hex(hex: &str) -> Option<Vec<u8>> {
+    if hex.len() != 64 {
+        return None;
+    }
+    (0..hex.len()).step_by(2).map(|i| u8::from_str_radix(hex.get(i..i + 2)?, 16).ok()).collect()
+}
+
 impl Interceptor for TokenCheck {
-    fn call(&mut self, request: Request<()>) -> Result<Request<()>, Status> {
+    fn call(&mut self, mut request: Request<()>) -> Result<Request<()>, Status> {
         let Some(token) = &self.token else { return Ok(request) };
         let given = request.metadata().get("authorization").and_then(|v| v.to_str().ok());
         let Some(given) = given.and_then(|v| v.strip_prefix("Bearer ")) else {
             return Err(Status::unauthenticated("missing bearer token (authorization: Bearer <token>)"));
         };
-        if same_token(given.as_bytes(), token.as_bytes()) { Ok(request) } else { Err(Status::unauthenticated("wrong bearer token")) }
+        match self.caller(given, token) {
+            Some(caller) => {
+                request.extensions_mut().insert(caller);
+                Ok(request)
+            }
+            None => Err(Status::unauthenticated("wrong bearer token")),
+        }
     }
 }
 
@@ -272,6 +355,34 @@ mod tests {
         }
         let mut open = TokenCheck { token: None };
         assert!(open.call(with_token(None)).is_ok());
+    }
+
+    #[test]
+    fn an_actor_token_proves_its_name_and_only_its_name() {
+        let run = Security { token: Some(Arc::from("s3cret")), ..Security::default() };
+        let mut check = run.token_check();
+        let token = run.actor_token("actor-1").unwrap();
+        let caller = |check: &mut TokenCheck, t: &str| {
+            check.call(with_token(Some(&format!("Bearer {t}")))).map(|r| r.extensions().get::<Caller>().cloned())
+        };
+        assert_eq!(caller(&mut check, &token).unwrap(), Some(Caller::Actor("actor-1".into())));
+        assert_eq!(caller(&mut check, "s3cret").unwrap(), Some(Caller::Operator));
+        // Another name with this MAC, a changed MAC, and one made under another run's token.
+        let other = Security { token: Some(Arc::from("other")), ..Security::default() }.actor_token("actor-1").unwrap();
+        let flipped = format!("{}{}", &token[..token.len() - 1], if token.ends_with('0') { '1' } else { '0' });
+        for forged in [token.replace("actor-1", "actor-2"), flipped, other, "actor:actor-1:zz".into(), "actor:".into()] {
+            assert_eq!(caller(&mut check, &forged).unwrap_err().code(), tonic::Code::Unauthenticated, "{forged}");
+        }
+        // What the holder may do with it.
+        let me = Caller::Actor("actor-1".into());
+        assert!(me.may_speak_for("actor-1").is_ok());
+        assert_eq!(me.may_speak_for("actor-2").unwrap_err().code(), tonic::Code::PermissionDenied);
+        assert!(Caller::Operator.may_speak_for("actor-2").is_ok());
+        // An actor's machine holds its own token: it knows whose it is, and cannot mint others.
+        let holder = Security { token: Some(Arc::from(token.as_str())), ..Security::default() };
+        assert_eq!(holder.token_actor(), Some("actor-1"));
+        assert!(holder.actor_token("actor-2").is_err());
+        assert_eq!(run.token_actor(), None);
     }
 
     #[test]

@@ -10,10 +10,11 @@ use std::sync::Arc;
 use taskctl::{LocalTasks, Summary, SwitchEvent, TaskError, TaskEvent, TaskInfo, TaskService, TaskServiceError};
 use tokio::sync::broadcast;
 use tokio_stream::Stream;
-use tonic::{Request, Response, Status};
+use tonic::{Code, Request, Response, Status};
 
 use crate::convert::{track_from_proto, track_to_proto};
-use crate::security::MAX_MESSAGE_BYTES;
+use crate::refusal;
+use crate::security::{Caller, MAX_MESSAGE_BYTES};
 use crate::transport::check_actor_name;
 use crate::v1;
 use crate::v1::task_controller_server::{TaskController as TaskControllerRpc, TaskControllerServer};
@@ -26,20 +27,28 @@ pub struct TaskControllerService {
 /// The one place service errors become status codes (the client reads them back in
 /// `task_client::status_error`).
 fn status(e: TaskServiceError) -> Status {
-    let message = e.to_string();
-    match e {
+    let code = match &e {
         TaskServiceError::Refused(refusal) => match refusal {
-            TaskError::UnknownEnv { .. } | TaskError::UnknownActor(_) => Status::not_found(message),
-            TaskError::NotFinite { .. } | TaskError::RewardCount { .. } => Status::invalid_argument(message),
-            TaskError::StaleIteration { .. } | TaskError::StaleRollout { .. } => Status::already_exists(message),
-            TaskError::NoRoom { .. } => Status::resource_exhausted(message),
-            TaskError::RangeChanged { .. } => Status::failed_precondition(message),
-            TaskError::Generate(_) | TaskError::NoEnvironments => Status::internal(message),
+            TaskError::UnknownEnv { .. } | TaskError::UnknownActor(_) => Code::NotFound,
+            TaskError::NotFinite { .. } | TaskError::RewardCount { .. } => Code::InvalidArgument,
+            TaskError::RolloutTooFarAhead { .. } => Code::OutOfRange,
+            TaskError::StaleIteration { .. } | TaskError::StaleRollout { .. } => Code::AlreadyExists,
+            TaskError::NoRoom { .. } => Code::ResourceExhausted,
+            TaskError::RangeChanged { .. } => Code::FailedPrecondition,
+            TaskError::Generate(_) | TaskError::NoEnvironments => Code::Internal,
         },
-        TaskServiceError::RefusedRemotely(_) | TaskServiceError::BadAnswer(_) => Status::internal(message),
+        TaskServiceError::RefusedRemotely(_) | TaskServiceError::BadAnswer(_) => Code::Internal,
         // Not applied; the same call may succeed once the disk recovers.
-        TaskServiceError::Snapshot { .. } | TaskServiceError::Unavailable(_) => Status::unavailable(message),
-    }
+        TaskServiceError::Snapshot { .. } | TaskServiceError::Unavailable(_) => Code::Unavailable,
+    };
+    refusal::status(code, e.to_string())
+}
+
+/// The actor a request speaks for, refused before any state is kept unless the name is valid
+/// and the caller's token may speak for it.
+fn speaking_for<T>(request: &Request<T>, actor: &str) -> Result<(), Status> {
+    check_actor_name(actor).map_err(|e| refusal::status(Code::InvalidArgument, e.to_string()))?;
+    Caller::of(request).may_speak_for(actor)
 }
 
 pub(crate) fn switch_to_proto(e: &SwitchEvent) -> v1::SwitchEvent {
@@ -141,8 +150,8 @@ type EventStream = Pin<Box<dyn Stream<Item = Result<v1::TaskEvent, Status>> + Se
 #[tonic::async_trait]
 impl TaskControllerRpc for TaskControllerService {
     async fn register(&self, request: Request<v1::RegisterRequest>) -> Result<Response<v1::RegisterResponse>, Status> {
+        speaking_for(&request, &request.get_ref().actor)?;
         let r = request.into_inner();
-        check_actor_name(&r.actor).map_err(|e| Status::invalid_argument(e.to_string()))?;
         self.blocking(move |t| {
             let registration = t.register(&r.actor, r.envs as usize)?;
             Ok(v1::RegisterResponse {
@@ -155,6 +164,7 @@ impl TaskControllerRpc for TaskControllerService {
     }
 
     async fn report(&self, request: Request<v1::ReportRequest>) -> Result<Response<v1::ReportResponse>, Status> {
+        speaking_for(&request, &request.get_ref().actor)?;
         let r = request.into_inner();
         self.blocking(move |t| {
             let switches = t.report(&r.actor, r.rollout, &r.cumulative_rewards)?;
@@ -230,10 +240,11 @@ pub async fn serve(
     shutdown: impl std::future::Future<Output = ()>,
 ) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
     security.check_listen(&addr)?;
-    crate::with_discovery(security.server()?, &["dronerace.v1.TaskController"])
+    let listener = tokio::net::TcpListener::bind(addr).await?;
+    crate::with_discovery(security.server()?, &["dronerace.v1.TaskController"], security.token_check())
         .await
         .add_service(tonic::service::interceptor::InterceptedService::new(service.into_server(), security.token_check()))
-        .serve_with_shutdown(addr, shutdown)
+        .serve_with_incoming_shutdown(crate::listener::incoming(listener), shutdown)
         .await?;
     Ok(())
 }
@@ -260,6 +271,37 @@ mod tests {
             assert_eq!(e.code(), tonic::Code::NotFound, "{e:?}");
             let e = service.register(Request::new(v1::RegisterRequest { actor: "a".into(), envs: 3 })).await.unwrap_err();
             assert_eq!(e.code(), tonic::Code::FailedPrecondition, "{e:?}");
+        });
+    }
+
+    /// What a hostile client of the task controller tried: speaking for another actor with its
+    /// own actor token, a 3.9 MB name (echoed whole into `grpc-message` before), and a report
+    /// numbered 2^64 − 1 (which froze the curriculum). Each is refused with its own code and a
+    /// bounded message, and the honest actor carries on.
+    #[test]
+    fn hostile_registrations_and_reports_are_refused_by_code() {
+        let controller = TaskController::new(4, TrackGenerator::default(), SwitchParams::default(), 5).unwrap();
+        let service = TaskControllerService::new(Arc::new(LocalTasks::new(controller, None)));
+        fn as_actor<T>(name: &str, message: T) -> Request<T> {
+            let mut request = Request::new(message);
+            request.extensions_mut().insert(Caller::Actor(name.into()));
+            request
+        }
+        let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build().unwrap();
+        rt.block_on(async {
+            service.register(as_actor("a", v1::RegisterRequest { actor: "a".into(), envs: 2 })).await.unwrap();
+            let e = service.register(as_actor("a", v1::RegisterRequest { actor: "b".into(), envs: 2 })).await.unwrap_err();
+            assert_eq!(e.code(), tonic::Code::PermissionDenied, "{e:?}");
+            let report = |actor: &str, rollout| v1::ReportRequest { actor: actor.into(), rollout, cumulative_rewards: vec![1.0, 1.0] };
+            let e = service.report(as_actor("b", report("a", 0))).await.unwrap_err();
+            assert_eq!(e.code(), tonic::Code::PermissionDenied, "{e:?}");
+            let long = "n".repeat(3_900_000);
+            let e = service.report(Request::new(report(&long, 0))).await.unwrap_err();
+            assert_eq!(e.code(), tonic::Code::InvalidArgument);
+            assert!(e.message().len() <= crate::refusal::MAX_STATUS_MESSAGE, "{} bytes", e.message().len());
+            let e = service.report(as_actor("a", report("a", u64::MAX))).await.unwrap_err();
+            assert_eq!(e.code(), tonic::Code::OutOfRange, "{e:?}");
+            service.report(as_actor("a", report("a", 0))).await.unwrap();
         });
     }
 }

@@ -35,6 +35,49 @@ const MAX_REFUSED_UPDATES: u32 = 3;
 /// Checkpoint writes failed in a row before the run stops.
 const MAX_FAILED_CHECKPOINTS: u32 = 3;
 
+/// Which actor holds each environment, as the task controller assigned them; read again when a
+/// rollout does not match (a range that moved, an actor that just registered), at most once
+/// per [`Owners::REFRESH`] so that mismatching rollouts cannot flood the controller.
+#[derive(Default)]
+struct Owners {
+    by_env: Vec<Option<String>>,
+    read_at: Option<Instant>,
+}
+
+impl Owners {
+    const REFRESH: Duration = Duration::from_secs(1);
+
+    fn holds_now(&self, actor: &str, first_env: usize, envs: usize) -> bool {
+        first_env
+            .checked_add(envs)
+            .and_then(|end| self.by_env.get(first_env..end))
+            .is_some_and(|held| !held.is_empty() && held.iter().all(|owner| owner.as_deref() == Some(actor)))
+    }
+
+    /// Whether `actor` holds environments `first_env..first_env + envs`.
+    fn hold(&mut self, tasks: &dyn TaskService, actor: &str, first_env: usize, envs: usize) -> bool {
+        if self.holds_now(actor, first_env, envs) {
+            return true;
+        }
+        if self.read_at.is_none_or(|t| t.elapsed() >= Self::REFRESH) {
+            self.read_at = Some(Instant::now());
+            match tasks.tasks() {
+                Ok(list) => {
+                    let mut by_env = vec![None; list.len()];
+                    for task in list {
+                        if let Some(owner) = by_env.get_mut(task.env) {
+                            *owner = task.actor;
+                        }
+                    }
+                    self.by_env = by_env;
+                }
+                Err(e) => tracing::warn!("reading which actor holds which environments: {e}"),
+            }
+        }
+        self.holds_now(actor, first_env, envs)
+    }
+}
+
 /// No sections beside the learner's.
 pub fn learner_only(_: &mut Checkpoint) {}
 
@@ -54,6 +97,8 @@ pub struct LearnerProcess<L: LearnerLink> {
     /// Checkpoint writes that failed in a row.
     failed_checkpoints: u32,
     validator: Option<Validator>,
+    /// Who holds which environments, as last read from the task controller.
+    owners: Owners,
     /// When the previous iteration published its weights: an iteration's wall time runs from
     /// there, so it covers the collection whether actors run beside the learner or before it.
     previous_publish: Instant,
@@ -91,6 +136,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
             refused_updates: 0,
             failed_checkpoints: 0,
             validator,
+            owners: Owners::default(),
             previous_publish: Instant::now(),
         };
         process.publish()?;
@@ -154,8 +200,22 @@ impl<L: LearnerLink> LearnerProcess<L> {
     /// and one that was merely too old still shows its actor is alive: the actor is a member
     /// again, so the next iteration waits for it (a dropped actor slower than the others would
     /// otherwise never get back in).
-    fn take(&mut self, received: Received, batch: &mut Vec<Delivery>) {
+    /// A rollout for environments its sender does not hold (by the task controller's
+    /// assignment, when there is one to ask) is refused and counted: an actor cannot train the
+    /// policy on data it claims for another's environments.
+    fn take(&mut self, received: Received, batch: &mut Vec<Delivery>, tasks: Option<&dyn TaskService>) {
         match received {
+            Received::Rollout(d) if tasks.is_some_and(|t| !self.owners.hold(t, &d.actor, d.chunk.first_env, d.chunk.envs)) => {
+                self.board.count_refused();
+                tracing::warn!(
+                    actor = %d.actor,
+                    reason = "not_its_environments",
+                    "rollout refused: environments {}..{} are not actor {}'s",
+                    d.chunk.first_env,
+                    d.chunk.first_env + d.chunk.envs,
+                    d.actor
+                );
+            }
             Received::Rollout(d) => {
                 self.members.insert(d.actor.clone());
                 batch.push(d);
@@ -172,7 +232,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
 
     /// Rollouts of the current version from every live actor (see the module docs); `None`
     /// when `stop` was raised while waiting.
-    fn gather(&mut self, stop: &AtomicBool) -> Result<Option<Vec<Delivery>>, TrainError> {
+    fn gather(&mut self, stop: &AtomicBool, tasks: Option<&dyn TaskService>) -> Result<Option<Vec<Delivery>>, TrainError> {
         let timeout = Duration::from_secs_f64(self.settings.actor_timeout_seconds.max(0.1));
         let version = self.learner.version();
         let mut batch: Vec<Delivery> = Vec::new();
@@ -186,7 +246,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
                 return Ok(None);
             }
             if let Some(received) = self.link.receive(Duration::from_millis(50))? {
-                self.take(received, &mut batch);
+                self.take(received, &mut batch, tasks);
                 if !batch.is_empty() {
                     first_arrival.get_or_insert_with(Instant::now);
                 }
@@ -198,7 +258,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
                 // Rollouts already waiting (e.g. from a dropped actor coming back) join this
                 // update rather than arriving one version too old at the next.
                 while let Some(received) = self.link.receive(Duration::ZERO)? {
-                    self.take(received, &mut batch);
+                    self.take(received, &mut batch, tasks);
                 }
                 return Ok(Some(batch));
             }
@@ -230,7 +290,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
         tasks: Option<&dyn TaskService>,
         sections: CheckpointSections,
     ) -> Result<Option<IterationSummary>, TrainError> {
-        let Some(mut batch) = self.gather(stop)? else { return Ok(None) };
+        let Some(mut batch) = self.gather(stop, tasks)? else { return Ok(None) };
         // Environment order, not arrival order (nor which actor registered first): the update
         // draws its minibatches from the chunks' concatenation, and an actor's data depends on
         // its environments alone (its seed is drawn from them), so the seed decides the update.

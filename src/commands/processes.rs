@@ -230,9 +230,12 @@ fn serve_learner(
     // Bind now, so a taken port is an error at start rather than a silent background failure.
     let listener = rt.block_on(tokio::net::TcpListener::bind(addr)).with_context(|| format!("learner: binding {addr}"))?;
     let router = rt
-        .block_on(proto::with_discovery(security.server()?, &["dronerace.v1.Learner"]))
+        .block_on(proto::with_discovery(security.server()?, &["dronerace.v1.Learner"], security.token_check()))
         .add_service(tonic::service::interceptor::InterceptedService::new(service.into_server(), security.token_check()));
-    let incoming = proto::security::incoming(listener);
+    let incoming = {
+        let _runtime = rt.enter();
+        proto::listener::incoming(listener)
+    };
     spawn_health(rt, health, &["dronerace.v1.Learner"], stop.clone())?;
     eprintln!("learner: serving on {addr}");
     Ok(rt.spawn(router.serve_with_incoming_shutdown(incoming, until(stop))))
@@ -312,6 +315,14 @@ pub fn actor(args: ActorArgs) -> anyhow::Result<()> {
     proto::transport::check_actor_name(&args.name).context("--name")?;
     let profile = config.resolved_profile()?;
     let security = Security::load(&config.network)?;
+    if let Some(owner) = security.token_actor().filter(|owner| *owner != args.name) {
+        anyhow::bail!(
+            "network.token_file holds actor {owner:?}'s token, and this actor runs as {:?}: run it with --name {owner}, \
+             or give it its own token (dronerace token --actor {})",
+            args.name,
+            args.name
+        );
+    }
     let rt = async_runtime(1)?;
     let tasks = TaskClient::new(rt.handle().clone(), &args.taskctl, &security)?;
     let settings = runtime::actor_process::ActorSettings {

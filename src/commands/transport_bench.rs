@@ -227,7 +227,7 @@ pub fn run(args: TransportBenchArgs) -> anyhow::Result<()> {
             let router = security.server()?.add_service(service.into_server());
             let incoming = {
                 let _guard = rt.enter();
-                proto::security::incoming(tokio::net::TcpListener::from_std(listener)?)
+                proto::listener::incoming(tokio::net::TcpListener::from_std(listener)?)
             };
             rt.spawn(router.serve_with_incoming(incoming));
             let handle = actors_rt.handle().clone();

@@ -18,6 +18,11 @@ use sim::seed::mix;
 /// Seeds tried for a new track before a switch gives up.
 const SEED_TRIES: u64 = 10;
 
+/// Furthest a report may run ahead of the next expected rollout index. A gap means
+/// acknowledged reports were lost with a restored state — a handful, never thousands — so a
+/// larger jump is refused rather than taken as the new count.
+pub const MAX_ROLLOUT_GAP: u64 = 10_000;
+
 /// What the controller knows about one environment.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EnvSlot {
@@ -138,6 +143,18 @@ pub enum TaskError {
         envs: usize,
         /// Rewards given.
         got: usize,
+    },
+    /// A rollout index further ahead of the next expected one than any lost reports explain
+    /// (or the last index there is): taking it would freeze the actor's curriculum, every later
+    /// honest report then looking stale.
+    #[error("actor {actor:?}: rollout {rollout} is more than {MAX_ROLLOUT_GAP} ahead of the next expected {next}")]
+    RolloutTooFarAhead {
+        /// Actor.
+        actor: String,
+        /// Index given.
+        rollout: u64,
+        /// Next index expected.
+        next: u64,
     },
     /// A rollout index at or below one already reported.
     #[error("actor {actor:?}: rollout {rollout} was reported already (next is {next})")]
@@ -299,8 +316,11 @@ impl TaskController {
             return Err(TaskError::NoRoom { actor: actor.into(), envs, free, total });
         };
         // Environments keep their rollout history: an actor taking over a range continues after it.
-        let next_rollout =
-            self.state.slots[first_env..first_env + envs].iter().filter_map(|s| s.last_iteration).max().map_or(0, |last| last + 1);
+        let next_rollout = self.state.slots[first_env..first_env + envs]
+            .iter()
+            .filter_map(|s| s.last_iteration)
+            .max()
+            .map_or(0, |last| last.saturating_add(1));
         let range = ActorRange { actor: actor.into(), first_env, envs, next_rollout };
         self.state.actors.push(range.clone());
         Ok(range)
@@ -326,6 +346,9 @@ impl TaskController {
         }
         if let Some((i, &reward)) = rewards.iter().enumerate().find(|(_, r)| !r.is_finite()) {
             return Err(TaskError::NotFinite { env: range.first_env + i, reward });
+        }
+        if rollout - range.next_rollout > MAX_ROLLOUT_GAP || rollout == u64::MAX {
+            return Err(TaskError::RolloutTooFarAhead { actor: actor.into(), rollout, next: range.next_rollout });
         }
         if rollout > range.next_rollout {
             // Actors number reports consecutively and count one only once it is acknowledged:
@@ -563,6 +586,28 @@ mod tests {
         assert_eq!((c2.first_env, c2.next_rollout), (0, 2));
         assert!(matches!(restored.register("d", 2), Err(TaskError::NoRoom { free: 1, .. })), "1 left at 3, none fits 2");
         assert_eq!(restored.register("d", 1).unwrap().first_env, 3);
+    }
+
+    /// A report numbered 2^64 − 1 wrapped the next expected index to 0, so that every later
+    /// report was "already reported" and the curriculum froze, snapshot and all. It is refused,
+    /// as is any jump far beyond lost reports, and the actor's next honest report is taken.
+    #[test]
+    fn a_report_at_the_end_of_the_counter_is_refused_and_the_curriculum_goes_on() {
+        let mut c = controller(SwitchPolicy::Random, 10, 2);
+        c.register("a", 2).unwrap();
+        c.report_rollout("a", 0, &[1.0; 2]).unwrap();
+        for hostile in [u64::MAX, u64::MAX - 1, 1 + MAX_ROLLOUT_GAP + 1] {
+            let before = c.clone();
+            let e = c.report_rollout("a", hostile, &[1.0; 2]).unwrap_err();
+            assert!(matches!(e, TaskError::RolloutTooFarAhead { rollout, next: 1, .. } if rollout == hostile), "{e}");
+            assert_eq!(c, before, "nothing of it applied");
+        }
+        let restored = TaskController::from_snapshot_bytes(&c.to_snapshot_bytes(), Path::new("mem")).unwrap();
+        assert_eq!(restored.actors()[0].next_rollout, 1);
+        c.report_rollout("a", 1, &[1.0; 2]).unwrap();
+        // A gap that lost reports explain is still taken (and logged).
+        c.report_rollout("a", 2 + MAX_ROLLOUT_GAP, &[1.0; 2]).unwrap();
+        assert_eq!(c.actors()[0].next_rollout, 3 + MAX_ROLLOUT_GAP);
     }
 
     #[test]
