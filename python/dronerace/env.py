@@ -66,7 +66,8 @@ class RaceVecEnv(gymnasium.vector.VectorEnv):
     observation; the next step ignores that environment's action and returns the first
     observation of a new episode, with reward 0. A task switch ends an episode as `truncated`
     (outcome "track_switch"). The returned observation, reward, termination and truncation
-    arrays are filled in place by every step: copy what you keep.
+    arrays are filled in place by every step: copy what you keep. An array you make read-only
+    (or resize) is left as it is, and the next step returns a fresh one in its place.
 
     `infos` holds `laps` and `target_gate` for every environment and, where an episode ended,
     `episode` with its return `r`, length `l`, `laps`, `gates_passed`, `fastest_lap` (s, NaN
@@ -86,11 +87,7 @@ class RaceVecEnv(gymnasium.vector.VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
         self.render_mode = None
-        # The core fills these arrays in place at every step.
-        if observation == "vision":
-            self._observations = {"image": self._core.images, "state": self._core.observations}
-        else:
-            self._observations = self._core.observations
+        self._vision = observation == "vision"
 
     def reset(self, *, seed=None, options=None):
         """Starts every environment afresh; with `seed`, exactly as a new environment of that
@@ -98,15 +95,23 @@ class RaceVecEnv(gymnasium.vector.VectorEnv):
         seed)."""
         if seed is not None and not isinstance(seed, (int, np.integer)):
             raise TypeError(f"seed: one int for all environments (environment i uses stream i), not {seed!r}")
+        # The core first: it refuses a seed outside 0..2**64 - 1 with a ValueError naming it.
+        infos = self._core.reset(None if seed is None else int(seed))
         if seed is not None:
             super().reset(seed=int(seed))
-        infos = self._core.reset(None if seed is None else int(seed))
-        return self._observations, infos
+        return self._observations(), infos
 
     def step(self, actions):
         """Steps every environment with its row of `actions` (num_envs x 4, in [-1, 1])."""
         rewards, terminations, truncations, infos = self._core.step(_actions(actions, self.num_envs))
-        return self._observations, rewards, terminations, truncations, infos
+        return self._observations(), rewards, terminations, truncations, infos
+
+    def _observations(self):
+        """The core's observation arrays, filled in place at every step (asked for each time:
+        the core replaces one the user made read-only or resized)."""
+        if self._vision:
+            return {"image": self._core.images, "state": self._core.observations}
+        return self._core.observations
 
     def tracks(self):
         """The track each environment flies now."""

@@ -9,10 +9,16 @@
 //!
 //! Environment `i` runs on random stream `i` of the seed, as `sim::VecEnv` (training's
 //! environment) does, so the same seed and actions fly the same trajectories in both.
+//!
+//! The environments step into buffers of their own while the interpreter's lock is released;
+//! the numpy arrays Python holds are only written with the lock held, after the step
+//! ([`publish`]): Python code on another thread could otherwise resize or free an array under
+//! a step that writes into it.
 
 use std::sync::Arc;
 
-use numpy::{PyArray1, PyArray2, PyArray4, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::ndarray::{Dimension, Ix1, Ix2, Ix4};
+use numpy::{Element, PyArray, PyArray1, PyArray2, PyArray4, PyArrayDescrMethods, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
@@ -21,7 +27,7 @@ use sim::camera::{IMAGE_PIXELS, IMAGE_SIDE};
 use sim::{ACTION_DIM, CrashCause, EnvConfig, EpisodeStats, RaceEnv, RandomizationParams, Track};
 use taskctl::{SwitchParams, SwitchPolicy, TaskController};
 
-use crate::inputs::{Observation, finite_rows};
+use crate::inputs::{Int, MAX_ENVS, MAX_STEPS, MAX_SWITCH_WINDOW, Observation, finite_rows};
 use crate::tracks::{PyTrack, resolve};
 
 /// Numbers of a body state row of `VecEnv.states`.
@@ -83,8 +89,21 @@ struct Finished {
     ending: Ending,
 }
 
+/// What a step gives, in memory of this environment's own: written while the interpreter's lock
+/// is released, then copied into the numpy arrays.
+#[derive(Clone, Debug, Default)]
+struct Buffers {
+    observations: Vec<f32>,
+    /// Empty without cameras.
+    images: Vec<u8>,
+    rewards: Vec<f32>,
+    terminations: Vec<bool>,
+    truncations: Vec<bool>,
+}
+
 /// `num_envs` race environments stepped in parallel into numpy arrays that are filled in place
-/// (the same arrays every step: copy what you keep).
+/// (the same arrays every step, copy what you keep, unless Python made one read-only or
+/// resized it: then that one is left alone and a fresh array takes its place).
 #[pyclass(module = "dronerace._core")]
 pub struct VecEnv {
     num_envs: usize,
@@ -95,11 +114,16 @@ pub struct VecEnv {
     switching: SwitchParams,
     controller: Option<TaskController>,
     rollout_steps: u32,
+    /// Fewest environments rayon hands one thread: 4, or all of them when the pool has one
+    /// thread — then the calling thread steps them itself instead of waking the pool's only
+    /// worker and waiting for it (python/README.md, "Speed").
+    chunk: usize,
     steps_in_rollout: u32,
     rollout: u64,
     seed: u64,
     started: bool,
     finished: Vec<Finished>,
+    buffers: Buffers,
     observations: Py<PyArray2<f32>>,
     images: Option<Py<PyArray4<u8>>>,
     rewards: Py<PyArray1<f32>>,
@@ -115,32 +139,35 @@ impl VecEnv {
     /// `switching` ("adaptive", "random" or "none") after every `rollout_steps` steps.
     /// `randomize=False` flies the nominal vehicle from SPEC §9's perturbed start (evaluation's
     /// setting); `max_episode_steps` overrides the episode length. `switch_window` (l),
-    /// `switch_alpha` (α) and `switch_probability` (the random policy's) are SPEC §8's.
+    /// `switch_alpha` (α) and `switch_probability` (the random policy's) are SPEC §8's. Limits:
+    /// 1 to 4,096 environments, 1 to 1,000,000 steps, windows of 2 to 10,000 rollouts.
     #[new]
-    #[pyo3(signature = (num_envs, tracks = None, seed = 0, switching = None, observation = "state", rollout_steps = 250,
-                        randomize = true, max_episode_steps = None, switch_window = 600, switch_alpha = 1000.0,
-                        switch_probability = 1.616e-3))]
+    #[pyo3(signature = (num_envs, tracks = None, seed = Int::Value(0), switching = None, observation = "state",
+                        rollout_steps = Int::Value(250), randomize = true, max_episode_steps = None,
+                        switch_window = Int::Value(600), switch_alpha = 1000.0, switch_probability = 1.616e-3),
+           // The defaults Python would otherwise see as `...` (an `Int`'s).
+           text_signature = "(num_envs, tracks=None, seed=0, switching=None, observation=\"state\", rollout_steps=250, \
+                             randomize=True, max_episode_steps=None, switch_window=600, switch_alpha=1000.0, \
+                             switch_probability=1.616e-3)")]
     #[allow(clippy::too_many_arguments, reason = "the Python constructor's keyword arguments")]
     fn new(
         py: Python<'_>,
-        num_envs: usize,
+        num_envs: Int,
         tracks: Option<Vec<Bound<'_, PyAny>>>,
-        seed: u64,
+        seed: Int,
         switching: Option<&str>,
         observation: &str,
-        rollout_steps: u32,
+        rollout_steps: Int,
         randomize: bool,
-        max_episode_steps: Option<u32>,
-        switch_window: usize,
+        max_episode_steps: Option<Int>,
+        switch_window: Int,
         switch_alpha: f64,
         switch_probability: f64,
     ) -> PyResult<Self> {
-        if num_envs == 0 {
-            return Err(PyValueError::new_err("num_envs: at least one environment"));
-        }
-        if rollout_steps == 0 {
-            return Err(PyValueError::new_err("rollout_steps: at least one step"));
-        }
+        let num_envs = num_envs.within("num_envs", 1..=MAX_ENVS)?;
+        let seed = seed.within("seed", 0..=u64::MAX)?;
+        let rollout_steps = rollout_steps.within("rollout_steps", 1..=MAX_STEPS)?;
+        let switch_window = switch_window.within("switch_window", 2..=MAX_SWITCH_WINDOW)?;
         let observation = Observation::parse(observation)?;
         let mut config = observation.env_config();
         if !randomize {
@@ -150,10 +177,7 @@ impl VecEnv {
             config.quadrotor = EnvConfig::evaluation().quadrotor;
         }
         if let Some(steps) = max_episode_steps {
-            if steps == 0 {
-                return Err(PyValueError::new_err("max_episode_steps: at least one step"));
-            }
-            config.race.max_episode_steps = steps;
+            config.race.max_episode_steps = steps.within("max_episode_steps", 1..=MAX_STEPS)?;
         }
         let given = match &tracks {
             Some(items) if items.is_empty() => return Err(PyValueError::new_err("tracks: an empty list (None draws generated tracks)")),
@@ -180,6 +204,13 @@ impl VecEnv {
         })?;
         let images_on = observation == Observation::Vision;
         let dim = config.observation.dim();
+        let buffers = Buffers {
+            observations: vec![0.0; num_envs * dim],
+            images: if images_on { vec![0; num_envs * IMAGE_PIXELS] } else { Vec::new() },
+            rewards: vec![0.0; num_envs],
+            terminations: vec![false; num_envs],
+            truncations: vec![false; num_envs],
+        };
         Ok(Self {
             num_envs,
             slots: Vec::new(),
@@ -188,11 +219,13 @@ impl VecEnv {
             switching,
             controller: None,
             rollout_steps,
+            chunk: if rayon::current_num_threads() > 1 { 4 } else { num_envs },
             steps_in_rollout: 0,
             rollout: 0,
             seed,
             started: false,
             finished: Vec::new(),
+            buffers,
             observations: PyArray2::zeros(py, [num_envs, dim], false).unbind(),
             images: images_on.then(|| PyArray4::zeros(py, [num_envs, 1, IMAGE_SIDE, IMAGE_SIDE], false).unbind()),
             rewards: PyArray1::zeros(py, num_envs, false).unbind(),
@@ -205,7 +238,8 @@ impl VecEnv {
     /// random streams as a new environment of that seed); without, new episodes from where the
     /// streams are (the constructor's seed at the first reset). Returns the infos.
     #[pyo3(signature = (seed = None))]
-    fn reset<'py>(&mut self, py: Python<'py>, seed: Option<u64>) -> PyResult<Bound<'py, PyDict>> {
+    fn reset<'py>(&mut self, py: Python<'py>, seed: Option<Int>) -> PyResult<Bound<'py, PyDict>> {
+        let seed = seed.map(|s| s.within("seed", 0..=u64::MAX)).transpose()?;
         if seed.is_some() || !self.started {
             self.seed = seed.unwrap_or(self.seed);
             self.rebuild()?;
@@ -219,21 +253,19 @@ impl VecEnv {
         }
         self.finished.clear();
         let dim = self.config.observation.dim();
-        // SAFETY: see `ours`.
-        let (observations, images) = unsafe { (ours(&self.observations, py), self.images.as_ref().map(|i| ours(i, py))) };
-        let slots = &self.slots;
+        let (slots, out, chunk) = (&self.slots, &mut self.buffers, self.chunk);
         py.detach(|| {
-            slots.par_iter().zip(observations.par_chunks_mut(dim)).for_each(|(slot, row)| slot.env.observe(row));
-            if let Some(images) = images {
-                slots.par_iter().zip(images.par_chunks_mut(IMAGE_PIXELS)).for_each(|(slot, image)| slot.env.render_camera(image));
-            }
+            slots.par_iter().zip(out.observations.par_chunks_mut(dim)).with_min_len(chunk).for_each(|(slot, row)| slot.env.observe(row));
+            slots
+                .par_iter()
+                .zip(out.images.par_chunks_mut(IMAGE_PIXELS))
+                .with_min_len(chunk)
+                .for_each(|(s, image)| s.env.render_camera(image));
         });
-        // SAFETY: see `ours`.
-        unsafe {
-            ours(&self.rewards, py).fill(0.0);
-            ours(&self.terminations, py).fill(false);
-            ours(&self.truncations, py).fill(false);
-        }
+        out.rewards.fill(0.0);
+        out.terminations.fill(false);
+        out.truncations.fill(false);
+        self.publish(py)?;
         self.started = true;
         self.infos(py)
     }
@@ -250,34 +282,32 @@ impl VecEnv {
         if !self.started {
             return Err(PyRuntimeError::new_err("step before reset: call reset() first"));
         }
+        // A copy: the actions array is Python's, and may change once the lock is released.
         let actions = finite_rows("actions", &actions, Some(self.num_envs), ACTION_DIM)?;
         let dim = self.config.observation.dim();
-        // SAFETY: see `ours`.
-        let (observations, images) = unsafe { (ours(&self.observations, py), self.images.as_ref().map(|i| ours(i, py))) };
-        let slots = &mut self.slots;
+        let (slots, out, chunk) = (&mut self.slots, &mut self.buffers, self.chunk);
         let stepped: Vec<Stepped> = py.detach(|| {
             let stepped = slots
                 .par_iter_mut()
                 .zip(actions.par_chunks(ACTION_DIM))
-                .zip(observations.par_chunks_mut(dim))
-                .with_min_len(4)
+                .zip(out.observations.par_chunks_mut(dim))
+                .with_min_len(chunk)
                 .map(|((slot, action), row)| {
                     let stepped = step_slot(slot, action);
                     slot.env.observe(row);
                     stepped
                 })
                 .collect();
-            if let Some(images) = images {
-                slots.par_iter().zip(images.par_chunks_mut(IMAGE_PIXELS)).with_min_len(4).for_each(|(s, image)| s.env.render_camera(image));
-            }
+            slots
+                .par_iter()
+                .zip(out.images.par_chunks_mut(IMAGE_PIXELS))
+                .with_min_len(chunk)
+                .for_each(|(s, image)| s.env.render_camera(image));
             stepped
         });
         self.finished.clear();
-        // SAFETY: see `ours`.
-        let (rewards, terminations, truncations) =
-            unsafe { (ours(&self.rewards, py), ours(&self.terminations, py), ours(&self.truncations, py)) };
         for (i, s) in stepped.iter().enumerate() {
-            (rewards[i], terminations[i], truncations[i]) = (s.reward, s.terminated, s.truncated);
+            (out.rewards[i], out.terminations[i], out.truncations[i]) = (s.reward, s.terminated, s.truncated);
             if let Some((stats, crash)) = s.ended {
                 let ending = crash.map_or(Ending::TimeLimit, Ending::Crash);
                 self.finished.push(Finished { env: i, stats, ending });
@@ -286,13 +316,15 @@ impl VecEnv {
         self.steps_in_rollout += 1;
         if self.steps_in_rollout == self.rollout_steps {
             self.steps_in_rollout = 0;
-            self.end_rollout(py)?;
+            self.end_rollout()?;
         }
+        self.publish(py)?;
         let infos = self.infos(py)?;
         Ok((self.rewards.bind(py).clone(), self.terminations.bind(py).clone(), self.truncations.bind(py).clone(), infos))
     }
 
-    /// Current observations, `num_envs × observation_dim` float32 (filled in place).
+    /// Current observations, `num_envs × observation_dim` float32 (filled in place; a fresh
+    /// array after Python made the last one read-only or resized it).
     #[getter]
     fn observations<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
         self.observations.bind(py).clone()
@@ -343,6 +375,18 @@ impl VecEnv {
 }
 
 impl VecEnv {
+    /// The step's buffers into the numpy arrays ([`publish`]).
+    fn publish(&mut self, py: Python<'_>) -> PyResult<()> {
+        let (n, out) = (self.num_envs, &self.buffers);
+        publish(py, &mut self.observations, &out.observations, Ix2(n, self.config.observation.dim()))?;
+        if let Some(images) = &mut self.images {
+            publish(py, images, &out.images, Ix4(n, 1, IMAGE_SIDE, IMAGE_SIDE))?;
+        }
+        publish(py, &mut self.rewards, &out.rewards, Ix1(n))?;
+        publish(py, &mut self.terminations, &out.terminations, Ix1(n))?;
+        publish(py, &mut self.truncations, &out.truncations, Ix1(n))
+    }
+
     /// Environments, streams and task controller as new for `self.seed`.
     fn rebuild(&mut self) -> PyResult<()> {
         let n = self.num_envs;
@@ -370,9 +414,8 @@ impl VecEnv {
 
     /// Reports the rollout's returns to the task controller; an environment it switches is cut
     /// (`truncated`) and restarts on its new track at its next step.
-    fn end_rollout(&mut self, py: Python<'_>) -> PyResult<()> {
-        // SAFETY: see `ours`.
-        let truncations = unsafe { ours(&self.truncations, py) };
+    fn end_rollout(&mut self) -> PyResult<()> {
+        let truncations = &mut self.buffers.truncations;
         let rollout = self.rollout;
         self.rollout += 1;
         let Some(controller) = &mut self.controller else {
@@ -435,19 +478,24 @@ impl VecEnv {
     }
 }
 
-/// A mutable view of one of this environment's own output arrays, without numpy's dynamic
-/// borrow tracking (a few microseconds a step).
-///
-/// # Safety
-/// The array was created by [`VecEnv::new`] (C-contiguous, never resized) and is borrowed by
-/// no other Rust code; the caller holds the view only within one method call. Python code
-/// reading the array from another thread while a step runs sees partly written values, as
-/// with any buffer filled in place.
-#[allow(clippy::mut_from_ref, reason = "the array's memory is numpy's, shared with Python; the safety contract bounds the view")]
-unsafe fn ours<'a, T: numpy::Element, D: numpy::ndarray::Dimension>(array: &'a Py<numpy::PyArray<T, D>>, py: Python<'_>) -> &'a mut [T] {
-    let array = array.bind(py);
-    // SAFETY: the caller's contract above; `data` points at `len` elements in C order.
-    unsafe { std::slice::from_raw_parts_mut(array.data(), array.len()) }
+/// Copies `values` into `array`, with the interpreter's lock held, if the array is still as
+/// the environment made it: writeable, of element type `T`, C-contiguous and of `shape`. An
+/// array Python made read-only, resized, reshaped or re-typed is left alone (the user's) and a
+/// fresh one takes its place, which the getters and the next step return.
+fn publish<T: Element + Copy, D: Dimension>(py: Python<'_>, array: &mut Py<PyArray<T, D>>, values: &[T], shape: D) -> PyResult<()> {
+    let bound = array.bind(py);
+    let as_made = bound.dtype().is_equiv_to(&numpy::dtype::<T>(py)) && bound.shape() == shape.slice() && bound.is_c_contiguous();
+    // The borrow checks the writeable flag (and that no Rust code holds the array).
+    if as_made
+        && let Ok(mut target) = bound.try_readwrite()
+        && let Ok(slice) = target.as_slice_mut()
+        && slice.len() == values.len()
+    {
+        slice.copy_from_slice(values);
+        return Ok(());
+    }
+    *array = PyArray1::from_slice(py, values).reshape(shape)?.unbind();
+    Ok(())
 }
 
 /// One environment's step: a pending restart (the action ignored), or the action flown.

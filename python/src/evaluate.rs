@@ -9,19 +9,27 @@ use pyo3::prelude::*;
 use sim::eval::{EvalConfig, EvalReport};
 use sim::{ACTION_DIM, Track};
 
-use crate::inputs::{Observation, finite_rows};
+use crate::inputs::{Int, MAX_DEPLOYMENTS, MAX_RUNS, MAX_STEPS, Observation, finite_rows};
 use crate::policy_py::PyPolicy;
 use crate::tracks::resolve;
 
-/// The tracks and protocol of one evaluation, checked.
-fn setup(tracks: &[Bound<'_, PyAny>], runs: usize, steps: u32, seed: u64) -> PyResult<(Vec<Arc<Track>>, EvalConfig)> {
-    if runs == 0 || steps == 0 {
-        return Err(PyValueError::new_err(format!("runs and steps: at least 1 each (got runs={runs}, steps={steps})")));
-    }
+/// The tracks and protocol of one evaluation, checked: 1 to 1,000 runs per track, 1 to
+/// 1,000,000 steps, at most 10,000 deployments in all.
+fn setup(tracks: &[Bound<'_, PyAny>], runs: &Int, steps: &Int, seed: &Int) -> PyResult<(Vec<Arc<Track>>, EvalConfig)> {
+    let (runs, steps, seed) =
+        (runs.within("runs", 1..=MAX_RUNS)?, steps.within("steps", 1..=MAX_STEPS)?, seed.within("seed", 0..=u64::MAX)?);
     if tracks.is_empty() {
         return Err(PyValueError::new_err("tracks: an empty list"));
     }
-    Ok((resolve("tracks", tracks)?, EvalConfig { runs, steps, seed, ..EvalConfig::default() }))
+    let tracks = resolve("tracks", tracks)?;
+    if tracks.len() * runs > MAX_DEPLOYMENTS {
+        return Err(PyValueError::new_err(format!(
+            "runs: {runs} runs on each of {} tracks make {} deployments; at most {MAX_DEPLOYMENTS} in one evaluation",
+            tracks.len(),
+            tracks.len() * runs
+        )));
+    }
+    Ok((tracks, EvalConfig { runs, steps, seed, ..EvalConfig::default() }))
 }
 
 fn to_json(report: &EvalReport) -> PyResult<String> {
@@ -32,16 +40,18 @@ fn to_json(report: &EvalReport) -> PyResult<String> {
 /// track from SPEC §9's perturbed starts (seed `seed`), in parallel; the report as JSON
 /// (`dronerace eval`'s `eval.json`).
 #[pyfunction]
-#[pyo3(signature = (policy, tracks, runs = 25, steps = 1000, seed = 0))]
+// The text signature spells the defaults Python would otherwise see as `...` (an `Int`'s).
+#[pyo3(signature = (policy, tracks, runs = Int::Value(25), steps = Int::Value(1000), seed = Int::Value(0)),
+       text_signature = "(policy, tracks, runs=25, steps=1000, seed=0)")]
 pub fn evaluate_policy(
     py: Python<'_>,
     policy: &PyPolicy,
     tracks: Vec<Bound<'_, PyAny>>,
-    runs: usize,
-    steps: u32,
-    seed: u64,
+    runs: Int,
+    steps: Int,
+    seed: Int,
 ) -> PyResult<String> {
-    let (tracks, config) = setup(&tracks, runs, steps, seed)?;
+    let (tracks, config) = setup(&tracks, &runs, &steps, &seed)?;
     let factory = policy::controller_factory(&policy.blob).map_err(|e| PyValueError::new_err(format!("policy: {e}")))?;
     let name = format!("policy v{} ({})", policy.blob.version, policy.blob.architecture.agent);
     let report = py.detach(|| sim::eval::evaluate(&name, &tracks, factory.as_ref(), &config));
@@ -52,19 +62,20 @@ pub fn evaluate_policy(
 /// `observation` agent's layout) to `n × 4` actions, called once per step with every deployment
 /// still flying: the same deployments as `evaluate_policy`. The report as JSON.
 #[pyfunction]
-#[pyo3(signature = (act, tracks, runs = 25, steps = 1000, seed = 0, observation = "state", name = "callable"))]
+#[pyo3(signature = (act, tracks, runs = Int::Value(25), steps = Int::Value(1000), seed = Int::Value(0), observation = "state", name = "callable"),
+       text_signature = "(act, tracks, runs=25, steps=1000, seed=0, observation=\"state\", name=\"callable\")")]
 #[allow(clippy::too_many_arguments, reason = "the Python function's keyword arguments")]
 pub fn evaluate_callable(
     py: Python<'_>,
     act: Bound<'_, PyAny>,
     tracks: Vec<Bound<'_, PyAny>>,
-    runs: usize,
-    steps: u32,
-    seed: u64,
+    runs: Int,
+    steps: Int,
+    seed: Int,
     observation: &str,
     name: &str,
 ) -> PyResult<String> {
-    let (tracks, config) = setup(&tracks, runs, steps, seed)?;
+    let (tracks, config) = setup(&tracks, &runs, &steps, &seed)?;
     if Observation::parse(observation)? == Observation::Vision {
         return Err(PyValueError::new_err("observation: a callable is evaluated on state observations; pass a vision policy as a Policy"));
     }

@@ -1,16 +1,82 @@
-//! Checks of what Python hands in — shapes, finite numbers, names — with errors that name the
-//! argument and the entry, so a wrong call fails at the call and says where.
+//! Checks of what Python hands in — shapes, finite numbers, names, counts — with errors that
+//! name the argument and the entry, so a wrong call fails at the call and says where. The
+//! limits on counts live here, each with its reason (python/README.md, "Limits").
 
-use std::borrow::Cow;
+use std::fmt::Display;
+use std::ops::RangeInclusive;
 
 use numpy::{Element, PyReadonlyArray, PyReadonlyArray2, PyUntypedArrayMethods};
-use pyo3::exceptions::PyValueError;
+use pyo3::exceptions::{PyOverflowError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use sim::EnvConfig;
 
+/// Most environments one `VecEnv` steps (`num_envs`): training's profiles use 96; 4,096 hold
+/// ~0.4 GB and take ~8 s to draw their generated tracks.
+pub const MAX_ENVS: usize = 4096;
+/// Most tracks one list may give, directories expanded (`tracks`), and the most
+/// `validation_set` makes: each is generated or read whole, and held while the call runs.
+pub const MAX_TRACKS: usize = 4096;
+/// Most steps of a rollout, an episode or a deployment (`rollout_steps`, `max_episode_steps`,
+/// `steps`): 5.5 hours of flight at 50 Hz.
+pub const MAX_STEPS: u32 = 1_000_000;
+/// Most deployments per track in an evaluation (`runs`); SPEC §9's protocol flies 25.
+pub const MAX_RUNS: usize = 1000;
+/// Most deployments of one evaluation in all (tracks × runs): a callable's evaluation flies
+/// them all at once, each holding its environment (~90 kB: 10,000 take ~0.9 GB).
+pub const MAX_DEPLOYMENTS: usize = 10_000;
+/// Longest switching window (`switch_window`, rollouts): the thesis' is 600; each
+/// environment keeps its window and ranks it at every report.
+pub const MAX_SWITCH_WINDOW: usize = 10_000;
+/// Most control points `fit` takes: the informed generator uses a handful. Interpolating
+/// (smoothing 0) puts a knot at every point and the work grows with their cube: 256 points
+/// take ~12 ms, 4,096 over a minute.
+pub const MAX_CONTROL_POINTS: usize = 256;
+
+/// An integer argument as Python passed it, of any size or type, refused by [`Int::within`]
+/// with the argument's name. Taken as a Rust integer, `2**64` or `-1` would raise an
+/// `OverflowError` that names nothing, and a float a `TypeError` that does not say which.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Int {
+    /// An int.
+    Value(i128),
+    /// An int beyond 128 bits.
+    Huge,
+    /// Not an int: its type's name.
+    Not(String),
+}
+
+impl<'py> FromPyObject<'_, 'py> for Int {
+    type Error = PyErr;
+
+    fn extract(obj: Borrowed<'_, 'py, PyAny>) -> PyResult<Self> {
+        match obj.extract::<i128>() {
+            Ok(v) => Ok(Self::Value(v)),
+            Err(e) if e.is_instance_of::<PyOverflowError>(obj.py()) => Ok(Self::Huge),
+            Err(_) => Ok(Self::Not(obj.get_type().name().map_or_else(|_| "?".to_owned(), |n| n.to_string()))),
+        }
+    }
+}
+
+impl Int {
+    /// The number if it lies in `range`; else a `ValueError` (an int outside) or `TypeError`
+    /// (not an int) naming `name`.
+    pub fn within<T>(&self, name: &str, range: RangeInclusive<T>) -> PyResult<T>
+    where
+        T: Copy + PartialOrd + Display + TryFrom<i128>,
+    {
+        let outside = |what: String| PyValueError::new_err(format!("{name}: {what} is outside {}..={}", range.start(), range.end()));
+        match self {
+            Self::Value(v) => T::try_from(*v).ok().filter(|t| range.contains(t)).ok_or_else(|| outside(v.to_string())),
+            Self::Huge => Err(outside("an int beyond 128 bits".to_owned())),
+            Self::Not(kind) => Err(PyTypeError::new_err(format!("{name}: an int, not {kind}"))),
+        }
+    }
+}
+
 /// The rows of a float32 array of `cols` columns (and `rows` rows when given), every entry
-/// finite, in row order whatever the array's memory layout.
-pub fn finite_rows<'a>(name: &str, array: &'a PyReadonlyArray2<'_, f32>, rows: Option<usize>, cols: usize) -> PyResult<Cow<'a, [f32]>> {
+/// finite, in row order whatever the array's memory layout; a copy, so no numpy buffer is read
+/// once the interpreter's lock is released.
+pub fn finite_rows(name: &str, array: &PyReadonlyArray2<'_, f32>, rows: Option<usize>, cols: usize) -> PyResult<Vec<f32>> {
     let shape = array.shape();
     let expected_rows = rows.unwrap_or(shape[0]);
     if shape != [expected_rows, cols] {
@@ -24,13 +90,14 @@ pub fn finite_rows<'a>(name: &str, array: &'a PyReadonlyArray2<'_, f32>, rows: O
     Ok(values)
 }
 
-/// An array's entries in row order (C order): borrowed when that is how they lie in memory, else
-/// copied. Reading the buffer as it lies would take a column-major array — what `obs[:, idx]`
-/// or a transpose gives — for different numbers, silently.
-pub fn in_row_order<'a, T: Element + Copy, D: numpy::ndarray::Dimension>(array: &'a PyReadonlyArray<'_, T, D>) -> Cow<'a, [T]> {
+/// An array's entries in row order (C order), copied while the interpreter's lock is held:
+/// Python code on another thread may resize or free the array once it is released (a borrow
+/// does not stop `resize(refcheck=False)`). Reading the buffer as it lies would take a
+/// column-major array — what `obs[:, idx]` or a transpose gives — for different numbers.
+pub fn in_row_order<T: Element + Copy, D: numpy::ndarray::Dimension>(array: &PyReadonlyArray<'_, T, D>) -> Vec<T> {
     match array.as_slice() {
-        Ok(values) if array.is_c_contiguous() => Cow::Borrowed(values),
-        _ => Cow::Owned(array.as_array().iter().copied().collect()),
+        Ok(values) if array.is_c_contiguous() => values.to_vec(),
+        _ => array.as_array().iter().copied().collect(),
     }
 }
 

@@ -1,7 +1,6 @@
 //! Trained policies for Python: open a checkpoint or weights blob, act deterministically on a
 //! batch of raw observations (the policy's normaliser applied inside), as evaluation flies it.
 
-use std::borrow::Cow;
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -12,6 +11,12 @@ use sim::ACTION_DIM;
 use sim::camera::IMAGE_PIXELS;
 
 use crate::inputs::{finite_rows, in_row_order};
+use crate::tracks::is_refusal;
+
+/// Largest policy file `Policy.load` reads (bytes), the learner's bound for checkpoints
+/// (`learner::checkpoint::MAX_FILE_BYTES`): today's are 0.6–3 MB. A device such as `/dev/zero`
+/// or a larger file is refused unread rather than read until memory runs out.
+pub const MAX_POLICY_FILE_BYTES: u64 = 256 << 20;
 
 /// A trained policy (state-based or vision), read from a checkpoint or weights blob.
 #[pyclass(name = "Policy", module = "dronerace._core", frozen)]
@@ -25,10 +30,14 @@ pub struct PyPolicy {
 
 #[pymethods]
 impl PyPolicy {
-    /// Opens a checkpoint (`ckpt-*.bin`, `best.bin`) or weights blob (`policies/*.bin`).
+    /// Opens a checkpoint (`ckpt-*.bin`, `best.bin`) or weights blob (`policies/*.bin`): a
+    /// regular file of at most 256 MiB.
     #[staticmethod]
     fn load(path: PathBuf) -> PyResult<Self> {
-        let bytes = std::fs::read(&path).map_err(|e| PyOSError::new_err(format!("{}: {e}", path.display())))?;
+        let bytes = racetracks::files::read_limited(&path, MAX_POLICY_FILE_BYTES).map_err(|e| {
+            let message = format!("{}: {e}", path.display());
+            if is_refusal(&e) { PyValueError::new_err(format!("path: {message}")) } else { PyOSError::new_err(message) }
+        })?;
         let blob = policy::WeightsBlob::from_bytes(&bytes).map_err(|e| PyValueError::new_err(format!("{}: {e}", path.display())))?;
         let acting = policy::ActingPolicy::from_blob(&blob).map_err(|e| PyValueError::new_err(format!("{}: {e}", path.display())))?;
         Ok(Self { blob, acting: Arc::new(acting), path })
@@ -46,7 +55,8 @@ impl PyPolicy {
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let raw = finite_rows("observations", &observations, None, self.observation_dim())?;
         let n = observations.shape()[0];
-        let pixels: Cow<'_, [u8]> = match (&images, self.acting.sees_images()) {
+        // Both copied (`finite_rows`, `in_row_order`) before the lock is released below.
+        let pixels: Vec<u8> = match (&images, self.acting.sees_images()) {
             (Some(images), true) => {
                 let shape = images.shape();
                 if shape != [n, 1, sim::camera::IMAGE_SIDE, sim::camera::IMAGE_SIDE] {
@@ -55,7 +65,7 @@ impl PyPolicy {
                 in_row_order(images)
             }
             (None, true) => return Err(PyValueError::new_err("images: a vision policy acts on camera images too")),
-            (_, false) => Cow::Borrowed(&[]),
+            (_, false) => Vec::new(),
         };
         debug_assert!(pixels.is_empty() || pixels.len() == n * IMAGE_PIXELS);
         let acting = self.acting.clone();

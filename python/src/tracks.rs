@@ -7,9 +7,14 @@ use std::sync::Arc;
 use pyo3::exceptions::{PyOSError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use racetracks::track_file::MAX_TRACK_FILE_BYTES;
+use racetracks::track_sets::TEST_SET_SIZE;
 use racetracks::{ChosenTracksError, GeneratorKind, TrackFileError, TrackGenParams, TrackGenerator};
 use sim::Track;
 use sim::nalgebra::Vector3;
+use sim::track::{MAX_COORDINATE, MAX_GATES};
+
+use crate::inputs::{Int, MAX_CONTROL_POINTS, MAX_TRACKS};
 
 /// A racetrack: gates in racing order, a start pose and an arena. Immutable.
 #[pyclass(name = "Track", module = "dronerace._core", frozen)]
@@ -71,12 +76,19 @@ impl PyTrack {
 }
 
 /// A track file's error as a Python exception: a missing or unreadable file is an `OSError`,
-/// anything wrong inside it a `ValueError`; both name the file (and the field).
+/// anything wrong inside it — or a file refused unread, a device or one too large — a
+/// `ValueError`; both name the file (and the field).
 pub fn file_error(e: TrackFileError) -> PyErr {
-    match e {
-        TrackFileError::Io { .. } => PyOSError::new_err(e.to_string()),
+    match &e {
+        TrackFileError::Io { source, .. } if !is_refusal(source) => PyOSError::new_err(e.to_string()),
         _ => PyValueError::new_err(e.to_string()),
     }
+}
+
+/// Whether a read failed because the file was refused (`racetracks::files::read_limited`: not a
+/// regular file, too large, not UTF-8) rather than unreadable.
+pub fn is_refusal(e: &std::io::Error) -> bool {
+    matches!(e.kind(), std::io::ErrorKind::InvalidInput | std::io::ErrorKind::InvalidData)
 }
 
 fn wrap(tracks: Vec<Track>) -> Vec<PyTrack> {
@@ -100,7 +112,8 @@ pub fn library_names() -> PyResult<Vec<String>> {
 #[pyfunction]
 pub fn load(path: PathBuf) -> PyResult<PyTrack> {
     let track = if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("csv")) {
-        let text = std::fs::read_to_string(&path).map_err(|source| file_error(TrackFileError::Io { file: path.clone(), source }))?;
+        let text = racetracks::files::read_text_limited(&path, MAX_TRACK_FILE_BYTES as u64)
+            .map_err(|source| file_error(TrackFileError::Io { file: path.clone(), source }))?;
         let name = path.file_stem().map_or_else(|| "track".into(), |s| s.to_string_lossy().into_owned());
         racetracks::track_from_csv(&name, &text, &path)
     } else {
@@ -118,10 +131,15 @@ pub fn parse(text: &str, name: &str) -> PyResult<PyTrack> {
 }
 
 /// The generated track of `seed`: the informed generator (SPEC §7) or the uniform one, with
-/// `gates` gates (or a count drawn from `gates..=gates_max`).
+/// `gates` gates (or a count drawn from `gates..=gates_max`), 2 to 64.
 #[pyfunction]
-#[pyo3(signature = (seed, kind = "informed", gates = 6, gates_max = None, name = None))]
-pub fn generate(seed: u64, kind: &str, gates: usize, gates_max: Option<usize>, name: Option<String>) -> PyResult<PyTrack> {
+// The text signature spells the defaults Python would otherwise see as `...` (an `Int`'s).
+#[pyo3(signature = (seed, kind = "informed", gates = Int::Value(6), gates_max = None, name = None),
+       text_signature = "(seed, kind=\"informed\", gates=6, gates_max=None, name=None)")]
+pub fn generate(seed: Int, kind: &str, gates: Int, gates_max: Option<Int>, name: Option<String>) -> PyResult<PyTrack> {
+    let seed = seed.within("seed", 0..=u64::MAX)?;
+    let gates = gates.within("gates", 2..=MAX_GATES)?;
+    let gates_max = gates_max.map(|g| g.within("gates_max", 2..=MAX_GATES)).transpose()?;
     let kind = match kind {
         "informed" => GeneratorKind::Informed,
         "uniform" => GeneratorKind::Uniform,
@@ -136,24 +154,38 @@ pub fn generate(seed: u64, kind: &str, gates: usize, gates_max: Option<usize>, n
 /// The evaluation test set (SPEC §9): the library, then generated tracks from `seed`, 40 in all
 /// — what `dronerace tracks testset` writes.
 #[pyfunction]
-#[pyo3(signature = (seed = racetracks::track_sets::TEST_SEED))]
-pub fn test_set(seed: u64) -> PyResult<Vec<PyTrack>> {
+#[pyo3(signature = (seed = Int::Value(racetracks::track_sets::TEST_SEED.into())), text_signature = "(seed=9000000)")]
+pub fn test_set(seed: Int) -> PyResult<Vec<PyTrack>> {
+    // The generated tracks take seeds `seed`, `seed + 1`, …: they must not run past u64.
+    let seed = seed.within("seed", 0..=u64::MAX - TEST_SET_SIZE as u64)?;
     Ok(wrap(racetracks::test_set(seed).map_err(|e| PyValueError::new_err(e.to_string()))?))
 }
 
-/// `count` tracks of the validation set (for choosing checkpoints; never trained on).
+/// `count` tracks of the validation set (for choosing checkpoints; never trained on), at most
+/// 4,096.
 #[pyfunction]
-pub fn validation_set(count: usize) -> PyResult<Vec<PyTrack>> {
+pub fn validation_set(count: Int) -> PyResult<Vec<PyTrack>> {
+    let count = count.within("count", 0..=MAX_TRACKS)?;
     Ok(wrap(racetracks::validation_set(count).map_err(|e| PyValueError::new_err(e.to_string()))?))
 }
 
 /// Fits a closed smoothing cubic spline through control points `[(x, y, z), …]` with smoothing
 /// factor `smoothing` (scipy's `splprep(per=1, k=3)`): a dict of the parameters `u`, `knots`,
 /// `coefficients` (`[xs, ys, zs]`, scipy's `tck[1]`) and `residual`, as `dronerace tracks fit`
-/// prints.
+/// prints. At most 256 points, each coordinate within ±1000 m (a track's arena).
 #[pyfunction]
 #[pyo3(signature = (points, smoothing = 4.0))]
 pub fn fit<'py>(py: Python<'py>, points: Vec<[f64; 3]>, smoothing: f64) -> PyResult<Bound<'py, PyDict>> {
+    if points.len() > MAX_CONTROL_POINTS {
+        return Err(PyValueError::new_err(format!("points: {} points; a fit takes at most {MAX_CONTROL_POINTS}", points.len())));
+    }
+    // Beyond the arena's bounds chord lengths overflow to infinity (1e300 squared), and the fit
+    // of infinite parameters has no answer.
+    for (i, p) in points.iter().enumerate() {
+        if let Some(k) = p.iter().position(|c| !c.is_finite() || c.abs() > MAX_COORDINATE) {
+            return Err(PyValueError::new_err(format!("points[{i}][{k}] is {:e}; coordinates lie within ±{MAX_COORDINATE} m", p[k])));
+        }
+    }
     let control: Vec<Vector3<f64>> = points.iter().map(|p| Vector3::from(*p)).collect();
     let fit = racetracks::spline::fit_closed_curve(&control, smoothing).map_err(|e| PyValueError::new_err(format!("points: {e}")))?;
     let out = PyDict::new(py);
@@ -165,8 +197,13 @@ pub fn fit<'py>(py: Python<'py>, points: Vec<[f64; 3]>, smoothing: f64) -> PyRes
 }
 
 /// The tracks `items` name, each a `Track`, a library track's name or a track file or directory
-/// (`str` or path); `field` names the argument in errors.
+/// (`str` or path), at most 4,096 in all with directories expanded; `field` names the argument
+/// in errors.
 pub fn resolve(field: &str, items: &[Bound<'_, PyAny>]) -> PyResult<Vec<Arc<Track>>> {
+    let too_many = |n: usize| PyValueError::new_err(format!("{field}: {n} tracks; at most {MAX_TRACKS}"));
+    if items.len() > MAX_TRACKS {
+        return Err(too_many(items.len()));
+    }
     let mut tracks = Vec::with_capacity(items.len());
     let library = racetracks::library().map_err(file_error)?;
     for (i, item) in items.iter().enumerate() {
@@ -199,6 +236,9 @@ pub fn resolve(field: &str, items: &[Bound<'_, PyAny>]) -> PyResult<Vec<Arc<Trac
             _ => PyValueError::new_err(e.to_string()),
         })?;
         tracks.extend(chosen.into_iter().map(Arc::new));
+        if tracks.len() > MAX_TRACKS {
+            return Err(too_many(tracks.len()));
+        }
     }
     Ok(tracks)
 }

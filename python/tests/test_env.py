@@ -120,3 +120,22 @@ def test_wrong_calls_raise_exceptions_that_name_the_argument():
         dronerace.RaceVecEnv(2, switching="sometimes")
     with pytest.raises(ValueError, match="switch_window"):
         dronerace.RaceVecEnv(2, switch_window=1)
+    # Counts and seeds beyond their documented limits (python/README.md, "Limits"), however
+    # large, and numbers of the wrong type: each named (`test_hostile_inputs.py`
+    # runs the calls that could abort the interpreter).
+    with pytest.raises(ValueError, match=r"num_envs: 4097 is outside 1\.\.=4096"):
+        dronerace.RaceVecEnv(4097)
+    with pytest.raises(ValueError, match=r"num_envs: 0 is outside 1\.\.=4096"):
+        dronerace.RaceVecEnv(0)
+    with pytest.raises(TypeError, match="num_envs: an int, not float"):
+        dronerace.RaceVecEnv(2.5)
+    with pytest.raises(ValueError, match=r"rollout_steps: 4294967296 is outside 1\.\.=1000000"):
+        dronerace.RaceVecEnv(2, rollout_steps=2**32)
+    with pytest.raises(ValueError, match=r"max_episode_steps: 0 is outside 1\.\.=1000000"):
+        dronerace.RaceVecEnv(2, max_episode_steps=0)
+    with pytest.raises(ValueError, match=r"switch_window: 10001 is outside 2\.\.=10000"):
+        dronerace.RaceVecEnv(2, switch_window=10_001)
+    with pytest.raises(ValueError, match=r"seed: -1 is outside 0\.\.=18446744073709551615"):
+        dronerace.RaceVecEnv(2, seed=-1)
+    with pytest.raises(ValueError, match=r"seed: 18446744073709551616 is outside"):
+        envs.reset(seed=2**64)

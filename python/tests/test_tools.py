@@ -36,6 +36,17 @@ def test_tracks_load_parse_generate_and_round_trip(tmp_path):
     envs = dronerace.RaceVecEnv(2, tracks=[tmp_path])
     envs.reset()
     assert {t.name for t in envs.tracks()} == {"Figure8"}
+    # Beyond the limits (python/README.md, "Limits"), each named.
+    with pytest.raises(ValueError, match=r"gates: 65 is outside 2\.\.=64"):
+        dronerace.tracks.generate(0, gates=65)
+    with pytest.raises(ValueError, match=r"gates_max: 1 is outside 2\.\.=64"):
+        dronerace.tracks.generate(0, gates_max=1)
+    with pytest.raises(ValueError, match=r"count: 10000000 is outside 0\.\.=4096"):
+        dronerace.tracks.validation_set(10**7)
+    with pytest.raises(ValueError, match=r"seed: 18446744073709551615 is outside 0\.\.=18446744073709551575"):
+        dronerace.tracks.test_set(2**64 - 1)
+    with pytest.raises(ValueError, match=r"points\[1\]\[2\] is 1e4; coordinates lie within ±1000 m"):
+        dronerace.tracks.fit([(0, 0, 1), (5, 0, 1e4), (5, 5, 2), (0, 5, 1)])
 
 
 def test_policy_acts_deterministically_within_bounds_and_refuses_wrong_input():
@@ -55,6 +66,8 @@ def test_policy_acts_deterministically_within_bounds_and_refuses_wrong_input():
         policy.act(np.zeros((2, 40), dtype=np.float32))
     with pytest.raises(OSError, match="nothing.bin"):
         dronerace.Policy.load("nothing.bin")
+    with pytest.raises(ValueError, match="path: .*policies: not a regular file"):
+        dronerace.Policy.load(ROOT / "policies")
 
 
 def test_the_generalist_laps_figure8_through_a_python_callable_as_through_its_policy_file():
@@ -70,6 +83,10 @@ def test_the_generalist_laps_figure8_through_a_python_callable_as_through_its_po
         dronerace.evaluate(lambda obs: np.full((len(obs), 4), np.nan), "Figure8", runs=1, steps=5)
     with pytest.raises(ValueError, match=r"expected shape \(1, 4\)"):
         dronerace.evaluate(lambda obs: np.zeros((len(obs), 3)), "Figure8", runs=1, steps=5)
+    with pytest.raises(ValueError, match=r"runs: 0 is outside 1\.\.=1000"):
+        dronerace.evaluate(policy, "Figure8", runs=0)
+    with pytest.raises(TypeError, match="steps: an int, not float"):
+        dronerace.evaluate(policy, "Figure8", steps=1e3)
 
 
 def test_a_racer_fed_the_simulators_states_observes_as_the_environment_and_flies_the_policy():
@@ -94,3 +111,10 @@ def test_a_racer_fed_the_simulators_states_observes_as_the_environment_and_flies
         racer.observe([0, 0], [0, 0, 0], [1, 0, 0, 0], [0, 0, 0])
     with pytest.raises(ValueError, match=r"velocity\[1\] is NaN"):
         racer.observe([0, 0, 1], [0, np.nan, 0], [1, 0, 0, 0], [0, 0, 0])
+    # Finite but beyond any drone: 1e308 m made every observation -inf.
+    with pytest.raises(ValueError, match=r"position\[0\] is 10{308}, beyond the ±1000"):
+        racer.observe([1e308, 0, 1], [0, 0, 0], [1, 0, 0, 0], [0, 0, 0])
+    with pytest.raises(ValueError, match=r"velocity\[2\] is -150, beyond the ±100"):
+        racer.observe([0, 0, 1], [0, 0, -150], [1, 0, 0, 0], [0, 0, 0])
+    with pytest.raises(ValueError, match=r"angular_velocity\[1\] is 1000, beyond the ±100"):
+        racer.observe([0, 0, 1], [0, 0, 0], [1, 0, 0, 0], [0, 1000, 0])
