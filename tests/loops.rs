@@ -1,6 +1,9 @@
 //! The actor and learner process loops driven in one process over in-memory links: the
 //! learner's drop-and-rejoin rule, without spawning or killing processes.
 
+// Test code: a panic is how a failure is reported.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
@@ -14,34 +17,55 @@ use runtime::run::LearnerSettings;
 use runtime::{Run, TrainConfig};
 use taskctl::LocalTasks;
 
+/// Two registered actors (a0 on environments 0..2, a1 on 2..4) of a 4-environment run, each
+/// with its end of an in-memory link, and a learner expecting both.
+struct TwoActors {
+    _dir: tempfile::TempDir,
+    config: TrainConfig,
+    tasks: LocalTasks,
+    stop: AtomicBool,
+    links: [proto::memory::MemoryActorLink; 2],
+    actors: [ActorLoop; 2],
+    status: std::sync::Arc<LearnerBoard>,
+    learner: LearnerProcess<proto::memory::MemoryLearnerLink>,
+}
+
+impl TwoActors {
+    fn start() -> Self {
+        let dir = tempfile::tempdir().unwrap();
+        let config = TrainConfig {
+            profile: "cpu".into(),
+            envs: Some(4),
+            ppo: Some(PpoConfig { n_steps: 16, batch_size: 32, n_epochs: 1, ..PpoConfig::default() }),
+            ..TrainConfig::default()
+        };
+        let tasks = LocalTasks::new(config.task_controller(4).unwrap(), None);
+        let stop = AtomicBool::new(false);
+        let settings = |name: &str| ActorSettings {
+            name: name.into(),
+            envs: 2,
+            seed: 1,
+            env: config.env,
+            n_steps: 16,
+            weights_timeout: Duration::from_secs(60),
+            max_rollouts: None,
+        };
+        let (link0, learner_end) = memory_link();
+        let link1 = link0.clone();
+        let a0 = ActorLoop::register(&settings("a0"), &tasks, &stop).unwrap().unwrap();
+        let a1 = ActorLoop::register(&settings("a1"), &tasks, &stop).unwrap().unwrap();
+        let status = std::sync::Arc::new(LearnerBoard::default());
+        let learner_settings = LearnerSettings { expected_actors: 2, actor_timeout_seconds: 0.3, ..LearnerSettings::default() };
+        let run = Run::create(config.clone(), dir.path()).unwrap();
+        let learner = LearnerProcess::start(run, None, learner_end, status.clone(), learner_settings).unwrap();
+        Self { _dir: dir, config, tasks, stop, links: [link0, link1], actors: [a0, a1], status, learner }
+    }
+}
+
 #[test]
 fn an_actor_that_misses_an_iteration_is_dropped_and_rejoins_with_its_next_rollout() {
-    let dir = tempfile::tempdir().unwrap();
-    let config = TrainConfig {
-        profile: "cpu".into(),
-        envs: Some(4),
-        ppo: Some(PpoConfig { n_steps: 16, batch_size: 32, n_epochs: 1, ..PpoConfig::default() }),
-        ..TrainConfig::default()
-    };
-    let tasks = LocalTasks::new(config.task_controller(4).unwrap(), None);
-    let stop = AtomicBool::new(false);
-    let settings = |name: &str| ActorSettings {
-        name: name.into(),
-        envs: 2,
-        seed: 1,
-        env: config.env,
-        n_steps: 16,
-        weights_timeout: Duration::from_secs(60),
-        max_rollouts: None,
-    };
-    let (mut link0, learner_end) = memory_link();
-    let mut link1 = link0.clone();
-    let mut a0 = ActorLoop::register(&settings("a0"), &tasks, &stop).unwrap().unwrap();
-    let mut a1 = ActorLoop::register(&settings("a1"), &tasks, &stop).unwrap().unwrap();
-    let status = std::sync::Arc::new(LearnerBoard::default());
-    let learner_settings = LearnerSettings { expected_actors: 2, actor_timeout_seconds: 0.3, ..LearnerSettings::default() };
-    let run = Run::create(config.clone(), dir.path()).unwrap();
-    let mut learner = LearnerProcess::start(run, None, learner_end, status.clone(), learner_settings).unwrap();
+    let TwoActors { config, tasks, stop, links: [mut link0, mut link1], actors: [mut a0, mut a1], status, mut learner, .. } =
+        TwoActors::start();
     let members = || status.status().connected_actors;
 
     // Iteration 1: both deliver; the learner waits for the two it expects.
@@ -119,32 +143,8 @@ fn an_actor_left_without_a_newer_version_resends_after_its_timeout_then_waits_tw
 /// the other actor's environments.
 #[test]
 fn a_poisoned_rollout_and_one_for_another_actors_environments_are_refused_and_training_goes_on() {
-    let dir = tempfile::tempdir().unwrap();
-    let config = TrainConfig {
-        profile: "cpu".into(),
-        envs: Some(4),
-        ppo: Some(PpoConfig { n_steps: 16, batch_size: 32, n_epochs: 1, ..PpoConfig::default() }),
-        ..TrainConfig::default()
-    };
-    let tasks = LocalTasks::new(config.task_controller(4).unwrap(), None);
-    let stop = AtomicBool::new(false);
-    let settings = |name: &str| ActorSettings {
-        name: name.into(),
-        envs: 2,
-        seed: 1,
-        env: config.env,
-        n_steps: 16,
-        weights_timeout: Duration::from_secs(60),
-        max_rollouts: None,
-    };
-    let (mut link0, learner_end) = memory_link();
-    let mut link1 = link0.clone();
-    let mut a0 = ActorLoop::register(&settings("a0"), &tasks, &stop).unwrap().unwrap();
-    let mut a1 = ActorLoop::register(&settings("a1"), &tasks, &stop).unwrap().unwrap();
-    let status = std::sync::Arc::new(LearnerBoard::default());
-    let learner_settings = LearnerSettings { expected_actors: 2, actor_timeout_seconds: 0.3, ..LearnerSettings::default() };
-    let run = Run::create(config.clone(), dir.path()).unwrap();
-    let mut learner = LearnerProcess::start(run, None, learner_end, status.clone(), learner_settings).unwrap();
+    let TwoActors { config, tasks, stop, links: [mut link0, mut link1], actors: [mut a0, mut a1], status, mut learner, .. } =
+        TwoActors::start();
     let observation_dim = config.resolved_profile().unwrap().architecture.observation_dim;
     let epoch = status.status().learner_epoch;
 

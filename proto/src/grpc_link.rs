@@ -372,6 +372,11 @@ mod tests {
 
     /// A learner service on a local port for a run of 8 environments × 16 steps.
     fn learner(rt: &tokio::runtime::Runtime, images: bool, budget: usize) -> (String, Arc<ByteBudget>) {
+        learner_behind(rt, images, budget, &Security::default())
+    }
+
+    /// [`learner`] behind `security`'s token check.
+    fn learner_behind(rt: &tokio::runtime::Runtime, images: bool, budget: usize, security: &Security) -> (String, Arc<ByteBudget>) {
         let board = Arc::new(LearnerBoard::default());
         board.set_admission(Admission {
             learner_epoch: 1,
@@ -388,7 +393,8 @@ mod tests {
         std::mem::forget(link); // keeps the queue open for the test's lifetime
         let listener = rt.block_on(tokio::net::TcpListener::bind("127.0.0.1:0")).unwrap();
         let url = format!("http://{}", listener.local_addr().unwrap());
-        let server = Security::default().server().unwrap().add_service(service.into_server());
+        let service = tonic::service::interceptor::InterceptedService::new(service.into_server(), security.token_check());
+        let server = security.server().unwrap().add_service(service);
         let incoming = {
             let _runtime = rt.enter();
             crate::listener::incoming(listener)
@@ -400,12 +406,17 @@ mod tests {
     /// Pushes pre-encoded rollout bytes as one payload; the status, and the most bytes this
     /// process held above what it held before the push.
     fn push(rt: &tokio::runtime::Runtime, url: &str, bytes: Bytes) -> (Result<u64, Status>, usize) {
+        push_as(rt, url, bytes, "a", &Security::default())
+    }
+
+    /// [`push`] as `actor`, with `security`'s token.
+    fn push_as(rt: &tokio::runtime::Runtime, url: &str, bytes: Bytes, actor: &str, security: &Security) -> (Result<u64, Status>, usize) {
         let messages: Vec<v1::RolloutPart> = split(bytes)
             .into_iter()
-            .map(|(part, parts, data)| v1::RolloutPart { actor: "a".into(), learner_epoch: 1, policy_version: 0, part, parts, data })
+            .map(|(part, parts, data)| v1::RolloutPart { actor: actor.into(), learner_epoch: 1, policy_version: 0, part, parts, data })
             .collect();
         let _guard = rt.enter();
-        let mut client = learner_client(url, &Security::default()).unwrap();
+        let mut client = learner_client(url, security).unwrap();
         let before = HELD.load(Ordering::SeqCst);
         PEAK.store(before, Ordering::SeqCst);
         let answer = rt.block_on(client.push_rollouts(tokio_stream::iter(messages))).map(|r| r.into_inner().accepted);
@@ -464,6 +475,27 @@ mod tests {
         let status = answer.unwrap_err();
         assert_eq!(status.code(), tonic::Code::ResourceExhausted, "{status:?}");
         assert!(status.message().contains("budget"), "{}", status.message());
+    }
+
+    /// With one token for every actor, any actor could send rollouts under another's name. An
+    /// actor's own token sends under its name only.
+    #[test]
+    fn an_actor_token_pushes_under_its_own_name_only() {
+        let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let token_file = |name: &str, text: &str| {
+            let path = dir.path().join(name);
+            std::fs::write(&path, text).unwrap();
+            Security::load(&crate::NetworkConfig { token_file: Some(path), ..Default::default() }).unwrap()
+        };
+        let run = token_file("run", "s3cret");
+        let (url, _) = learner_behind(&rt, false, 64 << 20, &run);
+        let actor_b = token_file("b", &run.actor_token("b").unwrap());
+        let chunk = || Bytes::from(RolloutChunk::zeroed(0, 0, 2, 16, 3, 2).to_bytes());
+        let refused = push_as(&rt, &url, chunk(), "a", &actor_b).0.unwrap_err();
+        assert_eq!(refused.code(), tonic::Code::PermissionDenied, "{refused:?}");
+        assert_eq!(push_as(&rt, &url, chunk(), "b", &actor_b).0.unwrap(), 1);
+        assert_eq!(push_as(&rt, &url, chunk(), "a", &run).0.unwrap(), 1, "the run's token speaks for any actor");
     }
 
     #[test]
