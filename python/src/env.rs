@@ -27,7 +27,7 @@ use sim::camera::{IMAGE_PIXELS, IMAGE_SIDE};
 use sim::{ACTION_DIM, CrashCause, EnvConfig, EpisodeStats, RaceEnv, RandomizationParams, Track};
 use taskctl::{SwitchParams, SwitchPolicy, TaskController};
 
-use crate::inputs::{Int, MAX_ENVS, MAX_STEPS, MAX_SWITCH_WINDOW, Observation, finite_rows};
+use crate::inputs::{Float, Int, MAX_ENVS, MAX_STEPS, MAX_SWITCH_WINDOW, Observation, finite_rows};
 use crate::tracks::{PyTrack, resolve};
 
 /// Numbers of a body state row of `VecEnv.states`.
@@ -144,7 +144,8 @@ impl VecEnv {
     #[new]
     #[pyo3(signature = (num_envs, tracks = None, seed = Int::Value(0), switching = None, observation = "state",
                         rollout_steps = Int::Value(250), randomize = true, max_episode_steps = None,
-                        switch_window = Int::Value(600), switch_alpha = 1000.0, switch_probability = 1.616e-3),
+                        switch_window = Int::Value(600), switch_alpha = Float::Value(1000.0),
+                        switch_probability = Float::Value(1.616e-3)),
            // The defaults Python would otherwise see as `...` (an `Int`'s).
            text_signature = "(num_envs, tracks=None, seed=0, switching=None, observation=\"state\", rollout_steps=250, \
                              randomize=True, max_episode_steps=None, switch_window=600, switch_alpha=1000.0, \
@@ -161,13 +162,14 @@ impl VecEnv {
         randomize: bool,
         max_episode_steps: Option<Int>,
         switch_window: Int,
-        switch_alpha: f64,
-        switch_probability: f64,
+        switch_alpha: Float,
+        switch_probability: Float,
     ) -> PyResult<Self> {
         let num_envs = num_envs.within("num_envs", 1..=MAX_ENVS)?;
         let seed = seed.within("seed", 0..=u64::MAX)?;
         let rollout_steps = rollout_steps.within("rollout_steps", 1..=MAX_STEPS)?;
         let switch_window = switch_window.within("switch_window", 2..=MAX_SWITCH_WINDOW)?;
+        let (switch_alpha, switch_probability) = (switch_alpha.finite("switch_alpha")?, switch_probability.finite("switch_probability")?);
         let observation = Observation::parse(observation)?;
         let mut config = observation.env_config();
         if !randomize {

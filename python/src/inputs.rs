@@ -73,6 +73,44 @@ impl Int {
     }
 }
 
+/// A float argument as Python passed it, refused by [`Float::finite`] with the argument's
+/// name. Taken as an `f64`, an int beyond a float's range (`10**400`) would raise an
+/// `OverflowError` that names nothing.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Float {
+    /// A number.
+    Value(f64),
+    /// An int beyond a float's range.
+    Huge,
+    /// Not a number: its type's name.
+    Not(String),
+}
+
+impl<'py> FromPyObject<'_, 'py> for Float {
+    type Error = PyErr;
+
+    fn extract(obj: Borrowed<'_, 'py, PyAny>) -> PyResult<Self> {
+        match obj.extract::<f64>() {
+            Ok(v) => Ok(Self::Value(v)),
+            Err(e) if e.is_instance_of::<PyOverflowError>(obj.py()) => Ok(Self::Huge),
+            Err(_) => Ok(Self::Not(obj.get_type().name().map_or_else(|_| "?".to_owned(), |n| n.to_string()))),
+        }
+    }
+}
+
+impl Float {
+    /// The number if it is finite; else a `ValueError` (NaN, infinite, too large) or `TypeError`
+    /// (not a number) naming `name`.
+    pub fn finite(&self, name: &str) -> PyResult<f64> {
+        match self {
+            Self::Value(v) if v.is_finite() => Ok(*v),
+            Self::Value(v) => Err(PyValueError::new_err(format!("{name} is {v}, not a finite number"))),
+            Self::Huge => Err(PyValueError::new_err(format!("{name}: an int beyond a float's range, not a finite number"))),
+            Self::Not(kind) => Err(PyTypeError::new_err(format!("{name}: a number, not {kind}"))),
+        }
+    }
+}
+
 /// The rows of a float32 array of `cols` columns (and `rows` rows when given), every entry
 /// finite, in row order whatever the array's memory layout; a copy, so no numpy buffer is read
 /// once the interpreter's lock is released.

@@ -14,7 +14,7 @@ use sim::Track;
 use sim::nalgebra::Vector3;
 use sim::track::{MAX_COORDINATE, MAX_GATES};
 
-use crate::inputs::{Int, MAX_CONTROL_POINTS, MAX_TRACKS};
+use crate::inputs::{Float, Int, MAX_CONTROL_POINTS, MAX_TRACKS};
 
 /// A racetrack: gates in racing order, a start pose and an arena. Immutable.
 #[pyclass(name = "Track", module = "dronerace._core", frozen)]
@@ -174,11 +174,16 @@ pub fn validation_set(count: Int) -> PyResult<Vec<PyTrack>> {
 /// `coefficients` (`[xs, ys, zs]`, scipy's `tck[1]`) and `residual`, as `dronerace tracks fit`
 /// prints. At most 256 points, each coordinate within ±1000 m (a track's arena).
 #[pyfunction]
-#[pyo3(signature = (points, smoothing = 4.0))]
-pub fn fit<'py>(py: Python<'py>, points: Vec<[f64; 3]>, smoothing: f64) -> PyResult<Bound<'py, PyDict>> {
+#[pyo3(signature = (points, smoothing = Float::Value(4.0)), text_signature = "(points, smoothing=4.0)")]
+pub fn fit<'py>(py: Python<'py>, points: Vec<[Float; 3]>, smoothing: Float) -> PyResult<Bound<'py, PyDict>> {
     if points.len() > MAX_CONTROL_POINTS {
         return Err(PyValueError::new_err(format!("points: {} points; a fit takes at most {MAX_CONTROL_POINTS}", points.len())));
     }
+    let smoothing = smoothing.finite("smoothing")?;
+    let coordinate = |i: usize, p: &[Float; 3]| -> PyResult<[f64; 3]> {
+        Ok([p[0].finite(&format!("points[{i}][0]"))?, p[1].finite(&format!("points[{i}][1]"))?, p[2].finite(&format!("points[{i}][2]"))?])
+    };
+    let points = points.iter().enumerate().map(|(i, p)| coordinate(i, p)).collect::<PyResult<Vec<[f64; 3]>>>()?;
     // Beyond the arena's bounds chord lengths overflow to infinity (1e300 squared), and the fit
     // of infinite parameters has no answer.
     for (i, p) in points.iter().enumerate() {

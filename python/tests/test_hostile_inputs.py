@@ -84,6 +84,7 @@ def test_generating_with_counts_or_seeds_out_of_range_raises_naming_the_argument
     ("[(0, 0, 1), (5, 0, 1), (5, 5, float('nan')), (0, 5, 1)]", "points[2][2] is NaN"),
     ("[(0, 0, 1), (5, 0, 1), (5, 5, 2), (-1e4, 5, 1)]", "points[3][0] is -1e4"),
     ("[(np.cos(t), np.sin(t), 1.0) for t in np.linspace(0, 6, 257)]", "points: 257 points; a fit takes at most 256"),
+    ("[(0, 0, 1), (10**400, 0, 1), (5, 5, 2), (0, 5, 1)]", "points[1][0]: an int beyond a float's range"),
 ])
 def test_fit_with_huge_nan_or_too_many_points_raises_value_error_not_panic_exception(points, message):
     assert_refused(f"dronerace.tracks.fit({points})", ValueError, message)
@@ -95,6 +96,8 @@ def test_fit_with_huge_nan_or_too_many_points_raises_value_error_not_panic_excep
     ("core.VecEnv(2, rollout_steps=2**40)", "rollout_steps: 1099511627776 is outside 1..=1000000"),
     ("core.VecEnv(2, max_episode_steps=2**40)", "max_episode_steps: 1099511627776 is outside 1..=1000000"),
     ("core.VecEnv(2, switch_window=2**40)", "switch_window: 1099511627776 is outside 2..=10000"),
+    ("core.VecEnv(2, switch_alpha=10**400)", "switch_alpha: an int beyond a float's range"),
+    ("core.VecEnv(2, switch_probability=float('inf'))", "switch_probability is inf, not a finite number"),
 ])
 def test_a_vector_env_of_2_to_the_40_environments_or_steps_raises_value_error_not_panic(call, message):
     assert_refused(call, ValueError, message)
