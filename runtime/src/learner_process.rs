@@ -200,6 +200,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
     /// and one that was merely too old still shows its actor is alive: the actor is a member
     /// again, so the next iteration waits for it (a dropped actor slower than the others would
     /// otherwise never get back in).
+    ///
     /// A rollout for environments its sender does not hold (by the task controller's
     /// assignment, when there is one to ask) is refused and counted: an actor cannot train the
     /// policy on data it claims for another's environments.
