@@ -4,7 +4,6 @@
 #![allow(clippy::print_stdout, clippy::print_stderr)]
 
 mod commands;
-mod plot;
 mod signal;
 
 use clap::{Parser, Subcommand};
@@ -26,7 +25,6 @@ enum Command {
     Eval(commands::eval::EvalArgs),
     /// Write a checkpoint's policy (or the weight average of several) as a stand-alone weights
     /// blob, or as ONNX for other runtimes.
-    #[command(alias = "export-policy")]
     Export(commands::eval::ExportArgs),
     /// Serve a trained policy over gRPC (dronerace.v1.Pilot) for a flight stack.
     Serve(commands::serve::ServeArgs),
@@ -56,14 +54,8 @@ enum Command {
     /// Measure speed: the PPO step, the transports, the simulator, track generation.
     #[command(subcommand)]
     Bench(commands::bench::BenchCommand),
-    /// Measure rollout throughput and weight-broadcast latency (`bench transport`).
-    #[command(hide = true)]
-    TransportBench(commands::transport_bench::TransportBenchArgs),
     /// Kill -9 random processes of a training run for minutes, then audit what was lost.
     Chaos(commands::chaos::ChaosArgs),
-    /// Time one PPO gradient step (`bench learner`; this spelling is kept for scripts).
-    #[command(hide = true)]
-    LearnerBench(commands::train::LearnerBenchArgs),
     /// Draw runs' learning curves (training return, validation S_pw and success against env
     /// steps, the runs overlaid) from their metrics.csv.
     Plot(commands::curves::PlotArgs),
@@ -107,8 +99,6 @@ fn main() -> std::process::ExitCode {
         Command::Tasks(a) => commands::tasks::run(a),
         Command::Status(a) => commands::status::run(a),
         Command::Chaos(a) => commands::chaos::run(a),
-        Command::LearnerBench(a) => commands::train::bench(a),
-        Command::TransportBench(a) => commands::transport_bench::run(a),
         Command::Serve(a) => commands::serve::serve(a),
         Command::Export(a) => commands::eval::export(a),
         Command::Plot(a) => commands::curves::run(a),
@@ -118,8 +108,11 @@ fn main() -> std::process::ExitCode {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {}", error_message(&e));
-            let fatal = e.chain().any(|c| c.downcast_ref::<runtime::TrainError>().is_some_and(runtime::TrainError::is_fatal));
-            if fatal { std::process::ExitCode::from(commands::supervisor::EXIT_FATAL) } else { std::process::ExitCode::FAILURE }
+            let fatal = e.chain().any(|c| {
+                c.downcast_ref::<runtime::TrainError>().is_some_and(runtime::TrainError::is_fatal)
+                    || c.downcast_ref::<runtime::services::ServiceError>().is_some_and(runtime::services::ServiceError::is_fatal)
+            });
+            if fatal { std::process::ExitCode::from(runtime::supervisor::EXIT_FATAL) } else { std::process::ExitCode::FAILURE }
         }
     }
 }

@@ -470,3 +470,17 @@ fn plot_draws_the_learning_curves_of_runs_overlaid_and_names_a_missing_file() {
     let o = dronerace(&["plot", dir.path().join("missing").to_str().unwrap(), "--out", out.to_str().unwrap()]);
     assert!(!o.status.success() && stderr(&o).contains("missing/metrics.csv"), "{}", stderr(&o));
 }
+
+/// A run directory another live trainer holds is refused by name, before anything is written.
+#[test]
+fn train_refuses_a_run_directory_another_trainer_holds() {
+    let dir = tempfile::tempdir().unwrap();
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();
+    // This test process is alive: its claim is not stale.
+    std::fs::write(dir.path().join(runtime::run_lock::LOCK_FILE), format!("{} {}", host.trim(), std::process::id())).unwrap();
+    let out = dir.path().to_str().unwrap();
+    let o = dronerace(&["train", "--in-process", "--out", out, "--iterations", "1"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("is held by"), "{err}");
+    assert!(!dir.path().join("config.toml").exists() && !dir.path().join("checkpoints").exists(), "nothing written");
+}

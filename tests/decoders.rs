@@ -288,9 +288,9 @@ fn no_mutated_run_config_panics_its_checks() {
 
 #[test]
 fn no_mutated_act_request_panics_the_served_policy() {
-    use runtime::pilot::Pilot;
+    use serving::Pilot;
     let blob = tiny_learner().weights();
-    let pilot = runtime::pilot::PolicyPilot::new(std::sync::Arc::new(policy::Policy::from_blob(&blob).unwrap()));
+    let pilot = serving::PolicyPilot::new(std::sync::Arc::new(policy::Policy::from_blob(&blob).unwrap()));
     let valid = proto::v1::ActRequest { observation: vec![0.25; blob.architecture.observation_dim] }.encode_to_vec();
     fuzz(
         "gRPC ActRequest",
@@ -392,9 +392,9 @@ fn no_mutated_grpc_message_panics_its_decoders() {
 #[test]
 fn no_mutated_race_request_panics_the_served_race() {
     use proto::v1::race_request::Kind;
-    use runtime::pilot::{DroneState, Pilot};
+    use serving::{DroneState, Pilot};
     let blob = tiny_learner().weights();
-    let pilot = runtime::pilot::PolicyPilot::new(std::sync::Arc::new(policy::Policy::from_blob(&blob).unwrap()));
+    let pilot = serving::PolicyPilot::new(std::sync::Arc::new(policy::Policy::from_blob(&blob).unwrap()));
     let track = racetracks::track_to_toml(&racetracks::library_track("Figure8").unwrap().unwrap());
     let start = proto::v1::RaceRequest { kind: Some(Kind::Start(proto::v1::RaceStart { track_toml: track.clone() })) };
     fuzz(

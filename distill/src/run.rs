@@ -159,8 +159,7 @@ impl DistillConfig {
     /// Reads a config file over the defaults of the student it names; errors name the file and
     /// the field.
     pub fn read(path: &Path) -> anyhow::Result<Self> {
-        let text = racetracks::files::read_text_limited(path, racetracks::files::MAX_TEXT_FILE_BYTES)
-            .with_context(|| format!("reading {}", path.display()))?;
+        let text = durable::read_text_limited(path, durable::MAX_TEXT_FILE_BYTES).with_context(|| format!("reading {}", path.display()))?;
         let error = |e: runtime::overrides::OverrideError| anyhow::anyhow!("{}: {e}", path.display());
         let student = runtime::overrides::parse_over(&Self::default(), &text).map_err(error)?.student;
         runtime::overrides::parse_over(&Self::defaults_for(student), &text).map_err(error)
@@ -169,7 +168,7 @@ impl DistillConfig {
     /// Writes the config as TOML, atomically.
     pub fn write(&self, path: &Path) -> anyhow::Result<()> {
         let text = toml::to_string(self).context("serialising the config")?;
-        racetracks::files::write_atomic(path, text.as_bytes()).with_context(|| format!("writing {}", path.display()))
+        durable::write_atomic(path, text.as_bytes()).with_context(|| format!("writing {}", path.display()))
     }
 
     /// True when the teacher is the reference pilot.

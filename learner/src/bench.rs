@@ -15,7 +15,7 @@ use rand_distr::StandardNormal;
 
 use crate::config::{PpoConfig, Profile};
 use crate::learner::adam;
-use crate::ppo::update::{PpoNetwork, TrainingBatch, clip_grad_norm, clip_groups, flat_gradients, minibatch_loss};
+use crate::ppo::update::{PpoNetwork, TrainingBatch, clip_grad_norm, flat_gradients, minibatch_loss};
 
 /// Median times of the three stages (seconds) and the implied rate.
 #[derive(Clone, Copy, Debug)]
@@ -72,13 +72,13 @@ fn rendered_like_images(samples: usize, rng: &mut ChaCha8Rng) -> Vec<u8> {
 }
 
 /// Runs one warm-up and `repeats` timed gradient steps of `model`: `loss` is the forward pass
-/// and the loss, then backward, gradient-norm clipping over `ids` in clipping `groups`, Adam
+/// and the loss, then backward, gradient-norm clipping over `ids`, Adam
 /// with the profile's settings, and `force`, which reads a parameter so that the lazy update
 /// runs inside the timing. Returns median (forward, backward, optimiser) seconds.
 fn time_steps<M: Module>(
     profile: &Profile,
     mut model: M,
-    (ids, groups): (&[(ParamId, usize)], &[usize]),
+    ids: &[(ParamId, usize)],
     repeats: usize,
     loss: impl Fn(&M) -> Tensor<1>,
     force: impl Fn(&M),
@@ -94,7 +94,7 @@ fn time_steps<M: Module>(
         let grads = loss.backward();
         let t2 = Instant::now();
         let mut grads = GradientsParams::from_grads(grads, &model);
-        clip_grad_norm(&mut grads, ids, groups, config.max_grad_norm);
+        clip_grad_norm(&mut grads, ids, config.max_grad_norm);
         model = optimizer.step(config.learning_rate_start, model, grads);
         force(&model);
         let t3 = Instant::now();
@@ -121,10 +121,9 @@ pub fn time_gradient_step(profile: &Profile, samples: usize, repeats: usize, dev
     let batch = gaussian_batch(samples, arch.observation_dim, arch.action_dim, &mut ChaCha8Rng::seed_from_u64(0));
     let rows: Vec<usize> = (0..samples).collect();
     let ids = model.param_ids();
-    let (groups, _) = clip_groups(ids.len(), PpoNetwork::critic_param_count(&model), config);
     let loss = |model: &ActorCritic| minibatch_loss(model, batch.minibatch(&rows, None, device), config).0;
     let force = |model: &ActorCritic| drop(model.log_std.val().into_data());
-    let (forward, backward, optimizer) = time_steps(profile, model, (&ids, &groups), repeats, loss, force);
+    let (forward, backward, optimizer) = time_steps(profile, model, &ids, repeats, loss, force);
     let mut dims = vec![arch.observation_dim];
     dims.extend(&arch.hidden);
     let macs_per_sample: usize = dims.windows(2).map(|w| w[0] * w[1]).sum::<usize>() * 2
@@ -144,10 +143,9 @@ pub fn time_vision_gradient_step(profile: &Profile, samples: usize, repeats: usi
     batch.images = rendered_like_images(samples, &mut rng);
     let rows: Vec<usize> = (0..samples).collect();
     let ids = model.param_ids();
-    let (groups, _) = clip_groups(ids.len(), PpoNetwork::critic_param_count(&model), config);
     let loss = |model: &VisionActorCritic| minibatch_loss(model, batch.minibatch(&rows, None, device), config).0;
     let force = |model: &VisionActorCritic| drop(model.log_std.val().into_data());
-    let (forward, backward, optimizer) = time_steps(profile, model, (&ids, &groups), repeats, loss, force);
+    let (forward, backward, optimizer) = time_steps(profile, model, &ids, repeats, loss, force);
     let flops = 2.0 * 3.0 * (VisionActorCritic::macs_per_sample(arch) * samples) as f64;
     StepTiming { forward, backward, optimizer, gflops: flops / (forward + backward) / 1e9 }
 }

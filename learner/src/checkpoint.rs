@@ -136,13 +136,13 @@ impl Checkpoint {
 
     /// Writes atomically (a crash leaves the previous file intact).
     pub fn write(&self, path: &Path) -> Result<(), CheckpointError> {
-        racetracks::files::write_atomic(path, &self.to_bytes()).map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })
+        durable::write_atomic(path, &self.to_bytes()).map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })
     }
 
     /// Reads and verifies a checkpoint file.
     pub fn read(path: &Path) -> Result<Self, CheckpointError> {
-        let bytes = racetracks::files::read_limited(path, MAX_FILE_BYTES)
-            .map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })?;
+        let bytes =
+            durable::read_limited(path, MAX_FILE_BYTES).map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })?;
         Self::from_bytes(&bytes, path)
     }
 }
@@ -192,7 +192,7 @@ impl CheckpointDir {
         let dir = self.dir.join("validated");
         std::fs::create_dir_all(&dir).map_err(|source| CheckpointError::Io { file: dir.clone(), source })?;
         let path = dir.join(format!("v-{iteration:09}.bin"));
-        racetracks::files::write_atomic(&path, &policy.to_bytes()).map_err(|source| CheckpointError::Io { file: path.clone(), source })?;
+        durable::write_atomic(&path, &policy.to_bytes()).map_err(|source| CheckpointError::Io { file: path.clone(), source })?;
         let mut files = numbered_files(&dir, "v-").map_err(|source| CheckpointError::Io { file: dir.clone(), source })?;
         let later = files.split_off(files.iter().position(|p| *p > path).unwrap_or(files.len()));
         let stale = files.len().saturating_sub(keep.max(1));
@@ -224,8 +224,7 @@ fn numbered_files(dir: &Path, prefix: &str) -> std::io::Result<Vec<PathBuf>> {
 
 /// The policy in a checkpoint file or a bare weights blob file.
 pub fn read_policy(path: &Path) -> Result<policy::WeightsBlob, CheckpointError> {
-    let bytes =
-        racetracks::files::read_limited(path, MAX_FILE_BYTES).map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })?;
+    let bytes = durable::read_limited(path, MAX_FILE_BYTES).map_err(|source| CheckpointError::Io { file: path.to_path_buf(), source })?;
     // A checkpoint is a policy file with more in it: read as one, the rest is ignored.
     policy::WeightsBlob::from_bytes(&bytes)
         .map_err(|reason| CheckpointError::Corrupt { file: path.to_path_buf(), reason: reason.to_string() })

@@ -26,11 +26,6 @@ pub struct PpoConfig {
     pub ent_coef: f64,
     /// Gradient-norm limit. 0.5.
     pub max_grad_norm: f64,
-    /// Clip the policy's (actor and log std) and the value function's gradients to
-    /// `max_grad_norm` each, instead of their joint norm (SB3). With value targets of tens,
-    /// the critic's gradient dominates the joint norm and clipping it scales the policy's
-    /// step down with it. Default false.
-    pub clip_per_network: bool,
     /// Learning rate at the start of the run. 3e-4.
     pub learning_rate_start: f64,
     /// Learning rate at the end of the run (linear in between). 1e-5.
@@ -104,7 +99,6 @@ impl Default for PpoConfig {
             vf_coef: 0.5,
             ent_coef: 0.0,
             max_grad_norm: 0.5,
-            clip_per_network: false,
             learning_rate_start: 3e-4,
             learning_rate_end: 1e-5,
             weight_decay: 1e-5,

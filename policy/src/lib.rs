@@ -6,7 +6,6 @@ pub mod architecture;
 pub mod averaging;
 pub mod blob;
 pub mod dense;
-pub mod ensemble;
 pub mod inference;
 mod narrow;
 pub mod network;
@@ -23,7 +22,6 @@ pub use architecture::{Agent, Architecture};
 pub use blob::{BlobError, WeightsBlob};
 /// The burn device networks are built on (the CPU).
 pub use burn::tensor::Device;
-pub use ensemble::EnsembleController;
 pub use inference::{
     Acting, ActingPolicy, ControllerFactory, HALF_LN_2PI, Policy, PolicyController, VisionPolicy, VisionPolicyController,
     controller_factory, gaussian_log_prob,

@@ -165,6 +165,22 @@ pub struct LearnerService {
     budget: Arc<ByteBudget>,
 }
 
+/// Serves the learner's gRPC services (`dronerace.v1.Learner` with health and reflection) on
+/// `listener` until `shutdown`; call it inside the runtime that is to run the connections.
+pub async fn serve_learner(
+    listener: tokio::net::TcpListener,
+    security: Security,
+    service: LearnerService,
+    shutdown: impl std::future::Future<Output = ()>,
+) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
+    crate::with_discovery(security.server()?, &["dronerace.v1.Learner"], security.token_check())
+        .await
+        .add_service(InterceptedService::new(service.into_server(), security.token_check()))
+        .serve_with_incoming_shutdown(crate::listener::incoming(listener), shutdown)
+        .await?;
+    Ok(())
+}
+
 impl LearnerService {
     /// A service taking rollouts over gRPC, and the link the training loop reads them from;
     /// both read and write `board`. Rollouts between arrival and training hold at most

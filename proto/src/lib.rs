@@ -1,7 +1,8 @@
 //! `dronerace.v1`: the gRPC messages and services (generated from `proto/dronerace/v1`), and
 //! everything both ends of a connection must agree on: track conversion, the rollout/weights
-//! transports (iceoryx2 on one machine, gRPC across machines, memory within one process), message limits, TLS and tokens; and the gRPC adapters of the task controller (`task_grpc`, `task_client`).
+//! transports (iceoryx2 on one machine, gRPC across machines, memory within one process), message limits, TLS and tokens; and the gRPC adapters of the task controller (`task_grpc`, `task_client`) and of a served policy (`pilot_grpc`).
 
+pub mod bench;
 pub mod board;
 pub mod budget;
 pub mod chunking;
@@ -9,6 +10,7 @@ pub mod convert;
 pub mod grpc_link;
 pub mod listener;
 pub mod memory;
+pub mod pilot_grpc;
 pub mod refusal;
 pub mod security;
 pub mod shm;
@@ -26,7 +28,7 @@ pub mod v1 {
 pub const FILE_DESCRIPTOR_SET: &[u8] = tonic::include_file_descriptor_set!("dronerace_descriptor");
 
 pub use security::{NetworkConfig, Security, SecurityError};
-pub use transport::{ActorLink, Admission, Delivery, LearnerLink, LearnerStatus, LinkError, Received, Refusal, WeightsUpdate};
+pub use transport::{ActorLink, Admission, Delivery, LearnerLink, LearnerStatus, LinkError, Received, Refusal, Transport, WeightsUpdate};
 
 /// Fully-qualified names of the discovery services every dronerace server offers beside its own.
 pub const DISCOVERY_SERVICES: [&str; 3] =

@@ -6,6 +6,15 @@ use std::time::Duration;
 
 use policy::{ChunkLimits, RolloutChunk};
 
+/// How rollouts and weights travel between actors and the learner.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Transport {
+    /// iceoryx2 shared memory (actors on the learner's machine).
+    Shm,
+    /// gRPC streams (actors anywhere).
+    Grpc,
+}
+
 /// Weights as they travel to actors.
 #[derive(Clone, Debug, PartialEq)]
 pub struct WeightsUpdate {

@@ -34,7 +34,7 @@ impl PyPolicy {
     /// regular file of at most 256 MiB.
     #[staticmethod]
     fn load(path: PathBuf) -> PyResult<Self> {
-        let bytes = racetracks::files::read_limited(&path, MAX_POLICY_FILE_BYTES).map_err(|e| {
+        let bytes = durable::read_limited(&path, MAX_POLICY_FILE_BYTES).map_err(|e| {
             let message = format!("{}: {e}", path.display());
             if is_refusal(&e) { PyValueError::new_err(format!("path: {message}")) } else { PyOSError::new_err(message) }
         })?;

@@ -85,7 +85,7 @@ pub fn file_error(e: TrackFileError) -> PyErr {
     }
 }
 
-/// Whether a read failed because the file was refused (`racetracks::files::read_limited`: not a
+/// Whether a read failed because the file was refused (`durable::read_limited`: not a
 /// regular file, too large, not UTF-8) rather than unreadable.
 pub fn is_refusal(e: &std::io::Error) -> bool {
     matches!(e.kind(), std::io::ErrorKind::InvalidInput | std::io::ErrorKind::InvalidData)
@@ -112,7 +112,7 @@ pub fn library_names() -> PyResult<Vec<String>> {
 #[pyfunction]
 pub fn load(path: PathBuf) -> PyResult<PyTrack> {
     let track = if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("csv")) {
-        let text = racetracks::files::read_text_limited(&path, MAX_TRACK_FILE_BYTES as u64)
+        let text = durable::read_text_limited(&path, MAX_TRACK_FILE_BYTES as u64)
             .map_err(|source| file_error(TrackFileError::Io { file: path.clone(), source }))?;
         let name = path.file_stem().map_or_else(|| "track".into(), |s| s.to_string_lossy().into_owned());
         racetracks::track_from_csv(&name, &text, &path)

@@ -2,7 +2,6 @@
 //! spline (FITPACK-equivalent), the informed and uniform generators, and the held-out
 //! validation and test sets. Anything that only reads or makes tracks links this crate alone.
 
-pub mod files;
 pub mod generator;
 pub mod library;
 pub mod spline;

@@ -146,7 +146,7 @@ pub fn track_from_csv(name: &str, text: &str, file: &Path) -> Result<Track, Trac
 
 /// Reads and validates a track file.
 pub fn read_track(path: &Path) -> Result<Track, TrackFileError> {
-    let text = crate::files::read_text_limited(path, MAX_TRACK_FILE_BYTES as u64)
+    let text = durable::read_text_limited(path, MAX_TRACK_FILE_BYTES as u64)
         .map_err(|source| TrackFileError::Io { file: path.to_path_buf(), source })?;
     parse_track(&text, path)
 }
@@ -174,8 +174,7 @@ pub fn track_to_toml(track: &Track) -> String {
 
 /// Writes a track file atomically.
 pub fn write_track(track: &Track, path: &Path) -> Result<(), TrackFileError> {
-    crate::files::write_atomic(path, track_to_toml(track).as_bytes())
-        .map_err(|source| TrackFileError::Io { file: path.to_path_buf(), source })
+    durable::write_atomic(path, track_to_toml(track).as_bytes()).map_err(|source| TrackFileError::Io { file: path.to_path_buf(), source })
 }
 
 #[cfg(test)]

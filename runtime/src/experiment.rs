@@ -117,7 +117,7 @@ pub enum ExperimentError {
 impl Experiment {
     /// Reads and checks an experiment file: every variant's config must resolve.
     pub fn read(path: &Path) -> Result<Self, ExperimentError> {
-        let text = racetracks::files::read_text_limited(path, racetracks::files::MAX_TEXT_FILE_BYTES)
+        let text = durable::read_text_limited(path, durable::MAX_TEXT_FILE_BYTES)
             .map_err(|e| ExperimentError::Invalid(format!("{}: {e}", path.display())))?;
         let experiment: Self = toml::from_str(&text).map_err(|e| ExperimentError::Invalid(format!("{}: {e}", path.display())))?;
         experiment.check().map_err(|e| ExperimentError::Invalid(format!("{}: {e}", path.display())))?;
@@ -315,8 +315,7 @@ pub fn run_experiment(
             trainer.checkpoint().map_err(failed)?;
             let result = test_run(&trainer, &variant.name, seed, &experiment.test, validated).map_err(failed)?;
             let json = serde_json::to_vec_pretty(&result).map_err(|e| ExperimentError::Io(e.to_string()))?;
-            racetracks::files::write_atomic(&dir.join("test.json"), &json)
-                .map_err(|e| ExperimentError::Io(format!("{}: {e}", dir.display())))?;
+            durable::write_atomic(&dir.join("test.json"), &json).map_err(|e| ExperimentError::Io(format!("{}: {e}", dir.display())))?;
             log.finished.push(dir);
         }
     }

@@ -3,19 +3,21 @@
 //! process loops (`actor_process`, `learner_process`), training in one process by turns of
 //! those same loops over an in-memory link (`trainer`), experiment files (`experiment`), config
 //! files as overrides of a config's own defaults (`overrides`), the progress line (`progress`),
-//! and a trained policy serving actions without a
-//! transport (`pilot`). The processes' commands, their servers, the supervisor and the
-//! stop flag that SIGINT and SIGTERM raise are the binary's (`src/commands`, `src/signal.rs`).
+//! the three processes with their servers (`services`), the supervisor that runs them on one
+//! machine (`supervisor`) and the chaos test that kills them (`chaos`). The command line and
+//! the stop flag that SIGINT and SIGTERM raise are the binary's (`src/`).
 
 pub mod actor_process;
+pub mod chaos;
 pub mod experiment;
 pub mod learner_process;
 pub mod metrics;
 pub mod overrides;
-pub mod pilot;
 pub mod progress;
 pub mod run;
 pub mod run_lock;
+pub mod services;
+pub mod supervisor;
 pub mod trainer;
 pub mod validation;
 

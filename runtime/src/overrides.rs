@@ -13,7 +13,7 @@ use serde::de::DeserializeOwned;
 /// existed — `None` when any value was a choice — and the last commit that has the option
 /// (docs/notebook/generalist-rejected.md, "Options removed from the core"; the distillation's
 /// top-level ones: docs/notebook/vision.md).
-const RETIRED: [(&str, Option<&str>, &str); 17] = [
+const RETIRED: [(&str, Option<&str>, &str); 19] = [
     ("warm_start", None, "9b48c91"),
     ("privileged_critic", Some("false"), "4f9e33d"),
     ("env.obstacle_gates", Some("0"), "4f9e33d"),
@@ -31,7 +31,13 @@ const RETIRED: [(&str, Option<&str>, &str); 17] = [
     ("frame_widening", Some("\"zero\""), "2482eeb"),
     ("dataset_from", None, "2482eeb"),
     ("relabel", Some("false"), "2482eeb"),
+    ("env.controller_model", Some("\"nominal\""), "fd57bb4"),
+    ("ppo.clip_per_network", Some("false"), "fd57bb4"),
 ];
+
+/// Values removed from an option that stays: the dotted key, the value (TOML) and the last
+/// commit that takes it.
+const RETIRED_VALUES: [(&str, &str, &str); 1] = [("env.reward.progress_distance", "\"line\"", "fd57bb4")];
 
 /// Why a config file's text cannot be read as overrides of a config's defaults.
 #[derive(Debug, thiserror::Error)]
@@ -47,6 +53,18 @@ pub enum OverrideError {
         /// Its dotted key.
         key: &'static str,
         /// The last commit that has it.
+        commit: &'static str,
+    },
+    /// A value removed from an option that stays.
+    #[error(
+        "`{key} = {value}` was removed from dronerace (a rejected choice; it last ran at commit {commit}, and docs/notebook/ says why): choose another value"
+    )]
+    RetiredValue {
+        /// Its dotted key.
+        key: &'static str,
+        /// The removed value, as TOML.
+        value: &'static str,
+        /// The last commit that takes it.
         commit: &'static str,
     },
     /// An `[env]` observation key and its `[env.observation]` twin both set.
@@ -90,22 +108,38 @@ pub fn retire(text: &str) -> Result<Cow<'_, str>, OverrideError> {
             }
         }
     }
-    for (key, kept, commit) in RETIRED {
-        let (parents, last) = key.rsplit_once('.').map_or((None, key), |(p, l)| (Some(p), l));
-        let mut section = Some(&mut table);
-        for part in parents.into_iter().flat_map(|p| p.split('.')) {
-            section = section.and_then(|s| s.get_mut(part)).and_then(toml::Value::as_table_mut);
+    for (key, value, commit) in RETIRED_VALUES {
+        let (section, last) = section_of(&mut table, key);
+        if section.and_then(|s| s.get(last)) == toml_value(value).as_ref() {
+            return Err(OverrideError::RetiredValue { key, value, commit });
         }
+    }
+    for (key, kept, commit) in RETIRED {
+        let (section, last) = section_of(&mut table, key);
         let Some(section) = section else { continue };
         let Some(value) = section.get(last) else { continue };
-        let default = kept.and_then(|k| toml::from_str::<toml::Table>(&format!("v = {k}")).ok()).and_then(|t| t.get("v").cloned());
-        if default.as_ref() != Some(value) {
+        if kept.and_then(toml_value).as_ref() != Some(value) {
             return Err(OverrideError::Retired { key, commit });
         }
         section.remove(last);
         removed = true;
     }
     Ok(if removed { Cow::Owned(toml::to_string(&table).map_err(toml_error)?) } else { Cow::Borrowed(text) })
+}
+
+/// The table that holds dotted `key` in `table` (if every parent is a table) and the key's last part.
+fn section_of<'a>(table: &'a mut toml::Table, key: &'a str) -> (Option<&'a mut toml::Table>, &'a str) {
+    let (parents, last) = key.rsplit_once('.').map_or((None, key), |(p, l)| (Some(p), l));
+    let mut section = Some(table);
+    for part in parents.into_iter().flat_map(|p| p.split('.')) {
+        section = section.and_then(|s| s.get_mut(part)).and_then(toml::Value::as_table_mut);
+    }
+    (section, last)
+}
+
+/// A TOML value written as text (`"nominal"`, `0.0`, `{ frames = 1 }`).
+fn toml_value(text: &str) -> Option<toml::Value> {
+    toml::from_str::<toml::Table>(&format!("v = {text}")).ok().and_then(|mut t| t.remove("v"))
 }
 
 /// Merges `overrides` into `table`: tables key by key, anything else replaced.
@@ -186,6 +220,18 @@ mod tests {
         let saved = "[env]\nobservation_frame = \"body\"\nline_points = 2\nobstacle_gates = 0\n";
         let config = parse_over(&Tiny::default(), saved).unwrap();
         assert_eq!((config.env.observation.frame, config.env.observation.line_points), (sim::ObservationFrame::Body, 2));
+        // The rejected controller model and per-network clipping, and one value of an option.
+        let saved = "[env]\ncontroller_model = \"nominal\"\n[ppo]\nclip_per_network = false\n";
+        assert!(!retire(saved).unwrap().contains("controller_model"));
+        for (text, key) in [
+            ("[env]\ncontroller_model = \"compensating\"\n", "env.controller_model"),
+            ("[ppo]\nclip_per_network = true\n", "ppo.clip_per_network"),
+            ("[env.reward]\nprogress_distance = \"line\"\n", "env.reward.progress_distance"),
+        ] {
+            let err = retire(text).unwrap_err().to_string();
+            assert!(err.contains(key) && err.contains("fd57bb4"), "{err}");
+        }
+        assert!(retire("[env.reward]\nprogress_distance = \"centre\"\n").is_ok());
         let both = "[env]\nline_points = 2\n[env.observation]\nline_points = 3\n";
         assert!(parse_over(&Tiny::default(), both).unwrap_err().to_string().contains("one setting"));
     }

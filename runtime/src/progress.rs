@@ -5,8 +5,6 @@ use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use anyhow::Context;
-
 use learner::learner::IterationReport;
 
 /// What one iteration produced, for the progress line.
@@ -36,6 +34,17 @@ pub struct IterationSummary {
     pub validation: Option<(f64, f64)>,
 }
 
+/// `train.log` could not be opened or written.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: {source}", file.display())]
+pub struct LogError {
+    /// The log file.
+    pub file: PathBuf,
+    /// What the system said.
+    #[source]
+    pub source: std::io::Error,
+}
+
 /// `train.log` of a run directory, opened for appending.
 pub struct ProgressLog {
     path: PathBuf,
@@ -43,17 +52,25 @@ pub struct ProgressLog {
 }
 
 impl ProgressLog {
+    /// Shows `line` on the terminal and appends it to the log.
+    #[allow(clippy::print_stderr, reason = "the progress line is the training's own terminal output")]
+    pub fn report(&mut self, line: &str) -> Result<(), LogError> {
+        eprintln!("{line}");
+        self.append(line)
+    }
+
     /// Opens (or creates) `dir/train.log`.
-    pub fn open(dir: &Path) -> anyhow::Result<Self> {
+    pub fn open(dir: &Path) -> Result<Self, LogError> {
         let path = dir.join("train.log");
-        let file =
-            std::fs::OpenOptions::new().create(true).append(true).open(&path).with_context(|| format!("opening {}", path.display()))?;
-        Ok(Self { path, file })
+        match std::fs::OpenOptions::new().create(true).append(true).open(&path) {
+            Ok(file) => Ok(Self { path, file }),
+            Err(source) => Err(LogError { file: path, source }),
+        }
     }
 
     /// Appends `line` to the log (the command shows it on its terminal too).
-    pub fn append(&mut self, line: &str) -> anyhow::Result<()> {
-        writeln!(self.file, "{line}").with_context(|| format!("writing {}", self.path.display()))
+    pub fn append(&mut self, line: &str) -> Result<(), LogError> {
+        writeln!(self.file, "{line}").map_err(|source| LogError { file: self.path.clone(), source })
     }
 }
 

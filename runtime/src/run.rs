@@ -186,7 +186,7 @@ impl TrainConfig {
 
     /// Reads a config file; errors name the file and the field.
     pub fn read(path: &Path) -> Result<Self, TrainError> {
-        let text = racetracks::files::read_text_limited(path, racetracks::files::MAX_TEXT_FILE_BYTES)
+        let text = durable::read_text_limited(path, durable::MAX_TEXT_FILE_BYTES)
             .map_err(|source| TrainError::Io { file: path.to_path_buf(), source })?;
         Self::from_toml(&text).map_err(|e| match e {
             TrainError::Config(message) => TrainError::Config(format!("{}: {message}", path.display())),
@@ -471,7 +471,7 @@ impl Run {
             )));
         }
         let text = toml::to_string(&config).map_err(|e| TrainError::Encoding { what: "config".into(), reason: e.to_string() })?;
-        racetracks::files::write_atomic(&dir.join("config.toml"), text.as_bytes())
+        durable::write_atomic(&dir.join("config.toml"), text.as_bytes())
             .map_err(|source| TrainError::Io { file: dir.join("config.toml"), source })?;
         let metrics = MetricsWriter::open(dir).map_err(|source| TrainError::Io { file: dir.to_path_buf(), source })?;
         let progress = Progress { iteration: 0, wall_seconds: 0.0, best_return: None, best_validation: None };
@@ -485,7 +485,7 @@ impl Run {
     pub fn open(dir: &Path) -> Result<(Self, Checkpoint), TrainError> {
         let config = TrainConfig::read(&dir.join("config.toml"))?;
         let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
-        for stale in racetracks::files::remove_stale_temporaries(checkpoints.dir())
+        for stale in durable::remove_stale_temporaries(checkpoints.dir())
             .map_err(|source| TrainError::Io { file: checkpoints.dir().to_path_buf(), source })?
         {
             tracing::warn!("removed {}, left by a checkpoint write that was cut off", stale.display());
@@ -696,7 +696,7 @@ impl Run {
             policy
         };
         let path = self.checkpoints.best();
-        racetracks::files::write_atomic(&path, &best.to_bytes()).map_err(|source| TrainError::Io { file: path.clone(), source })
+        durable::write_atomic(&path, &best.to_bytes()).map_err(|source| TrainError::Io { file: path.clone(), source })
     }
 
     /// Estimated seconds to the end of the run after `env_steps`, from the smoothed training

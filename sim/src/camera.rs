@@ -452,8 +452,8 @@ mod tests {
 
     #[test]
     fn the_brightest_gate_moves_on_when_the_target_is_passed() {
-        use crate::pilot::{Controller, PilotParams, ReferencePilot};
         use crate::race::{EnvConfig, RaceEnv};
+        use crate::reference_pilot::{Controller, PilotParams, ReferencePilot};
         let t = std::sync::Arc::new(track(&[
             ([4.0, 0.0, 2.0], 0.0),
             ([10.0, 4.0, 2.0], 1.2),

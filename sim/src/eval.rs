@@ -7,8 +7,8 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::observation::ObservationLayout;
-use crate::pilot::Controller;
 use crate::race::{CrashCause, EnvConfig, RaceEnv};
+use crate::reference_pilot::Controller;
 use crate::track::Track;
 use crate::vec_env::ACTION_DIM;
 
@@ -484,7 +484,7 @@ impl EvalReport {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pilot::ReferencePilot;
+    use crate::reference_pilot::ReferencePilot;
     use crate::track::{Arena, Gate};
     use nalgebra::Vector3;
 

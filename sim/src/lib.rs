@@ -6,12 +6,12 @@ pub mod eval;
 pub mod mirror;
 pub mod observation;
 pub mod params;
-pub mod pilot;
 pub mod quadrotor;
 pub mod race;
 pub mod racer;
 pub mod racing_line;
 pub mod randomization;
+pub mod reference_pilot;
 pub mod replay;
 pub mod reward;
 pub mod seed;
@@ -26,11 +26,11 @@ pub use observation::{
     STATE_OBS_DIM, TARGET_CORNERS_RANGE,
 };
 pub use params::{GRAVITY, QuadrotorParams, RaceParams};
-pub use pilot::{Controller, PilotMemory, PilotParams, ReferencePilot};
-pub use race::{ControllerModel, CrashCause, EnvConfig, EpisodeStats, RaceEnv, StepOutcome};
+pub use race::{CrashCause, EnvConfig, EpisodeStats, RaceEnv, StepOutcome};
 pub use racer::Racer;
 pub use racing_line::{FrameClearance, LinePoint, PathLimits, RacingLine};
 pub use randomization::RandomizationParams;
+pub use reference_pilot::{Controller, PilotMemory, PilotParams, ReferencePilot};
 pub use reward::{ProgressDistance, RewardParams, RewardTerms};
 pub use track::{Arena, Gate, Pose, Track};
 pub use vec_env::{ACTION_DIM, VecEnv};

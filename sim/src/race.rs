@@ -18,20 +18,6 @@ use crate::randomization::RandomizationParams;
 use crate::reward::{ActionFilter, ProgressDistance, RewardParams, RewardTerms, StepFacts};
 use crate::track::Track;
 
-/// What the low-level flight controller believes about the randomised vehicle.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ControllerModel {
-    /// The nominal vehicle, whatever was drawn: a ±20 % thrust-map draw is a ±20 % error in
-    /// collective thrust that the policy must absorb without observing it.
-    #[default]
-    Nominal,
-    /// The drawn vehicle (mass, inertia, thrust map), as Flightmare's `Quadrotor::updateDynamics`
-    /// hands its controller: commanded collective thrust and body-rate responses come out as
-    /// commanded. Drag and command delay stay unmodelled.
-    Compensating,
-}
-
 /// Radius (m) of the collision sphere the state-based agent trains with: a crash 0.25 m from a
 /// frame instead of SPEC §2's 0.15 m, so that training asks for room between the line and the
 /// frames. Validation, tests and `dronerace eval` keep 0.15 m ([`EnvConfig::evaluation`]).
@@ -45,8 +31,6 @@ pub const TRAINING_COLLISION_RADIUS: f64 = 0.25;
 pub struct EnvConfig {
     /// Nominal vehicle; actions map to commands with these values.
     pub quadrotor: QuadrotorParams,
-    /// What the low-level controller believes under randomisation. Default nominal.
-    pub controller_model: ControllerModel,
     /// What the observation holds (`[env.observation]`). Default: SPEC §5's 40 numbers in the
     /// heading frame, which on the test set beat SPEC §5's world frame fourfold
     /// (docs/notebook/generalist.md, "Observation frame").
@@ -63,7 +47,6 @@ impl Default for EnvConfig {
     fn default() -> Self {
         Self {
             quadrotor: QuadrotorParams::default(),
-            controller_model: ControllerModel::default(),
             observation: ObservationLayout::spec(ObservationFrame::Heading),
             randomization: RandomizationParams::default(),
             race: RaceParams::default(),
@@ -221,11 +204,9 @@ impl RaceEnv {
     pub fn reset(&mut self) {
         let c = &self.config;
         let draw = c.randomization.sample(&c.quadrotor, &self.track.start, c.race.substep(), &mut self.rng);
-        let model = match c.controller_model {
-            ControllerModel::Nominal => c.quadrotor,
-            ControllerModel::Compensating => draw.plant,
-        };
-        self.quad = Quadrotor::new(model, draw.plant, draw.start);
+        // The flight controller believes the nominal vehicle whatever was drawn (SPEC §2): a
+        // thrust-map draw is an error in collective thrust the policy must absorb unobserved.
+        self.quad = Quadrotor::new(c.quadrotor, draw.plant, draw.start);
         self.delay_substeps = draw.delay_substeps;
         // Before the first action arrives the flight controller holds a hover.
         self.previous_command = Command::hover();
@@ -258,14 +239,10 @@ impl RaceEnv {
     /// [`RaceEnv::step`] with a double-precision action, for exact replays.
     pub fn step_f64(&mut self, action: &[f64; 4]) -> StepOutcome {
         let action = action.map(|a| a.clamp(-1.0, 1.0));
-        let (target, gate) = (self.target, self.track.gates[self.target]);
+        let gate = self.track.gates[self.target];
         let start = self.quad.body.position;
         let measure = self.config.reward.progress_distance;
-        let line = (measure == ProgressDistance::Line).then(|| self.racing_line());
-        let distance = |p: &Vector3<f64>| match &line {
-            Some(line) => line.remaining_on_leg(p, target),
-            None => measure.to_gate(&gate, p),
-        };
+        let distance = |p: &Vector3<f64>| measure.to_gate(&gate, p);
         let distance_before = distance(&start);
 
         let command = Command::from_action(&action, &self.config.quadrotor);
@@ -636,12 +613,12 @@ mod tests {
 
     /// Hovers for 2 s on a vehicle whose mass and thrust map were drawn away from nominal;
     /// returns (altitude change, drawn mass / nominal, drawn thrust coefficient / nominal).
-    fn hover_under_a_draw(model: ControllerModel, seed: u64) -> (f64, f64, f64) {
+    fn hover_under_a_draw(seed: u64) -> (f64, f64, f64) {
         let gates = vec![Gate::new(Vector3::new(0.0, 0.0, 2.0), 0.0), Gate::new(Vector3::new(6.0, 0.0, 2.0), 0.0)];
         let start = Pose { position: Vector3::new(-8.0, -8.0, 3.0), yaw: 0.0 };
         let track = Track::new("hover", gates, Some(start), Arena::default()).unwrap();
         let randomization = RandomizationParams { mass: 0.2, thrust_map: 0.2, ..RandomizationParams::none() };
-        let config = EnvConfig { randomization, controller_model: model, ..EnvConfig::default() };
+        let config = EnvConfig { randomization, ..EnvConfig::default() };
         let mut env = RaceEnv::new(Arc::new(track), config, seed, 0);
         let action = hover_action(&env);
         for _ in 0..100 {
@@ -652,12 +629,9 @@ mod tests {
     }
 
     #[test]
-    fn compensating_controller_model_holds_a_hover_under_a_mass_and_thrust_map_draw() {
+    fn the_nominal_controller_climbs_or_sinks_under_a_mass_and_thrust_map_draw() {
         for seed in 0..4 {
-            let (dz, mass, thrust) = hover_under_a_draw(ControllerModel::Compensating, seed);
-            assert!(dz.abs() < 0.02, "seed {seed}: drifted {dz} m (mass ×{mass:.3}, thrust map ×{thrust:.3})");
-            let (dz_nominal, m2, t2) = hover_under_a_draw(ControllerModel::Nominal, seed);
-            assert_eq!((mass, thrust), (m2, t2), "both models fly the same draw");
+            let (dz_nominal, mass, thrust) = hover_under_a_draw(seed);
             // The nominal controller commands the nominal hover thrust: with thrust map ×k and
             // mass ×m the vehicle accelerates by g (k/m − 1), and climbs or sinks accordingly.
             let excess = thrust / mass - 1.0;

@@ -1,7 +1,7 @@
 //! The racing line: a closed cubic Hermite path through a track's gate centres (tangent = gate
 //! normal), kept clear of the frames and the arena walls (through a detour waypoint where one
 //! segment a leg cannot), with a speed profile limited by lateral and longitudinal acceleration.
-//! The reference pilot flies it ([`crate::pilot`]); the race environment reads it for the line
+//! The reference pilot flies it ([`crate::reference_pilot`]); the race environment reads it for the line
 //! observation ([`RacingLine`]).
 
 use nalgebra::Vector3;
@@ -421,15 +421,6 @@ impl RacingLine {
             .map_or(first, |(_, k)| k)
     }
 
-    /// The distance from `p` to gate `target` along the line: to the nearest sample of the leg
-    /// into that gate, then along the line to the leg's end, the gate's centre (m).
-    pub fn remaining_on_leg(&self, p: &Vector3<f64>, target: usize) -> f64 {
-        let k = self.nearest_on_leg(p, target);
-        let end = (k / SAMPLES_PER_SEGMENT + 1) * SAMPLES_PER_SEGMENT;
-        let end_arc = if end == self.points.len() { self.length } else { self.arc[end] };
-        (self.points[k].position - p).norm() + end_arc - self.arc[k]
-    }
-
     /// The point `distance` metres of arc after sample `from`, round the closed loop
     /// (interpolated between samples).
     pub fn ahead(&self, from: usize, distance: f64) -> Vector3<f64> {
@@ -549,18 +540,6 @@ pub(crate) mod tests {
             let other = track.next_index(target);
             assert_eq!(line.points()[line.nearest_on_leg(&p, other)].target, other);
         }
-        // Along the line the remaining distance falls by the arc flown and ends at the gate.
-        let k = SAMPLES_PER_SEGMENT + 20;
-        let (here, further) = (line.points()[k].position, line.points()[k + 100].position);
-        let target = line.points()[k].target;
-        let flown = line.arc[k + 100] - line.arc[k];
-        assert!((line.remaining_on_leg(&here, target) - line.remaining_on_leg(&further, target) - flown).abs() < 1e-9);
-        let gate = track.gates[target].position;
-        let near_gate = line.points()[k / SAMPLES_PER_SEGMENT * SAMPLES_PER_SEGMENT + SAMPLES_PER_SEGMENT - 1].position;
-        assert!((line.remaining_on_leg(&near_gate, target) - (gate - near_gate).norm()).abs() < 1e-3);
-        // Off the line it adds the way back to it.
-        let off = here + Vector3::new(0.0, 0.0, 0.5);
-        assert!((line.remaining_on_leg(&off, target) - line.remaining_on_leg(&here, target) - 0.5).abs() < 1e-9);
         // Walking ahead: zero metres is the sample itself, a whole loop comes back to it, and a
         // short step lands at that distance (chord ≈ arc on a smooth line).
         for k in [0, 57, line.points().len() - 1] {

@@ -33,16 +33,10 @@ pub enum ProgressDistance {
     /// test set's gates) pays the detour as negative progress; here the detour is progress.
     /// Beyond the thesis.
     Approach,
-    /// Along the reference pilot's racing line ([`crate::RacingLine::remaining_on_leg`]): to the
-    /// nearest point of the leg into the target gate, then along the line to the gate's centre.
-    /// Progress is then paid for following a way round the frames the line keeps clear of.
-    /// Measured by [`crate::RaceEnv`], which holds the line. Beyond the thesis.
-    Line,
 }
 
 impl ProgressDistance {
-    /// The distance from `p` to `gate` under this measure (m); `Line` needs the track's line,
-    /// so here it is the straight distance (which it equals at the gate).
+    /// The distance from `p` to `gate` under this measure (m).
     pub fn to_gate(self, gate: &Gate, p: &Vector3<f64>) -> f64 {
         let offset = p - gate.position;
         let normal = gate.normal();

@@ -13,8 +13,8 @@ pub struct PlotArgs {
 
 /// Reads every run's curves, then draws them.
 pub fn run(args: PlotArgs) -> anyhow::Result<()> {
-    let runs = args.runs.iter().map(|r| crate::plot::RunCurves::read(r)).collect::<anyhow::Result<Vec<_>>>()?;
-    crate::plot::draw_run_curves(&runs, &args.out)?;
+    let runs = args.runs.iter().map(|r| figures::plot::RunCurves::read(r)).collect::<Result<Vec<_>, _>>()?;
+    figures::plot::draw_run_curves(&runs, &args.out)?;
     println!("wrote {}", args.out.display());
     Ok(())
 }

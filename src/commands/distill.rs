@@ -103,7 +103,7 @@ fn distil(dir: &Path, config: Option<DistillConfig>, rounds: Option<u64>, stop: 
     eprintln!("distilling in {} (from round {first})", dir.display());
     while !distiller.finished() && !stop.load(Ordering::SeqCst) && rounds.is_none_or(|n| distiller.round() - first < n) {
         let s = distiller.round_step()?;
-        super::report(&mut log, &progress_line(&s, distiller.config().rounds))?;
+        log.report(&progress_line(&s, distiller.config().rounds))?;
     }
     let path = distiller.checkpoint()?;
     eprintln!("checkpoint written to {} ({:.0} s of distillation so far)", path.display(), distiller.wall_seconds());

@@ -53,10 +53,9 @@ pub struct EvalArgs {
     /// Seed of the start perturbations.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Checkpoint or weights blob of the policy to fly; several state-based ones fly as an
-    /// ensemble, the mean of their actions.
-    #[arg(long, num_args = 1..)]
-    policy: Vec<PathBuf>,
+    /// Checkpoint or weights blob of the policy to fly.
+    #[arg(long)]
+    policy: Option<PathBuf>,
     /// TOML file of the reference pilot's tuning (`sim::PilotParams`; every field optional),
     /// to fly a retuned pilot (with `--controller pilot`).
     #[arg(long)]
@@ -90,24 +89,15 @@ fn read_policies(paths: &[PathBuf]) -> anyhow::Result<Vec<policy::WeightsBlob>> 
     paths.iter().map(|path| learner::checkpoint::read_policy(path).with_context(|| format!("reading {}", path.display()))).collect()
 }
 
-/// The mean action of several state-based policies, with a name for reports.
-fn ensemble_factory(paths: &[PathBuf]) -> anyhow::Result<(String, ControllerFactory)> {
-    let blobs = read_policies(paths)?;
-    let ensemble = policy::EnsembleController::from_blobs(&blobs).context("an ensemble takes state-based policies")?;
-    let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
-    Ok((format!("ensemble of {} policies ({})", paths.len(), names.join(", ")), ensemble.factory()))
-}
-
 /// Runs the evaluation, prints the table and writes JSON and Markdown.
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.runs > 0, "--runs must be at least 1");
     anyhow::ensure!(args.steps > 0, "--steps must be at least 1");
     let tracks = load_tracks(&args.tracks)?;
     let config = EvalConfig { runs: args.runs, steps: args.steps, seed: args.seed, ..EvalConfig::default() };
-    let kind = ControllerKind::resolve(args.controller, !args.policy.is_empty())?;
+    let kind = ControllerKind::resolve(args.controller, args.policy.is_some())?;
     let (name, make) = match (&args.pilot_tuning, kind) {
-        (None, ControllerKind::Policy) if args.policy.len() > 1 => ensemble_factory(&args.policy)?,
-        (None, kind) => controller_factory(kind, args.policy.first().map(PathBuf::as_path))?,
+        (None, kind) => controller_factory(kind, args.policy.as_deref())?,
         (Some(path), ControllerKind::Pilot) => {
             let text = read_text(path).with_context(|| format!("reading {}", path.display()))?;
             let params = runtime::overrides::parse_over(&::sim::PilotParams::default(), &text)

@@ -78,7 +78,7 @@ pub fn run(command: ExperimentCommand) -> anyhow::Result<()> {
 fn report(experiment: &Experiment, dir: &std::path::Path) -> anyhow::Result<()> {
     let summaries = summarise(experiment, dir)?;
     write_atomic(&dir.join("report.md"), markdown_report(experiment, &summaries).as_bytes())?;
-    crate::plot::draw_validation_curves(&summaries, &dir.join("curves.png"))?;
+    figures::plot::draw_validation_curves(&summaries, &dir.join("curves.png"))?;
     println!("wrote {} and {}", dir.join("report.md").display(), dir.join("curves.png").display());
     if experiment.sequential {
         for &seed in &experiment.seeds {
@@ -88,7 +88,7 @@ fn report(experiment: &Experiment, dir: &std::path::Path) -> anyhow::Result<()> 
             }
             let path = dir.join(format!("tracks-seed-{seed}.png"));
             let stages: Vec<&str> = experiment.variants.iter().map(|v| v.name.as_str()).collect();
-            crate::plot::draw_track_curves(
+            figures::plot::draw_track_curves(
                 &curves,
                 &boundaries,
                 &format!("validation success per track; stages {}", stages.join(" > ")),

@@ -11,7 +11,6 @@ pub mod render;
 pub mod serve;
 pub mod sim;
 pub mod status;
-pub mod supervisor;
 pub mod tasks;
 pub mod token;
 pub mod tracks;
@@ -23,6 +22,24 @@ use std::sync::Arc;
 
 use ::sim::Track;
 use anyhow::Context;
+
+/// How rollouts travel between the actor processes and the learner (`--transport`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum TransportArg {
+    /// iceoryx2 shared memory (actors on the learner's machine).
+    Shm,
+    /// gRPC streams (actors anywhere).
+    Grpc,
+}
+
+impl From<TransportArg> for proto::Transport {
+    fn from(arg: TransportArg) -> Self {
+        match arg {
+            TransportArg::Shm => proto::Transport::Shm,
+            TransportArg::Grpc => proto::Transport::Grpc,
+        }
+    }
+}
 
 /// Tracks from files and directories of `*.toml`; the built-in library when `paths` is empty.
 pub fn load_tracks(paths: &[PathBuf]) -> anyhow::Result<Vec<Arc<Track>>> {
@@ -39,22 +56,30 @@ pub fn client_security(config: Option<&Path>) -> anyhow::Result<proto::Security>
     Ok(proto::Security::load(&network)?)
 }
 
-/// Shows a progress line on the terminal and appends it to the run's `train.log`.
-pub fn report(log: &mut runtime::progress::ProgressLog, line: &str) -> anyhow::Result<()> {
-    eprintln!("{line}");
-    log.append(line)
-}
-
 /// Writes `contents` to `path` atomically, creating parent directories.
 pub fn write_atomic(path: &Path, contents: &[u8]) -> anyhow::Result<()> {
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
     }
-    racetracks::files::write_atomic(path, contents).with_context(|| format!("writing {}", path.display()))
+    durable::write_atomic(path, contents).with_context(|| format!("writing {}", path.display()))
 }
 
 /// A text file a command is given, read whole if it is a regular file of at most
-/// [`racetracks::files::MAX_TEXT_FILE_BYTES`].
+/// [`durable::MAX_TEXT_FILE_BYTES`].
 pub fn read_text(path: &Path) -> std::io::Result<String> {
-    racetracks::files::read_text_limited(path, racetracks::files::MAX_TEXT_FILE_BYTES)
+    durable::read_text_limited(path, durable::MAX_TEXT_FILE_BYTES)
+}
+
+/// Comma-separated finite numbers; a bad one is named by its column.
+pub fn parse_numbers(text: &str) -> anyhow::Result<Vec<f64>> {
+    text.split(',')
+        .enumerate()
+        .map(|(i, field)| {
+            let field = field.trim();
+            match field.parse::<f64>() {
+                Ok(x) if x.is_finite() => Ok(x),
+                _ => anyhow::bail!("column {}: {field:?} is not a finite number", i + 1),
+            }
+        })
+        .collect()
 }

@@ -9,7 +9,7 @@ use anyhow::{Context, bail};
 use clap::Subcommand;
 use rand::{Rng, SeedableRng};
 
-use super::{load_tracks, read_text, write_atomic};
+use super::{load_tracks, parse_numbers, read_text, write_atomic};
 
 /// Simulator subcommands.
 #[derive(Subcommand)]
@@ -107,20 +107,6 @@ fn parse_start(text: &str) -> anyhow::Result<Pose> {
         bail!("--start {text:?}: expected x,y,z,yaw_deg (4 numbers), found {}", values.len());
     };
     Ok(Pose { position: Vector3::new(x, y, z), yaw: yaw_deg.to_radians() })
-}
-
-/// Comma-separated finite numbers; a bad one is named by its column.
-pub(super) fn parse_numbers(text: &str) -> anyhow::Result<Vec<f64>> {
-    text.split(',')
-        .enumerate()
-        .map(|(i, field)| {
-            let field = field.trim();
-            match field.parse::<f64>() {
-                Ok(x) if x.is_finite() => Ok(x),
-                _ => bail!("column {}: {field:?} is not a finite number", i + 1),
-            }
-        })
-        .collect()
 }
 
 /// Reads one 4-number action per line; blank lines and `#` comments are skipped, and so is a

@@ -11,7 +11,7 @@ use racetracks::{GeneratorKind, TrackGenParams, TrackGenerator};
 use taskctl::{SwitchParams, TaskController};
 
 use super::{load_tracks, read_text};
-use crate::plot::Layout;
+use figures::plot::Layout;
 
 /// Track subcommands.
 #[derive(Subcommand)]
@@ -131,7 +131,7 @@ pub fn run(command: TracksCommand) -> anyhow::Result<()> {
         TracksCommand::Show { files, out, gallery } => {
             let tracks = load_tracks(&files)?;
             let layout = if gallery { Layout::Gallery } else { Layout::TopAndSide };
-            crate::plot::draw_tracks(&tracks, &out, layout)?;
+            figures::plot::draw_tracks(&tracks, &out, layout)?;
             println!("wrote {} ({} tracks)", out.display(), tracks.len());
             Ok(())
         }

@@ -12,8 +12,9 @@ use learner::checkpoint::CheckpointDir;
 use runtime::progress::{ProgressLog, progress_line};
 use runtime::{TrackSource, TrainConfig, Trainer};
 
-use super::processes::Transport;
-use super::supervisor::{self, ClusterPlan};
+use runtime::supervisor::{self, ClusterPlan};
+
+use super::TransportArg;
 
 /// Arguments of `dronerace train`.
 #[derive(Args)]
@@ -51,8 +52,8 @@ pub struct TrainArgs {
     #[arg(long)]
     actors: Option<usize>,
     /// How rollouts travel between the actor processes and the learner.
-    #[arg(long, value_enum, default_value_t = Transport::Shm)]
-    transport: Transport,
+    #[arg(long, value_enum, default_value_t = TransportArg::Shm)]
+    transport: TransportArg,
     /// Run everything in this one process (no services; for debugging and tests).
     #[arg(long, conflicts_with_all = ["actors"])]
     in_process: bool,
@@ -116,65 +117,15 @@ fn prepare(args: &TrainArgs) -> anyhow::Result<(PathBuf, TrainConfig, bool)> {
 /// Runs `dronerace train` in the mode the flags choose.
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let (dir, config, resume) = prepare(&args)?;
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    // One trainer per run directory at a time, as experiment runners claim theirs: two would
+    // write the same checkpoints and metrics.
+    let _claim = runtime::run_lock::RunLock::acquire(&dir)?;
     if args.in_process {
         return in_process(&dir, config, resume, args.iterations);
     }
     let actors = args.actors.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     with_processes(&dir, config, resume, actors, args.transport, args.iterations)
-}
-
-/// Arguments of `dronerace bench learner`.
-#[derive(Args)]
-pub struct LearnerBenchArgs {
-    /// Profile whose network and PPO settings are timed.
-    #[arg(long, default_value = "paper", value_parser = ["cpu", "paper"])]
-    profile: String,
-    /// Samples per gradient step.
-    #[arg(long, default_value_t = 4096)]
-    samples: usize,
-    /// Timed steps (after one warm-up).
-    #[arg(long, default_value_t = 5)]
-    repeats: usize,
-    /// burn backend: flex, or ndarray in a build with `--features ndarray` / `openblas`.
-    #[arg(long, default_value = "flex")]
-    backend: String,
-    /// Hidden layer widths instead of the profile's, e.g. `128,128` (to match another
-    /// program's network in a side-by-side comparison).
-    #[arg(long, value_delimiter = ',')]
-    hidden: Option<Vec<usize>>,
-    /// `state`: the MLP actor-critic; `vision`: the CNN actor on 84×84 images (SPEC §5) with
-    /// the profile's MLP widths.
-    #[arg(long, default_value = "state", value_parser = ["state", "vision"])]
-    agent: String,
-}
-
-/// Times forward, backward and the optimiser step of one PPO gradient step.
-pub fn bench(args: LearnerBenchArgs) -> anyhow::Result<()> {
-    let mut profile = learner::Profile::named(&args.profile).with_context(|| format!("--profile: unknown profile {:?}", args.profile))?;
-    anyhow::ensure!(args.samples > 0 && args.repeats > 0, "--samples and --repeats must be at least 1");
-    if let Some(hidden) = args.hidden {
-        anyhow::ensure!(!hidden.is_empty() && !hidden.contains(&0), "--hidden: widths must be at least 1, e.g. 128,128");
-        profile.architecture.hidden = hidden;
-    }
-    let device = learner::bench::device(&args.backend).context("--backend")?;
-    let t = match parse_agent(&args.agent)? {
-        policy::Agent::State => learner::bench::time_gradient_step(&profile, args.samples, args.repeats, &device),
-        policy::Agent::Vision => learner::bench::time_vision_gradient_step(&profile, args.samples, args.repeats, &device),
-    };
-    println!(
-        "{} {} profile {:?}, {} samples, {} backend, {} threads: forward {:.1} ms, backward {:.1} ms, optimiser {:.1} ms, {:.1} GFLOP/s (forward+backward)",
-        args.agent,
-        profile.name,
-        profile.architecture.hidden,
-        args.samples,
-        args.backend,
-        rayon::current_num_threads(),
-        t.forward * 1e3,
-        t.backward * 1e3,
-        t.optimizer * 1e3,
-        t.gflops
-    );
-    Ok(())
 }
 
 /// Trains with supervised processes until the budget is spent, `iterations` are done, or
@@ -185,7 +136,7 @@ fn with_processes(
     config: TrainConfig,
     resume: bool,
     actors: usize,
-    transport: Transport,
+    transport: TransportArg,
     iterations: Option<u64>,
 ) -> anyhow::Result<()> {
     let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
@@ -200,10 +151,11 @@ fn with_processes(
         let _ = std::fs::remove_file(dir.join("taskctl.snapshot"));
         let text = toml::to_string(&config).context("serialising the config")?;
         let path = dir.join("config.toml");
-        racetracks::files::write_atomic(&path, text.as_bytes()).with_context(|| format!("writing {}", path.display()))?;
+        durable::write_atomic(&path, text.as_bytes()).with_context(|| format!("writing {}", path.display()))?;
     }
     let envs = config.resolved_profile()?.envs;
-    supervisor::run(ClusterPlan { dir: dir.to_path_buf(), actors, envs, transport, iterations })
+    let stop = stop_flag()?;
+    Ok(supervisor::run(ClusterPlan { dir: dir.to_path_buf(), actors, envs, transport: transport.into(), iterations }, &stop)?)
 }
 
 /// Trains in this process, by turns of the actor's and the learner's loops, until the budget is
@@ -221,7 +173,7 @@ fn in_process(dir: &Path, config: TrainConfig, resume: bool, iterations: Option<
     eprintln!("training in {} (from iteration {first}, in one process)", trainer.dir().display());
     while !trainer.finished() && !stop.load(Ordering::SeqCst) && iterations.is_none_or(|n| trainer.iteration() - first < n) {
         let s = trainer.iteration_step()?;
-        super::report(&mut log, &progress_line(&s, trainer.eta_seconds()))?;
+        log.report(&progress_line(&s, trainer.eta_seconds()))?;
     }
     let path = trainer.checkpoint()?;
     eprintln!("checkpoint written to {}", path.display());

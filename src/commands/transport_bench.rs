@@ -1,29 +1,16 @@
-//! `dronerace transport-bench`: rollout throughput (MB/s) and weight-broadcast latency of the
-//! iceoryx2 and gRPC transports, and the learner's capacity as actors grow: `--actors N`
-//! concurrent actor connections (threads of this process, each with its own link — the same
-//! shared-memory segments or loopback sockets N processes would use) sending to one learner end,
-//! with the CPU time of the learner's threads alone.
+//! `dronerace bench transport`: rollout throughput (MB/s) and weight-broadcast latency of the
+//! iceoryx2 and gRPC transports, and the learner's capacity as actors grow (`proto::bench`).
 
-#![allow(clippy::print_stdout, clippy::print_stderr, reason = "a command whose output is its report")]
-
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Barrier};
-use std::time::{Duration, Instant};
-
-use anyhow::Context;
 use clap::Args;
-use proto::grpc_link::{GrpcActorLink, LearnerService};
-use proto::shm::{ShmActorLink, ShmConfig, ShmLearnerLink};
-use proto::{ActorLink, Admission, LearnerLink, Received, Security, WeightsUpdate};
 
-use super::processes::Transport;
+use super::TransportArg;
 
-/// Arguments of `dronerace transport-bench`.
+/// Arguments of `dronerace bench transport`.
 #[derive(Args)]
 pub struct TransportBenchArgs {
     /// Transport to measure.
-    #[arg(long, value_enum, default_value_t = Transport::Shm)]
-    transport: Transport,
+    #[arg(long, value_enum, default_value_t = TransportArg::Shm)]
+    transport: TransportArg,
     /// Environments per rollout chunk.
     #[arg(long, default_value_t = 48)]
     envs: usize,
@@ -44,197 +31,32 @@ pub struct TransportBenchArgs {
     broadcasts: usize,
 }
 
-/// Name prefix of the threads that do the learner's side of a transport (besides the thread
-/// that receives), so that their CPU time can be told from the simulated actors'.
-const LEARNER_THREADS: &str = "learner-rpc";
-
-fn chunk(envs: usize, steps: usize) -> policy::RolloutChunk {
-    let mut chunk = policy::RolloutChunk::zeroed(0, 0, envs, steps, sim::STATE_OBS_DIM, sim::ACTION_DIM);
-    // Varied values, so nothing compresses or short-cuts a run of zeros.
-    chunk.observations.iter_mut().enumerate().for_each(|(i, x)| *x = (i % 97) as f32 * 0.01);
-    chunk
-}
-
-/// CPU seconds (user + system) of this process's threads whose name starts with `prefix`, plus
-/// the calling thread's.
-fn learner_cpu_seconds(prefix: &str) -> f64 {
-    // SAFETY: sysconf and gettid have no preconditions.
-    let (ticks, me) = unsafe { (libc::sysconf(libc::_SC_CLK_TCK) as f64, libc::gettid()) };
-    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else { return f64::NAN };
-    let mut total = 0.0;
-    for task in tasks.flatten() {
-        let path = task.path();
-        let name = std::fs::read_to_string(path.join("comm")).unwrap_or_default();
-        let mine = task.file_name().to_str().and_then(|t| t.parse::<i32>().ok()) == Some(me);
-        if !mine && !name.starts_with(prefix) {
-            continue;
-        }
-        // Fields after the parenthesised name: state is field 3, utime 14, stime 15.
-        let stat = std::fs::read_to_string(path.join("stat")).unwrap_or_default();
-        let fields: Vec<&str> = stat.rsplit_once(')').map(|(_, rest)| rest.split_whitespace().collect()).unwrap_or_default();
-        let field = |i: usize| fields.get(i - 3).and_then(|f| f.parse::<f64>().ok()).unwrap_or(0.0);
-        total += (field(14) + field(15)) / ticks;
-    }
-    total
-}
-
-/// The learner end runs on this thread; each of `args.actors` actor ends on a thread of its own,
-/// opened there by `make_actor`: first every broadcast is timed until the last actor holds it,
-/// then the actors send `args.chunks` rollout chunks between them.
-fn measure<L: LearnerLink>(
-    args: &TransportBenchArgs,
-    mut learner: L,
-    make_actor: impl Fn() -> anyhow::Result<Box<dyn ActorLink>> + Send + Sync + 'static,
-) -> anyhow::Result<()> {
-    let payload = Arc::new(chunk(args.envs, args.steps));
-    let bytes = payload.to_bytes().len();
-    let (actors, chunks, broadcasts) = (args.actors, args.chunks, args.broadcasts as u64);
-    // The version every actor waits for; each reports when its link holds it.
-    let wanted = Arc::new(AtomicU64::new(0));
-    let (arrived_tx, arrived_rx) = std::sync::mpsc::channel::<Instant>();
-    let connected = Arc::new(Barrier::new(actors + 1));
-    let done = Arc::new(AtomicBool::new(false));
-    let make_actor = Arc::new(make_actor);
-    // Waiting actors poll; all of them together about 20,000 times a second, whatever their
-    // number (64 threads each polling every 50 µs took the two cores from the learner).
-    let poll = Duration::from_micros(50 * actors as u64);
-    let mut threads = Vec::new();
-    for a in 0..actors {
-        let (payload, wanted, arrived_tx, connected, done, make_actor) =
-            (payload.clone(), wanted.clone(), arrived_tx.clone(), connected.clone(), done.clone(), make_actor.clone());
-        let share = chunks / actors + usize::from(a < chunks % actors);
-        let thread = std::thread::Builder::new().name(format!("actor-{a}")).spawn(move || -> anyhow::Result<()> {
-            let link = make_actor();
-            connected.wait();
-            let mut link = link?;
-            for version in 1..=broadcasts {
-                while wanted.load(Ordering::SeqCst) < version {
-                    std::thread::sleep(poll);
-                }
-                loop {
-                    if let Some(w) = link.newest_weights()?
-                        && w.version == version
-                    {
-                        arrived_tx.send(Instant::now()).ok();
-                        break;
-                    }
-                    std::thread::sleep(poll);
-                }
-            }
-            let name = format!("bench-{a}");
-            for _ in 0..share {
-                link.send_rollout(&name, 0, &payload)?;
-            }
-            while !done.load(Ordering::SeqCst) {
-                std::thread::sleep(Duration::from_millis(5));
-            }
-            Ok(())
-        })?;
-        threads.push(thread);
-    }
-    connected.wait();
-    // Let the actors' ends connect before timing.
-    std::thread::sleep(Duration::from_millis(500));
-    let blob = vec![7u8; args.weights_bytes];
-    let mut latencies = Vec::new();
-    for version in 1..=broadcasts {
-        let sent = Instant::now();
-        learner.publish(&WeightsUpdate { learner_epoch: 0, version, max_policy_lag: 0, blob: blob.clone() })?;
-        wanted.store(version, Ordering::SeqCst);
-        let mut last = sent;
-        for _ in 0..actors {
-            last = last.max(arrived_rx.recv_timeout(Duration::from_secs(20)).context("a weights broadcast never arrived")?);
-        }
-        latencies.push(last - sent);
-    }
-    let (observation_dim, action_dim) = (sim::STATE_OBS_DIM, sim::ACTION_DIM);
-    learner.admit(Admission {
-        learner_epoch: 0,
-        version: 0,
-        max_policy_lag: 0,
-        observation_dim,
-        action_dim,
-        images: false,
-        total_envs: args.envs,
-        rollout_steps: args.steps,
-    });
-    let mut received = 0;
-    let mut started = None;
-    while received < chunks {
-        let received_now = learner.receive(Duration::from_secs(20))?.context("a rollout chunk never arrived")?;
-        started.get_or_insert_with(|| (Instant::now(), learner_cpu_seconds(LEARNER_THREADS)));
-        match received_now {
-            Received::Rollout(d) => received += usize::from(d.chunk.transitions() == args.envs * args.steps),
-            Received::Refused { refusal, .. } => anyhow::bail!("the learner's end refused a benchmark chunk: {refusal}"),
-        }
-    }
-    // The first arrival starts the clock, so `chunks - 1` transfers are timed.
-    let (seconds, cpu) =
-        started.map_or((f64::NAN, f64::NAN), |(t, cpu)| (t.elapsed().as_secs_f64(), learner_cpu_seconds(LEARNER_THREADS) - cpu));
-    done.store(true, Ordering::SeqCst);
-    for thread in threads {
-        thread.join().map_err(|_| anyhow::anyhow!("an actor thread panicked"))??;
-    }
-    latencies.sort();
-    let ms = |d: Duration| d.as_secs_f64() * 1e3;
-    let megabytes = (chunks - 1) as f64 * bytes as f64 / 1e6;
+/// Measures one transport and prints what it found.
+pub fn run(args: TransportBenchArgs) -> anyhow::Result<()> {
+    let bench = proto::bench::TransportBench {
+        transport: args.transport.into(),
+        envs: args.envs,
+        steps: args.steps,
+        chunks: args.chunks,
+        actors: args.actors,
+        weights_bytes: args.weights_bytes,
+        broadcasts: args.broadcasts,
+        rollout_memory_bytes: runtime::run::LearnerSettings::default().rollout_memory_mib << 20,
+    };
+    let t = proto::bench::measure_transport(&bench)?;
     println!(
-        "{:?}, {actors} actor(s): rollouts {chunks} × {:.2} MB: {:.0} MB/s ({:.1} chunks/s, encode + send + decode), learner CPU {:.2} s per GB; weights {:.2} MB to {actors}: until the last holds them p50 {:.3} ms, p99 {:.3} ms",
-        args.transport,
-        bytes as f64 / 1e6,
-        megabytes / seconds,
-        (chunks - 1) as f64 / seconds,
-        cpu / megabytes * 1e3,
-        args.weights_bytes as f64 / 1e6,
-        ms(latencies[latencies.len() / 2]),
-        ms(latencies[(latencies.len() * 99 / 100).min(latencies.len() - 1)])
+        "{:?}, {} actor(s): rollouts {} × {:.2} MB: {:.0} MB/s ({:.1} chunks/s, encode + send + decode), learner CPU {:.2} s per GB; weights {:.2} MB to {}: until the last holds them p50 {:.3} ms, p99 {:.3} ms",
+        bench.transport,
+        bench.actors,
+        bench.chunks,
+        t.chunk_bytes as f64 / 1e6,
+        t.megabytes_per_second,
+        t.chunks_per_second,
+        t.learner_cpu_seconds_per_gb,
+        bench.weights_bytes as f64 / 1e6,
+        bench.actors,
+        t.broadcast_p50 * 1e3,
+        t.broadcast_p99 * 1e3
     );
     Ok(())
-}
-
-/// Measures one transport.
-pub fn run(args: TransportBenchArgs) -> anyhow::Result<()> {
-    anyhow::ensure!(args.chunks >= 2 && args.broadcasts >= 1, "--chunks must be ≥ 2 and --broadcasts ≥ 1");
-    anyhow::ensure!(args.actors >= 1, "--actors must be ≥ 1");
-    match args.transport {
-        Transport::Shm => {
-            let config = ShmConfig { run: format!("bench-{}", std::process::id()), max_actors: args.actors };
-            let learner = ShmLearnerLink::open(&config)?;
-            measure(&args, learner, move || Ok(Box::new(ShmActorLink::open(&config)?) as Box<dyn ActorLink>))
-        }
-        Transport::Grpc => {
-            // The learner's server and the actors' clients on runtimes of their own, so that the
-            // learner's CPU time can be read off its threads.
-            let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).thread_name(LEARNER_THREADS).enable_all().build()?;
-            let actors_rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).thread_name("actors-rpc").enable_all().build()?;
-            let listener = std::net::TcpListener::bind("127.0.0.1:0")?;
-            let addr = listener.local_addr()?;
-            listener.set_nonblocking(true)?;
-            let board = Arc::new(proto::board::LearnerBoard::default());
-            let (service, link) =
-                LearnerService::with_rollouts(board.clone(), runtime::run::LearnerSettings::default().rollout_memory_mib << 20);
-            board.set_admission(proto::Admission {
-                learner_epoch: 0,
-                version: 0,
-                max_policy_lag: 0,
-                observation_dim: sim::STATE_OBS_DIM,
-                action_dim: sim::ACTION_DIM,
-                images: false,
-                total_envs: args.envs,
-                rollout_steps: args.steps,
-            });
-            let security = Security::default();
-            let router = security.server()?.add_service(service.into_server());
-            let incoming = {
-                let _guard = rt.enter();
-                proto::listener::incoming(tokio::net::TcpListener::from_std(listener)?)
-            };
-            rt.spawn(router.serve_with_incoming(incoming));
-            let handle = actors_rt.handle().clone();
-            let url = format!("http://{addr}");
-            measure(&args, link, move || {
-                Ok(Box::new(GrpcActorLink::connect(handle.clone(), &url, &Security::default())?) as Box<dyn ActorLink>)
-            })
-        }
-    }
 }

@@ -418,8 +418,7 @@ impl TaskController {
 
     /// Writes [`TaskController::to_snapshot_bytes`] atomically: a temporary file, fsync, rename.
     pub fn snapshot(&self, path: &Path) -> Result<(), SnapshotError> {
-        racetracks::files::write_atomic(path, &self.to_snapshot_bytes())
-            .map_err(|source| SnapshotError::Io { file: path.to_path_buf(), source })
+        durable::write_atomic(path, &self.to_snapshot_bytes()).map_err(|source| SnapshotError::Io { file: path.to_path_buf(), source })
     }
 
     /// Reads a snapshot file, refusing anything truncated, altered or of another format.

@@ -195,7 +195,7 @@ impl LocalTasks {
         let mut next = guard.clone();
         let out = change(&mut next)?;
         if let Some(file) = &self.snapshot {
-            let written = racetracks::files::write_atomic(file, &next.to_snapshot_bytes());
+            let written = durable::write_atomic(file, &next.to_snapshot_bytes());
             let mut failed = self.failed_snapshots.lock();
             match written {
                 Ok(()) => failed.0 = 0,

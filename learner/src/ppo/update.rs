@@ -341,7 +341,7 @@ pub fn update<N: PpoNetwork>(
     let mut mirror_sum = 0.0;
     let mut indices: Vec<usize> = (0..batch.len()).collect();
     let ids = model.param_ids();
-    let (groups, critic) = clip_groups(ids.len(), model.critic_param_count(), config);
+    let critic = critic_range(ids.len(), model.critic_param_count());
     // The mirror term moves the policy, so it is left out while only the critic trains.
     let mirror = step.mirror.filter(|_| step.train_policy);
     // Frozen layers take no step, so their outputs are the same in every epoch: computed once
@@ -369,7 +369,7 @@ pub fn update<N: PpoNetwork>(
             if !step.train_policy {
                 drop_gradients(&mut grads, ids.iter().enumerate().filter(|(i, _)| !critic.contains(i)).map(|(_, id)| *id));
             }
-            let squares = clip_grad_norm(&mut grads, &ids, &groups, config.max_grad_norm);
+            let squares = clip_grad_norm(&mut grads, &ids, config.max_grad_norm);
             model = optimizer.step(step.learning_rate, model, grads);
             stats.add_step(parts, &squares, critic.clone(), config.clip_range);
         }
@@ -389,13 +389,10 @@ fn first_rows(t: Tensor<2>, n: usize) -> Tensor<2> {
     if n < t.dims()[0] { t.narrow(0, 0, n) } else { t }
 }
 
-/// The clipping group of each of `params` parameters in export order (the actor's, then the
-/// critic's `critic_params`, then the log std): all 0 (SB3's global clipping), or the critic's
-/// 1 with `clip_per_network`; and the critic's index range.
-pub fn clip_groups(params: usize, critic_params: usize, config: &PpoConfig) -> (Vec<usize>, std::ops::Range<usize>) {
-    let critic = params - 1 - critic_params..params - 1;
-    let groups = (0..params).map(|i| usize::from(config.clip_per_network && critic.contains(&i))).collect();
-    (groups, critic)
+/// The critic's parameters' index range among `params` in export order (the actor's, then the
+/// critic's `critic_params`, then the log std).
+pub fn critic_range(params: usize, critic_params: usize) -> std::ops::Range<usize> {
+    params - 1 - critic_params..params - 1
 }
 
 /// Runs `$body` with `$D` bound to a parameter's rank as a constant: 1, 2, or 4 (convolution
@@ -419,12 +416,11 @@ macro_rules! with_rank {
     };
 }
 
-/// Gradient-norm clipping (torch `clip_grad_norm_`) over groups of parameters of rank 1, 2 or
-/// 4 (convolution kernels): `groups[i]` is
-/// the group of `ids[i]`, and each group whose norm exceeds `max` is scaled by
-/// `max / (norm + 1e-6)` on its own (one group: SB3's global clipping). Returns each
-/// parameter's squared gradient norm before clipping, in `ids` order.
-pub fn clip_grad_norm(grads: &mut GradientsParams, ids: &[(ParamId, usize)], groups: &[usize], max: f64) -> Vec<f64> {
+/// Gradient-norm clipping over all parameters at once (torch `clip_grad_norm_`, SB3's global
+/// clipping) for parameters of rank 1, 2 or 4 (convolution kernels): when the joint norm
+/// exceeds `max`, every gradient is scaled by `max / (norm + 1e-6)`. Returns each parameter's
+/// squared gradient norm before clipping, in `ids` order.
+pub fn clip_grad_norm(grads: &mut GradientsParams, ids: &[(ParamId, usize)], max: f64) -> Vec<f64> {
     let squares: Vec<f64> = ids
         .iter()
         .map(|&(id, rank)| {
@@ -432,14 +428,12 @@ pub fn clip_grad_norm(grads: &mut GradientsParams, ids: &[(ParamId, usize)], gro
             f64::from(sum.unwrap_or(0.0))
         })
         .collect();
-    let group_count = groups.iter().max().map_or(0, |g| g + 1);
-    let mut group_squares = vec![0.0; group_count];
-    for (square, &group) in squares.iter().zip(groups) {
-        group_squares[group] += square;
-    }
-    for (&(id, rank), &group) in ids.iter().zip(groups) {
-        let coefficient = max / (group_squares[group].sqrt() + 1e-6);
-        if coefficient < 1.0 {
+    // Summed in parameter order from 0, as the grouped clipping this replaced did: learning
+    // stays the same bit for bit.
+    let total = squares.iter().fold(0.0, |sum, square| sum + square);
+    let coefficient = max / (total.sqrt() + 1e-6);
+    if coefficient < 1.0 {
+        for &(id, rank) in ids {
             with_rank!(rank, D => if let Some(g) = grads.remove::<D>(id) {
                 grads.register(id, g.mul_scalar(coefficient));
             });
@@ -505,8 +499,7 @@ mod tests {
         let loss = model.log_std.val().sum().mul_scalar(3.0);
         let mut grads = GradientsParams::from_grads(loss.backward(), &model);
         // Only log_std has a gradient: norm = 3·√4 = 6.
-        let global = vec![0; ids.len()];
-        let norm = clip_grad_norm(&mut grads, &ids, &global, 0.5).iter().sum::<f64>().sqrt();
+        let norm = clip_grad_norm(&mut grads, &ids, 0.5).iter().sum::<f64>().sqrt();
         assert!((norm - 6.0).abs() < 1e-5, "{norm}");
         let (log_std_id, _) = *ids.last().unwrap();
         let clipped = grads.get::<1>(log_std_id).unwrap().into_data().try_into_vec::<f32>().unwrap();
@@ -516,33 +509,11 @@ mod tests {
         // Below the limit nothing changes.
         let loss = model.log_std.val().sum().mul_scalar(0.1);
         let mut grads = GradientsParams::from_grads(loss.backward(), &model);
-        let squares = clip_grad_norm(&mut grads, &ids, &global, 0.5);
+        let squares = clip_grad_norm(&mut grads, &ids, 0.5);
         assert!((squares.iter().sum::<f64>().sqrt() - 0.2).abs() < 1e-6);
         assert!(squares[..squares.len() - 1].iter().all(|&s| s == 0.0), "only log std has a gradient");
         let g = grads.get::<1>(log_std_id).unwrap().into_data().try_into_vec::<f32>().unwrap();
         assert!(g.iter().all(|x| (x - 0.1).abs() < 1e-7));
-    }
-
-    /// Two groups: the large one is clipped to the limit, the small one left alone.
-    #[test]
-    fn grouped_clipping_scales_each_group_on_its_own() {
-        let device = Device::flex().autodiff();
-        let arch = policy::Architecture { hidden: vec![3], ..policy::Architecture::paper() };
-        let model = ActorCritic::new(&arch, -0.5, 1, &device);
-        let ids = model.param_ids();
-        // loss = 3 Σ log_std + 0.01 Σ critic output bias: gradients 3 (×4) and 0.01.
-        let (critic_bias, _) = ids[ids.len() - 2];
-        let loss = model.log_std.val().sum().mul_scalar(3.0) + model.critic.forward(Tensor::zeros([1, 40], &device)).sum().mul_scalar(0.01);
-        let mut grads = GradientsParams::from_grads(loss.backward(), &model);
-        let mut groups = vec![0; ids.len()];
-        groups[ids.len() - 2] = 1;
-        groups[ids.len() - 3] = 1;
-        clip_grad_norm(&mut grads, &ids, &groups, 0.5);
-        let (log_std_id, _) = *ids.last().unwrap();
-        let policy_grad = grads.get::<1>(log_std_id).unwrap().into_data().try_into_vec::<f32>().unwrap();
-        assert!(policy_grad.iter().all(|g| (f64::from(*g) - 3.0 * 0.5 / (6.0 + 1e-6)).abs() < 1e-6), "{policy_grad:?}");
-        let value_grad = grads.get::<1>(critic_bias).unwrap().into_data().try_into_vec::<f32>().unwrap();
-        assert!((value_grad[0] - 0.01).abs() < 1e-7, "the small group is untouched: {value_grad:?}");
     }
 
     /// A batch of 40-number `states` whose advantages are all zero: the surrogate has no

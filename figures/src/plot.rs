@@ -5,11 +5,12 @@
 use std::path::Path;
 use std::sync::{Arc, Once};
 
-use anyhow::Context;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use sim::nalgebra::Vector3;
 use sim::{ReferencePilot, Track};
+
+use crate::FigureError;
 
 /// How tracks are laid out.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -45,20 +46,22 @@ const START: RGBColor = RGBColor(20, 140, 60);
 const ARENA: RGBColor = RGBColor(90, 90, 90);
 
 /// Draws every track into one PNG, in a grid of about square shape.
-pub fn draw_tracks(tracks: &[Arc<Track>], out: &Path, layout: Layout) -> anyhow::Result<()> {
-    anyhow::ensure!(!tracks.is_empty(), "no tracks to draw");
+pub fn draw_tracks(tracks: &[Arc<Track>], out: &Path, layout: Layout) -> Result<(), FigureError> {
+    if tracks.is_empty() {
+        return Err(FigureError::Nothing("no tracks to draw"));
+    }
     register_font();
     let cols = (tracks.len() as f64).sqrt().ceil() as u32;
     let rows = (tracks.len() as u32).div_ceil(cols);
     if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
+        std::fs::create_dir_all(parent).map_err(|source| FigureError::Io { what: format!("creating {}", parent.display()), source })?;
     }
     let root = BitMapBackend::new(out, (cols * layout.cell_width(), rows * layout.cell_height())).into_drawing_area();
     root.fill(&WHITE)?;
     for (area, track) in root.split_evenly((rows as usize, cols as usize)).iter().zip(tracks) {
-        draw_track(area, track, layout).with_context(|| format!("drawing {}", track.name))?;
+        draw_track(area, track, layout).map_err(|e| FigureError::Draw(format!("drawing {}: {e}", track.name)))?;
     }
-    root.present().with_context(|| format!("writing {}", out.display()))?;
+    root.present().map_err(|e| FigureError::Draw(format!("writing {}: {e}", out.display())))?;
     Ok(())
 }
 
@@ -87,7 +90,7 @@ impl View {
     }
 }
 
-fn draw_track(area: &DrawingArea<BitMapBackend<'_>, Shift>, track: &Track, layout: Layout) -> anyhow::Result<()> {
+fn draw_track(area: &DrawingArea<BitMapBackend<'_>, Shift>, track: &Track, layout: Layout) -> Result<(), FigureError> {
     let title = format!("{} ({} gates)", track.name, track.gates.len());
     let area = area.margin(8, 0, 0, 0).titled(&title, ("sans-serif", 18))?;
     let line = ReferencePilot::default().racing_line(track);
@@ -103,7 +106,7 @@ fn draw_track(area: &DrawingArea<BitMapBackend<'_>, Shift>, track: &Track, layou
     Ok(())
 }
 
-fn draw_view(area: &DrawingArea<BitMapBackend<'_>, Shift>, track: &Track, line: &[Vector3<f64>], view: View) -> anyhow::Result<()> {
+fn draw_view(area: &DrawingArea<BitMapBackend<'_>, Shift>, track: &Track, line: &[Vector3<f64>], view: View) -> Result<(), FigureError> {
     let (lo, hi) = (view.project(&track.arena.min), view.project(&track.arena.max));
     let pad = 0.5;
     let (y_label, x_label) = match view {
@@ -157,7 +160,7 @@ fn draw_view(area: &DrawingArea<BitMapBackend<'_>, Shift>, track: &Track, line: 
 
 /// Validation S_pw against environment steps: per variant a thin line per seed, and the mean
 /// over its seeds (bold) with their range as a band where every seed has reached.
-pub fn draw_validation_curves(variants: &[runtime::experiment::VariantSummary], out: &Path) -> anyhow::Result<()> {
+pub fn draw_validation_curves(variants: &[runtime::experiment::VariantSummary], out: &Path) -> Result<(), FigureError> {
     register_font();
     let root = BitMapBackend::new(out, (960, 600)).into_drawing_area();
     root.fill(&WHITE)?;
@@ -204,13 +207,18 @@ pub fn draw_validation_curves(variants: &[runtime::experiment::VariantSummary], 
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
     }
     chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).position(SeriesLabelPosition::UpperLeft).draw()?;
-    root.present().with_context(|| format!("writing {}", out.display()))?;
+    root.present().map_err(|e| FigureError::Draw(format!("writing {}: {e}", out.display())))?;
     Ok(())
 }
 
 /// Success per track against environment steps for a sequential curriculum, with a dashed line
 /// where each later stage began (thesis Fig. 3.5).
-pub fn draw_track_curves(curves: &[runtime::experiment::TrackCurve], boundaries: &[u64], title: &str, out: &Path) -> anyhow::Result<()> {
+pub fn draw_track_curves(
+    curves: &[runtime::experiment::TrackCurve],
+    boundaries: &[u64],
+    title: &str,
+    out: &Path,
+) -> Result<(), FigureError> {
     register_font();
     let root = BitMapBackend::new(out, (960, 600)).into_drawing_area();
     root.fill(&WHITE)?;
@@ -239,7 +247,7 @@ pub fn draw_track_curves(curves: &[runtime::experiment::TrackCurve], boundaries:
         .border_style(BLACK)
         .position(SeriesLabelPosition::UpperRight)
         .draw()?;
-    root.present().with_context(|| format!("writing {}", out.display()))?;
+    root.present().map_err(|e| FigureError::Draw(format!("writing {}: {e}", out.display())))?;
     Ok(())
 }
 
@@ -258,12 +266,15 @@ pub struct RunCurves {
 impl RunCurves {
     /// Reads `<run>/metrics.csv`; columns are found by their names, so files of older runs
     /// (fewer columns) read too. Empty cells (no episode ended, no validation due) are skipped.
-    pub fn read(run: &Path) -> anyhow::Result<Self> {
+    pub fn read(run: &Path) -> Result<Self, FigureError> {
         let path = run.join("metrics.csv");
-        let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+        let text =
+            std::fs::read_to_string(&path).map_err(|source| FigureError::Io { what: format!("reading {}", path.display()), source })?;
         let mut lines = text.lines();
-        let header: Vec<&str> = lines.next().with_context(|| format!("{}: empty", path.display()))?.split(',').collect();
-        let column = |name: &str| header.iter().position(|h| *h == name).with_context(|| format!("{}: no column {name}", path.display()));
+        let header: Vec<&str> = lines.next().ok_or_else(|| FigureError::Csv(format!("{}: empty", path.display())))?.split(',').collect();
+        let column = |name: &str| {
+            header.iter().position(|h| *h == name).ok_or_else(|| FigureError::Csv(format!("{}: no column {name}", path.display())))
+        };
         let (steps, ret, s_pw, success) =
             (column("env_steps")?, column("charts/episodic_return")?, column("eval/S_pw")?, column("eval/success")?);
         let mut curves = Self {
@@ -275,7 +286,7 @@ impl RunCurves {
         for (row, line) in lines.enumerate() {
             let cells: Vec<&str> = line.split(',').collect();
             let number = |i: usize| cells.get(i).and_then(|c| c.parse::<f64>().ok()).filter(|v| v.is_finite());
-            let x = number(steps).with_context(|| format!("{}: row {}: no env_steps", path.display(), row + 2))? / 1e6;
+            let x = number(steps).ok_or_else(|| FigureError::Csv(format!("{}: row {}: no env_steps", path.display(), row + 2)))? / 1e6;
             for (i, series) in
                 [(ret, &mut curves.training_return), (s_pw, &mut curves.validation_s_pw), (success, &mut curves.validation_success)]
             {
@@ -290,7 +301,7 @@ impl RunCurves {
 
 /// Training return, validation S_pw and validation success against environment steps, one
 /// panel each, every run overlaid in its own colour.
-pub fn draw_run_curves(runs: &[RunCurves], out: &Path) -> anyhow::Result<()> {
+pub fn draw_run_curves(runs: &[RunCurves], out: &Path) -> Result<(), FigureError> {
     register_font();
     let root = BitMapBackend::new(out, (960, 1080)).into_drawing_area();
     root.fill(&WHITE)?;
@@ -327,6 +338,6 @@ pub fn draw_run_curves(runs: &[RunCurves], out: &Path) -> anyhow::Result<()> {
             .position(SeriesLabelPosition::LowerRight)
             .draw()?;
     }
-    root.present().with_context(|| format!("writing {}", out.display()))?;
+    root.present().map_err(|e| FigureError::Draw(format!("writing {}: {e}", out.display())))?;
     Ok(())
 }

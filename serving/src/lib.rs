@@ -1,8 +1,9 @@
 //! A trained policy flying for someone else: what `dronerace serve` answers, with no transport
 //! in it. [`Pilot`] is the service — an action for an observation, or a race flown from the
 //! drone's state, with the server keeping target gate, laps and previous action — and
-//! [`PilotError`] says what was refused and why; the gRPC adapter in the binary maps it to
-//! status codes in one place.
+//! [`PilotError`] says what was refused and why; the gRPC adapter (`proto::pilot_grpc`) maps it
+//! to status codes in one place. (The reference pilot that policies are compared with is
+//! another thing: `sim::ReferencePilot`.)
 
 use std::path::Path;
 use std::sync::Arc;
