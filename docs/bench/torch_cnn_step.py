@@ -1,5 +1,5 @@
 """One PPO gradient step of the vision agent in PyTorch, shaped like
-`dronerace learner-bench --agent vision` (SPEC §5).
+`dronerace bench learner --agent vision` (SPEC §5).
 
 Actor: CNN 32@8x8/4, 64@4x4/2, 64@3x3/1 (LeakyReLU 0.01 after each), flatten, linear -> 128,
 LeakyReLU, concatenated with 12 proprioceptive inputs, MLP 140 -> H -> H -> 4. Critic: MLP

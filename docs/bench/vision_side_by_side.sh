@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The vision agent's PPO gradient step (SPEC §5: CNN actor on 84×84 images, MLP critic on the
 # state), dronerace (burn) against PyTorch on this machine in one run: the CNN companion of
-# ../shared/bench/side_by_side.sh, alternating the two programs and printing the ratio of
+# docs/bench/side_by_side.sh, alternating the two programs and printing the ratio of
 # whole-step times (forward + backward + optimiser).
 #
 #   docs/bench/vision_side_by_side.sh [path/to/dronerace] [rounds] [samples...]
