@@ -1,20 +1,25 @@
-//! The safetensors file format (huggingface/safetensors), written and read by hand: an 8-byte
-//! little-endian header length, a JSON header naming each tensor's dtype, shape and byte range
-//! plus a string-to-string `__metadata__` map, then the tensor bytes. Python's `safetensors`
-//! package and burn's importers open these files as they are.
+//! Our files in the safetensors format (huggingface/safetensors), encoded and decoded by the
+//! format's own crate: an 8-byte little-endian header length, a JSON header naming each
+//! tensor's dtype, shape and byte range plus a string-to-string `__metadata__` map, then the
+//! tensor bytes. Python's `safetensors` package and burn's importers open these files as they
+//! are.
 //!
 //! What we add inside the format: metadata key `crc32`, the CRC-32 of every other metadata
 //! entry (sorted, `key NUL value NUL`), every tensor's name, dtype and shape (sorted by name,
-//! each followed by NUL) and the tensor bytes; and on reading the rule
-//! that the file is byte for byte as we write it, so a corrupted file is refused rather than
-//! half-used, as every other file of ours is.
+//! each followed by NUL) and the tensors' bytes in name order; and a header in canonical JSON
+//! (keys sorted, no whitespace but the format's padding), so that a file's bytes follow from
+//! its contents and a corrupted file is refused rather than half-used, as every other file of
+//! ours is. (The crate writes metadata in hash order; the header is canonicalised after it.)
 
 use std::collections::BTreeMap;
 
-use serde_json::{Map, Value};
+use safetensors::tensor::TensorView;
+use safetensors::{Dtype, SafeTensorError, SafeTensors};
+use serde_json::Value;
 
 /// The first bytes every file of ours starts with: a header length, then `{"__metadata__":`
-/// (we write metadata first), which tells our files apart from the older framed formats.
+/// (first in the sorted header: every tensor name starts with a lower-case letter), which tells
+/// our files apart from the older framed formats.
 pub const HEADER_START: &[u8] = b"{\"__metadata__\":";
 
 /// Longest header accepted (a corrupt length must not make us allocate gigabytes).
@@ -32,55 +37,34 @@ pub enum TensorData {
 }
 
 impl TensorData {
-    fn dtype(&self) -> &'static str {
+    /// The format's element type.
+    fn dtype(&self) -> Dtype {
         match self {
-            Self::F32(_) => "F32",
-            Self::F64(_) => "F64",
-            Self::U8(_) => "U8",
+            Self::F32(_) => Dtype::F32,
+            Self::F64(_) => Dtype::F64,
+            Self::U8(_) => Dtype::U8,
         }
     }
 
-    fn len(&self) -> usize {
+    /// The elements as little-endian bytes.
+    fn to_le_bytes(&self) -> Vec<u8> {
         match self {
-            Self::F32(v) => v.len(),
-            Self::F64(v) => v.len(),
-            Self::U8(v) => v.len(),
+            Self::F32(v) => v.iter().flat_map(|x| x.to_le_bytes()).collect(),
+            Self::F64(v) => v.iter().flat_map(|x| x.to_le_bytes()).collect(),
+            Self::U8(v) => v.clone(),
         }
     }
 
-    fn byte_len(&self) -> usize {
-        match self {
-            Self::F32(v) => 4 * v.len(),
-            Self::F64(v) => 8 * v.len(),
-            Self::U8(v) => v.len(),
-        }
-    }
-
-    fn write(&self, out: &mut Vec<u8>) {
-        match self {
-            Self::F32(v) => v.iter().for_each(|x| out.extend_from_slice(&x.to_le_bytes())),
-            Self::F64(v) => v.iter().for_each(|x| out.extend_from_slice(&x.to_le_bytes())),
-            Self::U8(v) => out.extend_from_slice(v),
-        }
-    }
-
-    /// Tensor `name`'s elements from its byte range.
-    fn read(name: &str, dtype: &str, bytes: &[u8]) -> Result<Self, TensorFileError> {
-        let malformed = |what: String| TensorFileError::Malformed(format!("tensor {name}: {what}"));
-        let exact = |size: usize| {
-            if bytes.len().is_multiple_of(size) { Ok(()) } else { Err(malformed(format!("{} bytes of {dtype}", bytes.len()))) }
-        };
+    /// Tensor `name`'s elements from its bytes (whose length the crate checked against its
+    /// shape and dtype).
+    fn read(name: &str, dtype: Dtype, bytes: &[u8]) -> Result<Self, TensorFileError> {
         Ok(match dtype {
-            "F32" => {
-                exact(4)?;
-                Self::F32(bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
-            }
-            "F64" => {
-                exact(8)?;
+            Dtype::F32 => Self::F32(bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()),
+            Dtype::F64 => {
                 Self::F64(bytes.chunks_exact(8).map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]])).collect())
             }
-            "U8" => Self::U8(bytes.to_vec()),
-            other => return Err(malformed(format!("dtype {other} is not one we write"))),
+            Dtype::U8 => Self::U8(bytes.to_vec()),
+            other => return Err(TensorFileError::Malformed(format!("tensor {name}: dtype {other} is not one we write"))),
         })
     }
 }
@@ -124,8 +108,9 @@ pub enum TensorFileError {
     Checksum,
 }
 
-/// CRC-32 of the metadata entries, each tensor's name, dtype and shape, and the tensor bytes.
-fn checksum(metadata: &BTreeMap<String, String>, tensors: &BTreeMap<String, Tensor>, data: &[u8]) -> String {
+/// CRC-32 of the metadata entries, each tensor's name, dtype and shape, and the tensors' bytes,
+/// all in name order (so the same for any layout of the data).
+fn checksum(metadata: &BTreeMap<String, String>, tensors: &BTreeMap<String, Tensor>) -> String {
     let mut h = crc32fast::Hasher::new();
     let mut field = |bytes: &[u8]| {
         h.update(bytes);
@@ -137,53 +122,56 @@ fn checksum(metadata: &BTreeMap<String, String>, tensors: &BTreeMap<String, Tens
     }
     for (name, tensor) in tensors {
         field(name.as_bytes());
-        field(tensor.data.dtype().as_bytes());
+        field(tensor.data.dtype().to_string().as_bytes());
         field(format!("{:?}", tensor.shape).as_bytes());
     }
-    h.update(data);
+    for tensor in tensors.values() {
+        h.update(&tensor.data.to_le_bytes());
+    }
     format!("{:08x}", h.finalize())
 }
 
-impl TensorFile {
-    /// Encodes the file (tensors in name order; header padded with spaces to 8 bytes, as the
-    /// reference implementation does, so data is aligned).
-    pub fn to_bytes(&self) -> Vec<u8> {
-        let mut data = Vec::with_capacity(self.tensors.values().map(|t| t.data.byte_len()).sum());
-        for tensor in self.tensors.values() {
-            tensor.data.write(&mut data);
-        }
-        let mut out = self.header(checksum(&self.metadata, &self.tensors, &data));
-        out.extend(data);
-        out
+/// `header` (the JSON between the length prefix and the data) in canonical form: keys sorted,
+/// no whitespace, padded with spaces so that the data starts at a multiple of 8 bytes, as the
+/// format's crate pads.
+fn canonical_header(header: &[u8]) -> Result<Vec<u8>, TensorFileError> {
+    let value: Value = serde_json::from_slice(header).map_err(|e| TensorFileError::Malformed(format!("header: {e}")))?;
+    let mut canonical = serde_json::to_vec(&value).map_err(|e| TensorFileError::Malformed(format!("header: {e}")))?;
+    while !(8 + canonical.len()).is_multiple_of(8) {
+        canonical.push(b' ');
     }
+    Ok(canonical)
+}
 
-    /// Everything before the tensor bytes — length prefix, JSON header with `crc`, padding —
-    /// for the tensors laid out in name order.
-    #[allow(clippy::expect_used, reason = "a JSON map of strings and numbers always serialises")]
-    fn header(&self, crc: String) -> Vec<u8> {
-        let mut metadata = self.metadata.clone();
-        metadata.insert("crc32".into(), crc);
-        // `__metadata__` first: it marks our files (HEADER_START) and reads well in a hex dump.
-        let mut header = serde_json::to_vec(&Value::Object(Map::from_iter([("__metadata__".to_string(), serde_json::json!(metadata))])))
-            .expect("metadata serialises");
-        header.pop(); // the closing brace: tensor entries follow
-        let mut start = 0;
-        for (name, tensor) in &self.tensors {
-            let end = start + tensor.data.byte_len();
-            let entry = serde_json::json!({ "dtype": tensor.data.dtype(), "shape": tensor.shape, "data_offsets": [start, end] });
-            start = end;
-            header.push(b',');
-            header.extend(serde_json::to_vec(name).expect("a string serialises"));
-            header.push(b':');
-            header.extend(serde_json::to_vec(&entry).expect("an entry serialises"));
+/// The crate's error as ours.
+fn format_error(e: SafeTensorError) -> TensorFileError {
+    match e {
+        SafeTensorError::HeaderTooSmall | SafeTensorError::InvalidHeaderLength => TensorFileError::Truncated(e.to_string()),
+        SafeTensorError::MetadataIncompleteBuffer => {
+            TensorFileError::Malformed("tensor bytes outside the data: the file is cut short or has bytes after the last tensor".into())
         }
-        header.push(b'}');
-        while !(8 + header.len()).is_multiple_of(8) {
-            header.push(b' ');
-        }
-        let mut out = Vec::with_capacity(8 + header.len() + start);
+        other => TensorFileError::Malformed(other.to_string()),
+    }
+}
+
+impl TensorFile {
+    /// Encodes the file: the data laid out by the format's crate, the header canonical.
+    #[allow(clippy::expect_used, reason = "tensors whose shape matches their data and a header the crate wrote always encode")]
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut metadata: std::collections::HashMap<String, String> = self.metadata.clone().into_iter().collect();
+        metadata.insert("crc32".into(), checksum(&self.metadata, &self.tensors));
+        let bytes: Vec<(&String, Dtype, &[usize], Vec<u8>)> =
+            self.tensors.iter().map(|(name, t)| (name, t.data.dtype(), t.shape.as_slice(), t.data.to_le_bytes())).collect();
+        let views = bytes.iter().map(|(name, dtype, shape, data)| {
+            (name.as_str(), TensorView::new(*dtype, shape.to_vec(), data).expect("a tensor's shape matches its data"))
+        });
+        let written = safetensors::serialize(views, Some(metadata)).expect("our tensors encode");
+        let length = header_length(&written).expect("the crate wrote a header");
+        let header = canonical_header(&written[8..8 + length]).expect("the crate wrote JSON");
+        let mut out = Vec::with_capacity(8 + header.len() + written.len() - 8 - length);
         out.extend_from_slice(&(header.len() as u64).to_le_bytes());
         out.extend(header);
+        out.extend_from_slice(&written[8 + length..]);
         out
     }
 
@@ -192,68 +180,29 @@ impl TensorFile {
         bytes.len() >= 8 + HEADER_START.len() && bytes[8..8 + HEADER_START.len()] == *HEADER_START
     }
 
-    /// Decodes and verifies a file: every tensor's range inside the data and matching its
-    /// shape, the ranges covering the data exactly, and the checksum.
+    /// Decodes and verifies a file: the format's own checks (every tensor's range inside the
+    /// data and matching its shape, the ranges covering the data exactly), a canonical header,
+    /// and the checksum.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, TensorFileError> {
-        let malformed = |m: String| TensorFileError::Malformed(m);
-        let Some(length) = bytes.get(..8) else { return Err(TensorFileError::Truncated(format!("{} bytes", bytes.len()))) };
-        let length = u64::from_le_bytes([length[0], length[1], length[2], length[3], length[4], length[5], length[6], length[7]]);
-        let length =
-            usize::try_from(length).ok().filter(|&n| n <= MAX_HEADER).ok_or_else(|| malformed(format!("header length {length}")))?;
-        let header = bytes
-            .get(8..8 + length)
-            .ok_or_else(|| TensorFileError::Truncated(format!("header of {length} bytes, {} present", bytes.len() - 8)))?;
-        let data = &bytes[8 + length..];
-        let header: Map<String, Value> = serde_json::from_slice(header).map_err(|e| malformed(format!("header: {e}")))?;
-        let mut file = Self::default();
-        let mut ranges = Vec::new();
-        for (name, entry) in header {
-            if name == "__metadata__" {
-                let map = entry.as_object().ok_or_else(|| malformed("__metadata__ is not a map".into()))?;
-                for (k, v) in map {
-                    let v = v.as_str().ok_or_else(|| malformed(format!("metadata {k} is not a string")))?;
-                    file.metadata.insert(k.clone(), v.to_owned());
-                }
-                continue;
-            }
-            let field = |key: &str| entry.get(key).ok_or_else(|| malformed(format!("tensor {name}: no {key}")));
-            let dtype = field("dtype")?.as_str().ok_or_else(|| malformed(format!("tensor {name}: dtype")))?;
-            let numbers = |key: &str| -> Result<Vec<usize>, TensorFileError> {
-                let list = field(key)?.as_array().ok_or_else(|| malformed(format!("tensor {name}: {key} is not a list")))?;
-                list.iter()
-                    .map(|v| v.as_u64().and_then(|n| usize::try_from(n).ok()).ok_or_else(|| malformed(format!("tensor {name}: {key}"))))
-                    .collect()
-            };
-            let shape = numbers("shape")?;
-            let [start, end] = numbers("data_offsets")?[..] else { return Err(malformed(format!("tensor {name}: data_offsets"))) };
-            let span = data.get(start..end).ok_or_else(|| malformed(format!("tensor {name}: bytes {start}..{end} outside the data")))?;
-            let tensor = TensorData::read(&name, dtype, span)?;
-            let numel = shape.iter().try_fold(1usize, |n, &d| n.checked_mul(d));
-            if numel != Some(tensor.len()) {
-                return Err(malformed(format!("tensor {name}: shape {shape:?} holds {numel:?} elements, the data {}", tensor.len())));
-            }
-            ranges.push((start, end));
-            file.tensors.insert(name, Tensor { shape, data: tensor });
-        }
-        ranges.sort_unstable();
-        let mut covered = 0;
-        for (start, end) in ranges {
-            if start != covered {
-                return Err(malformed(format!("tensor data has a gap or an overlap at byte {start}")));
-            }
-            covered = end;
-        }
-        if covered != data.len() {
-            return Err(malformed(format!("{} bytes after the last tensor", data.len() - covered)));
-        }
-        let crc = file.metadata.remove("crc32").ok_or_else(|| malformed("no crc32 in the metadata".into()))?;
-        if crc != checksum(&file.metadata, &file.tensors, data) {
-            return Err(TensorFileError::Checksum);
-        }
+        let length = header_length(bytes)?;
+        let parsed = SafeTensors::deserialize(bytes).map_err(format_error)?;
         // The checksum cannot cover the header's own layout (whitespace, padding, key order):
-        // a file of ours is accepted only with exactly the header we write.
-        if file.header(crc) != bytes[..8 + length] {
+        // a file of ours is accepted only with its header in canonical form.
+        if canonical_header(&bytes[8..8 + length])? != bytes[8..8 + length] {
             return Err(TensorFileError::Malformed("the header is not laid out as dronerace writes it (altered?)".into()));
+        }
+        let (_, metadata) = SafeTensors::read_metadata(bytes).map_err(format_error)?;
+        let mut file = Self::default();
+        if let Some(map) = metadata.metadata() {
+            file.metadata = map.iter().map(|(k, v)| (k.clone(), v.clone())).collect();
+        }
+        for (name, view) in parsed.tensors() {
+            let data = TensorData::read(&name, view.dtype(), view.data())?;
+            file.tensors.insert(name, Tensor { shape: view.shape().to_vec(), data });
+        }
+        let crc = file.metadata.remove("crc32").ok_or_else(|| TensorFileError::Malformed("no crc32 in the metadata".into()))?;
+        if crc != checksum(&file.metadata, &file.tensors) {
+            return Err(TensorFileError::Checksum);
         }
         Ok(file)
     }
@@ -267,6 +216,21 @@ impl TensorFile {
     pub fn tensor(&self, name: &str) -> Result<&Tensor, TensorFileError> {
         self.tensors.get(name).ok_or_else(|| TensorFileError::Malformed(format!("no tensor {name}")))
     }
+}
+
+/// The header length a file's first 8 bytes give, if the header is inside the file and no
+/// longer than [`MAX_HEADER`] (a corrupt length must not make us allocate gigabytes).
+fn header_length(bytes: &[u8]) -> Result<usize, TensorFileError> {
+    let Some(prefix) = bytes.get(..8) else { return Err(TensorFileError::Truncated(format!("{} bytes", bytes.len()))) };
+    let length = u64::from_le_bytes([prefix[0], prefix[1], prefix[2], prefix[3], prefix[4], prefix[5], prefix[6], prefix[7]]);
+    let length = usize::try_from(length)
+        .ok()
+        .filter(|&n| n <= MAX_HEADER)
+        .ok_or_else(|| TensorFileError::Malformed(format!("header length {length}")))?;
+    if bytes.len() - 8 < length {
+        return Err(TensorFileError::Truncated(format!("header of {length} bytes, {} present", bytes.len() - 8)));
+    }
+    Ok(length)
 }
 
 #[cfg(test)]
@@ -303,9 +267,43 @@ mod tests {
         let mut lying = bytes.clone();
         let at = lying.windows(5).position(|w| w == b"[2,3]").expect("the shape is in the header");
         lying[at + 1] = b'3';
-        assert!(matches!(TensorFile::from_bytes(&lying), Err(TensorFileError::Malformed(m)) if m.contains("shape")));
+        assert!(matches!(TensorFile::from_bytes(&lying), Err(TensorFileError::Malformed(_))));
+        // A header whose layout changed but not its meaning: a padding space made a newline.
+        let padded = (0..8)
+            .map(|n| {
+                let mut f = file();
+                f.metadata.insert("pad".into(), "x".repeat(n));
+                f.to_bytes()
+            })
+            .find(|b| b[8 + u64::from_le_bytes(b[..8].try_into().unwrap()) as usize - 1] == b' ')
+            .expect("some length leaves padding");
+        let mut respaced = padded.clone();
+        respaced[8 + u64::from_le_bytes(padded[..8].try_into().unwrap()) as usize - 1] = b'\n';
+        assert!(TensorFile::from_bytes(&padded).is_ok());
+        assert!(matches!(TensorFile::from_bytes(&respaced), Err(TensorFileError::Malformed(m)) if m.contains("laid out")));
         let mut huge = bytes;
         huge[..8].copy_from_slice(&u64::MAX.to_le_bytes());
         assert!(matches!(TensorFile::from_bytes(&huge), Err(TensorFileError::Malformed(_))));
+    }
+
+    /// Files written before the format's crate wrote ours (the data in name order) still read,
+    /// with the same checksum: the shipped generalist is one.
+    #[test]
+    fn a_file_of_the_earlier_layout_reads_and_rewrites_to_the_same_contents() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../policies/generalist.bin");
+        let old = std::fs::read(path).unwrap();
+        let file = TensorFile::from_bytes(&old).unwrap();
+        assert!(file.tensors.len() > 4 && file.metadata.contains_key("architecture"));
+        let again = TensorFile::from_bytes(&file.to_bytes()).unwrap();
+        assert_eq!(again, file);
+    }
+
+    #[test]
+    fn equal_contents_encode_to_equal_bytes() {
+        assert_eq!(file().to_bytes(), file().to_bytes());
+        let mut other = file();
+        other.metadata.insert("a".into(), "b".into());
+        other.metadata.insert("z".into(), "y".into());
+        assert_eq!(other.to_bytes(), other.clone().to_bytes());
     }
 }

@@ -152,7 +152,7 @@ impl MetricsWriter {
         }
         let stamp = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default().as_secs();
         let mut events = File::create(dir.join(format!("events.out.tfevents.{stamp}.dronerace")))?;
-        write_record(&mut events, &event(stamp as f64, 0, EventBody::FileVersion("brain.Event:2")))?;
+        write_record(&mut events, &event(stamp as f64, 0, EventBody::FileVersion("brain.Event:2".into())))?;
         Ok(Self { csv, events })
     }
 
@@ -169,53 +169,65 @@ impl MetricsWriter {
         self.csv.write_all(format!("{iteration},{env_steps},{wall_seconds:.3},{}\n", cells.join(",")).as_bytes())?;
         self.csv.flush()?;
         let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default().as_secs_f64();
-        let scalars: Vec<(&str, f32)> = columns.iter().filter(|(_, v)| v.is_finite()).map(|(n, v)| (*n, *v as f32)).collect();
-        write_record(&mut self.events, &event(now, env_steps as i64, EventBody::Scalars(&scalars)))?;
+        let values: Vec<(&str, f32)> = columns.iter().filter(|(_, v)| v.is_finite()).map(|(n, v)| (*n, *v as f32)).collect();
+        write_record(&mut self.events, &event(now, env_steps as i64, scalars(&values)))?;
         self.events.flush()
     }
 }
 
-enum EventBody<'a> {
-    FileVersion(&'a str),
-    Scalars(&'a [(&'a str, f32)]),
+/// `tensorboard.Event`: the fields dronerace writes.
+#[derive(Clone, PartialEq, prost::Message)]
+struct Event {
+    /// Seconds since the epoch.
+    #[prost(double, tag = "1")]
+    wall_time: f64,
+    /// The x of every value (env steps).
+    #[prost(int64, tag = "2")]
+    step: i64,
+    /// The file version (first record) or a summary.
+    #[prost(oneof = "EventBody", tags = "3, 5")]
+    body: Option<EventBody>,
 }
 
-/// A `tensorboard.Event` protobuf: wall_time (1, double), step (2, varint), then either
-/// file_version (3, string) or summary (5) holding values (1) of tag (1) and simple_value (2).
-fn event(wall_time: f64, step: i64, body: EventBody<'_>) -> Vec<u8> {
-    let mut out = vec![0x09];
-    out.extend_from_slice(&wall_time.to_le_bytes());
-    out.push(0x10);
-    varint(&mut out, step as u64);
-    match body {
-        EventBody::FileVersion(v) => length_delimited(&mut out, 0x1a, v.as_bytes()),
-        EventBody::Scalars(values) => {
-            let mut summary = Vec::new();
-            for (tag, value) in values {
-                let mut v = Vec::new();
-                length_delimited(&mut v, 0x0a, tag.as_bytes());
-                v.push(0x15);
-                v.extend_from_slice(&value.to_le_bytes());
-                length_delimited(&mut summary, 0x0a, &v);
-            }
-            length_delimited(&mut out, 0x2a, &summary);
-        }
-    }
-    out
+/// What an event holds.
+#[derive(Clone, PartialEq, prost::Oneof)]
+enum EventBody {
+    /// `brain.Event:2`, the first record of a file.
+    #[prost(string, tag = "3")]
+    FileVersion(String),
+    /// Scalars.
+    #[prost(message, tag = "5")]
+    Summary(Summary),
 }
 
-fn varint(out: &mut Vec<u8>, mut x: u64) {
-    while x >= 0x80 {
-        out.push((x as u8) | 0x80);
-        x >>= 7;
-    }
-    out.push(x as u8);
+/// `tensorboard.Summary`.
+#[derive(Clone, PartialEq, prost::Message)]
+struct Summary {
+    /// One value per tag.
+    #[prost(message, repeated, tag = "1")]
+    value: Vec<SummaryValue>,
 }
 
-fn length_delimited(out: &mut Vec<u8>, key: u8, bytes: &[u8]) {
-    out.push(key);
-    varint(out, bytes.len() as u64);
-    out.extend_from_slice(bytes);
+/// `tensorboard.Summary.Value` with a simple value.
+#[derive(Clone, PartialEq, prost::Message)]
+struct SummaryValue {
+    /// The chart's name.
+    #[prost(string, tag = "1")]
+    tag: String,
+    /// Its value (in TensorBoard's oneof, so written even when zero).
+    #[prost(float, optional, tag = "2")]
+    simple_value: Option<f32>,
+}
+
+/// An encoded event.
+fn event(wall_time: f64, step: i64, body: EventBody) -> Vec<u8> {
+    prost::Message::encode_to_vec(&Event { wall_time, step, body: Some(body) })
+}
+
+/// A summary of `(tag, value)` scalars.
+fn scalars(values: &[(&str, f32)]) -> EventBody {
+    let value = values.iter().map(|(tag, v)| SummaryValue { tag: (*tag).to_string(), simple_value: Some(*v) }).collect();
+    EventBody::Summary(Summary { value })
 }
 
 /// TFRecord framing: length, masked CRC-32C of the length, data, masked CRC-32C of the data.
@@ -227,21 +239,9 @@ fn write_record(file: &mut File, data: &[u8]) -> std::io::Result<()> {
     file.write_all(&masked_crc32c(data).to_le_bytes())
 }
 
+/// TFRecord's masked CRC-32C.
 fn masked_crc32c(data: &[u8]) -> u32 {
-    let crc = crc32c(data);
-    crc.rotate_right(15).wrapping_add(0xa282_ead8)
-}
-
-/// CRC-32C (Castagnoli), bitwise: event records are small and few.
-fn crc32c(data: &[u8]) -> u32 {
-    let mut crc = !0u32;
-    for &b in data {
-        crc ^= u32::from(b);
-        for _ in 0..8 {
-            crc = if crc & 1 != 0 { (crc >> 1) ^ 0x82F6_3B78 } else { crc >> 1 };
-        }
-    }
-    !crc
+    crc32c::crc32c(data).rotate_right(15).wrapping_add(0xa282_ead8)
 }
 
 #[cfg(test)]
@@ -249,8 +249,17 @@ mod tests {
     use super::*;
 
     #[test]
-    fn crc32c_matches_the_standard_check_value() {
-        assert_eq!(crc32c(b"123456789"), 0xE306_9283);
+    fn crc32c_is_castagnolis_and_events_decode_as_tensorboard_reads_them() {
+        assert_eq!(crc32c::crc32c(b"123456789"), 0xE306_9283);
+        let bytes = event(1.5, 72_000, scalars(&[("charts/return", 0.0), ("eval/S_pw", 0.25)]));
+        let back = <Event as prost::Message>::decode(bytes.as_slice()).unwrap();
+        assert_eq!((back.wall_time, back.step), (1.5, 72_000));
+        let Some(EventBody::Summary(summary)) = back.body else { panic!("a summary") };
+        assert_eq!(summary.value.len(), 2);
+        assert_eq!(summary.value[0].simple_value, Some(0.0), "a zero is written, not left out");
+        // The hand-checked encoding of one value: tag (1, string), simple_value (2, fixed32).
+        let one = event(0.0, 0, scalars(&[("a", 1.0)]));
+        assert_eq!(one, [0x2a, 0x0a, 0x0a, 0x08, 0x0a, 0x01, b'a', 0x15, 0x00, 0x00, 0x80, 0x3f]);
     }
 
     #[test]
