@@ -15,6 +15,24 @@ pub enum Transport {
     Grpc,
 }
 
+impl Transport {
+    /// Its `--transport` value, as the processes' command lines spell it.
+    pub fn flag(self) -> &'static str {
+        match self {
+            Transport::Shm => "shm",
+            Transport::Grpc => "grpc",
+        }
+    }
+
+    /// What it runs on, for a person reading a log line.
+    pub fn label(self) -> &'static str {
+        match self {
+            Transport::Shm => "iceoryx2",
+            Transport::Grpc => "gRPC",
+        }
+    }
+}
+
 /// Weights as they travel to actors.
 #[derive(Clone, Debug, PartialEq)]
 pub struct WeightsUpdate {

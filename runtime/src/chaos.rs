@@ -234,7 +234,7 @@ pub fn run(options: &ChaosOptions) -> Result<ChaosReport, ChaosError> {
     let iteration_at_start = last_iteration(out);
     eprintln!("chaos: killing one of {expected} processes every {} s for {} min", options.every, options.minutes);
     let started = Instant::now();
-    let faults = inject_faults(options, &mut train).ok_or_else(|| failed("the supervisor itself exited during the faults"))??;
+    let faults = inject_faults(options, &mut train, &log_path)?;
     let seconds = started.elapsed().as_secs_f64();
     // Let the supervisor bring every process back before measuring and stopping.
     let settle = Instant::now() + Duration::from_secs(60);
@@ -276,10 +276,7 @@ fn start_training(options: &ChaosOptions, log_path: &Path) -> Result<Child, Chao
     let exe = std::env::current_exe().map_err(io("locating the dronerace executable"))?;
     let mut command = Command::new(exe);
     command.arg("train").arg("--out").arg(&options.out).arg("--actors").arg(options.actors.to_string());
-    command.arg("--transport").arg(match options.transport {
-        Transport::Shm => "shm",
-        Transport::Grpc => "grpc",
-    });
+    command.arg("--transport").arg(options.transport.flag());
     if let Some(config) = &options.config {
         command.arg("--config").arg(config);
     }
@@ -292,8 +289,8 @@ fn running(train: &mut Child) -> Result<bool, ChaosError> {
 }
 
 /// Kills a random process of the run every `options.every` seconds for `options.minutes`;
-/// the kills per role, or `None` if the supervisor itself exited meanwhile.
-fn inject_faults(options: &ChaosOptions, train: &mut Child) -> Option<Result<BTreeMap<String, u32>, ChaosError>> {
+/// the kills per role, or an error if the supervisor itself exited meanwhile.
+fn inject_faults(options: &ChaosOptions, train: &mut Child, log_path: &Path) -> Result<BTreeMap<String, u32>, ChaosError> {
     let supervisor = train.id();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(options.seed);
     let mut faults: BTreeMap<String, u32> = BTreeMap::new();
@@ -301,10 +298,8 @@ fn inject_faults(options: &ChaosOptions, train: &mut Child) -> Option<Result<BTr
     let until = started + Duration::from_secs_f64(options.minutes * 60.0);
     let mut next_kill = started + Duration::from_secs_f64(options.every);
     while Instant::now() < until {
-        match running(train) {
-            Ok(true) => {}
-            Ok(false) => return None,
-            Err(e) => return Some(Err(e)),
+        if !running(train)? {
+            return Err(ChaosError::Run { what: "the supervisor itself exited during the faults", log: log_path.to_path_buf() });
         }
         if Instant::now() >= next_kill {
             let alive = members(supervisor);
@@ -320,7 +315,7 @@ fn inject_faults(options: &ChaosOptions, train: &mut Child) -> Option<Result<BTr
         }
         std::thread::sleep(Duration::from_millis(100));
     }
-    Some(Ok(faults))
+    Ok(faults)
 }
 
 /// Stops the run as a user would (SIGINT; SIGKILL after 180 s); whether it exited with success.

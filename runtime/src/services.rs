@@ -261,10 +261,7 @@ fn serve_learner(
     train: impl FnOnce() -> Result<(), ServiceError>,
 ) -> Result<(), ServiceError> {
     let listener = bind(rt, "learner", options.listen)?;
-    let server = {
-        let _runtime = rt.enter();
-        rt.spawn(proto::grpc_link::serve_learner(listener, security.clone(), service, until(stop.clone())))
-    };
+    let server = rt.spawn(proto::grpc_link::serve_learner(listener, security.clone(), service, until(stop.clone())));
     spawn_health(rt, options.health_listen, &["dronerace.v1.Learner"], stop.clone())?;
     eprintln!("learner: serving on {}", options.listen);
     let trained = train();
@@ -288,10 +285,7 @@ fn drive<L: LearnerLink>(
         if resumed { "resuming the" } else { "starting a new" },
         dir.display(),
         process.run().iteration(),
-        match options.transport {
-            Transport::Shm => "iceoryx2",
-            Transport::Grpc => "gRPC",
-        }
+        options.transport.label()
     );
     let mut done = 0;
     while !process.finished() && !stop.load(Ordering::SeqCst) && options.iterations.is_none_or(|n| done < n) {

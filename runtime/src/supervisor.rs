@@ -237,10 +237,7 @@ fn start(plan: &ClusterPlan) -> Result<Cluster, SupervisorError> {
     let config = plan.dir.join("config.toml").display().to_string();
     let (taskctl_addr, learner_addr) = two_free_ports()?;
     let shm_run = shm_run_id(&plan.dir);
-    let transport = match plan.transport {
-        Transport::Shm => "shm",
-        Transport::Grpc => "grpc",
-    };
+    let transport = plan.transport.flag();
     let s = |x: &str| x.to_string();
     let snapshot = plan.dir.join("taskctl.snapshot").display().to_string();
     let taskctl_args =
@@ -299,7 +296,7 @@ fn start(plan: &ClusterPlan) -> Result<Cluster, SupervisorError> {
     eprintln!(
         "train: task controller on {taskctl_addr}, learner on {learner_addr}, {} actors over {}; Ctrl-C stops and checkpoints",
         plan.actors,
-        if plan.transport == Transport::Shm { "iceoryx2" } else { "gRPC" }
+        plan.transport.label()
     );
     Ok(Cluster { taskctl, learner, actors })
 }
