@@ -2,6 +2,8 @@
 //! rollout into a [`RolloutChunk`] tagged with that policy's version. The actor process's loop
 //! around it is `runtime::actor_process`.
 
+pub mod bench;
+
 use std::sync::Arc;
 
 use policy::{ActingPolicy, BlobError, EpisodeRecord, RolloutChunk, WeightsBlob};

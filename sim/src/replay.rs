@@ -100,6 +100,47 @@ pub fn write_csv(rows: &[ReplayRow], mut out: impl Write) -> std::io::Result<()>
     Ok(())
 }
 
+/// A line of an action file that is not four finite numbers.
+#[derive(Debug, PartialEq, thiserror::Error)]
+pub enum ActionsError {
+    /// A row with another count of values, or a value that is not a finite number.
+    #[error("line {line}: expected 4 finite action values, found {found:?}")]
+    BadRow {
+        /// 1-based line number.
+        line: usize,
+        /// The line as read.
+        found: String,
+    },
+    /// No action rows at all.
+    #[error("no action rows")]
+    Empty,
+}
+
+/// Reads one `a0,a1,a2,a3` action per line; blank lines and `#` comments are skipped, and so
+/// is a first line with no numbers in it (a header).
+pub fn parse_actions(text: &str) -> Result<Vec<[f64; 4]>, ActionsError> {
+    let mut actions = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let is_header = actions.is_empty() && line.split(',').all(|f| f.trim().parse::<f64>().is_err());
+        if is_header {
+            continue;
+        }
+        let numbers: Vec<Option<f64>> = line.split(',').map(|f| f.trim().parse::<f64>().ok().filter(|x| x.is_finite())).collect();
+        match numbers[..] {
+            [Some(a0), Some(a1), Some(a2), Some(a3)] => actions.push([a0, a1, a2, a3]),
+            _ => return Err(ActionsError::BadRow { line: i + 1, found: line.to_string() }),
+        }
+    }
+    if actions.is_empty() {
+        return Err(ActionsError::Empty);
+    }
+    Ok(actions)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -150,5 +191,13 @@ mod tests {
         let hover = Command::hover().to_action(&QuadrotorParams::default());
         let rows = replay(track(), Some(start), &[hover]);
         assert!((rows[0].position[1] - 2.0).abs() < 1e-6 && (rows[0].position[2] - 3.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn action_files_skip_a_header_and_comments_and_name_a_bad_line() {
+        assert_eq!(parse_actions("a0,a1,a2,a3\n# hover\n0,0,0,0\n\n1,-1,0.5,0\n"), Ok(vec![[0.0; 4], [1.0, -1.0, 0.5, 0.0]]));
+        assert_eq!(parse_actions("0,0,0\n"), Err(ActionsError::BadRow { line: 1, found: "0,0,0".into() }));
+        assert_eq!(parse_actions("0,0,0,0\n0,nan,0,0\n"), Err(ActionsError::BadRow { line: 2, found: "0,nan,0,0".into() }));
+        assert_eq!(parse_actions("# nothing\n"), Err(ActionsError::Empty));
     }
 }

@@ -1,14 +1,12 @@
 //! `dronerace tracks …`: draw, fit, generate and benchmark tracks.
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::time::Instant;
 
 use ::sim::nalgebra::Vector3;
 use anyhow::{Context, bail};
 use clap::{Subcommand, ValueEnum};
 use racetracks::{GeneratorKind, TrackGenParams, TrackGenerator};
-use taskctl::{SwitchParams, TaskController};
 
 use super::{load_tracks, read_text};
 use figures::plot::Layout;
@@ -84,9 +82,6 @@ pub enum TracksCommand {
         #[arg(long)]
         out: PathBuf,
     },
-    /// Measure generation and switching (an earlier spelling of `bench tracks`).
-    #[command(hide = true)]
-    Bench(TracksBenchArgs),
 }
 
 /// Arguments of `dronerace bench tracks`.
@@ -188,7 +183,6 @@ pub fn run(command: TracksCommand) -> anyhow::Result<()> {
             );
             Ok(())
         }
-        TracksCommand::Bench(args) => bench(args),
     }
 }
 
@@ -243,43 +237,25 @@ fn fit(points: &Path, smoothing: f64) -> anyhow::Result<()> {
 /// Generation rate and acceptance for both generators; task-controller update cost.
 pub fn bench(args: TracksBenchArgs) -> anyhow::Result<()> {
     let TracksBenchArgs { count, envs, window } = args;
-    anyhow::ensure!(count > 0 && envs > 0 && window > 1, "--count, --envs must be ≥ 1 and --window ≥ 2");
-    for kind in [GeneratorKind::Informed, GeneratorKind::Uniform] {
-        let generator = TrackGenerator { kind, params: TrackGenParams::default() };
-        let started = Instant::now();
-        let mut attempts = 0;
-        for seed in 0..count as u64 {
-            attempts += generator.generate(seed, "bench")?.attempts;
-        }
-        let seconds = started.elapsed().as_secs_f64();
+    for t in taskctl::bench::time_generators(count)? {
         println!(
-            "{kind:?} generator: {:.0} tracks/s on one thread ({count} tracks in {seconds:.2} s), acceptance {:.1} % ({count} of {attempts} candidates)",
-            count as f64 / seconds,
-            100.0 * count as f64 / attempts as f64
+            "{:?} generator: {:.0} tracks/s on one thread ({} tracks in {:.2} s), acceptance {:.1} % ({} of {} candidates)",
+            t.kind,
+            t.tracks as f64 / t.seconds,
+            t.tracks,
+            t.seconds,
+            100.0 * t.tracks as f64 / t.candidates as f64,
+            t.tracks,
+            t.candidates
         );
     }
-    // Rewards of a flat curve with noise keep every window full and score it every time.
-    let switching = SwitchParams { window, ..SwitchParams::default() };
-    let tracks = std::iter::repeat_n(Arc::new(racetracks::library()?[0].clone()), envs).collect();
-    let mut controller = TaskController::with_tracks(tracks, TrackGenerator::default(), switching, 0)?;
-    let iterations = window as u64 + 200;
-    let mut timed = std::time::Duration::ZERO;
-    for iteration in 0..iterations {
-        let started = Instant::now();
-        for env in 0..envs {
-            let noise = taskctl::switching::uniform(1, env as u64, iteration);
-            controller.report(env, iteration, 100.0 + noise)?;
-        }
-        if iteration >= window as u64 {
-            timed += started.elapsed();
-        }
-    }
-    let per_update = timed.as_secs_f64() / 200.0;
+    let u = taskctl::bench::time_updates(envs, window)?;
     println!(
         "task controller: {:.3} ms per update of {envs} environments with full windows of {window} \
-         ({} switches in {iterations} iterations, new tracks generated included)",
-        per_update * 1e3,
-        controller.history().len()
+         ({} switches in {} iterations, new tracks generated included)",
+        u.seconds * 1e3,
+        u.switches,
+        u.iterations
     );
     Ok(())
 }

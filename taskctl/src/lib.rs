@@ -3,6 +3,7 @@
 //! (`service`). Tracks themselves come from the `racetracks` crate; the service's gRPC adapter
 //! and client live with the other adapters, in `proto` (`task_grpc`, `task_client`).
 
+pub mod bench;
 pub mod controller;
 pub mod service;
 pub mod switching;
