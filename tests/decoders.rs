@@ -204,7 +204,7 @@ fn fuzz(name: &str, seed: u64, valid: &[u8], fix: impl Fn(Vec<u8>) -> Vec<u8>, d
 
 fn tiny_learner() -> Learner {
     let config = TrainConfig { hidden: Some(vec![8]), envs: Some(2), ..TrainConfig::default() };
-    config.initial_learner().unwrap()
+    config.resolve().unwrap().initial_learner().unwrap()
 }
 
 fn chunk() -> RolloutChunk {
@@ -282,7 +282,7 @@ fn no_mutated_run_config_panics_its_checks() {
         16,
         text.as_bytes(),
         |b| b,
-        |b| std::str::from_utf8(b).ok().and_then(|t| TrainConfig::from_toml(t).ok()).is_some_and(|c| c.resolved_profile().is_ok()),
+        |b| std::str::from_utf8(b).ok().and_then(|t| TrainConfig::from_toml(t).ok()).is_some_and(|c| c.resolve().is_ok()),
     );
 }
 

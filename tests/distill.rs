@@ -233,7 +233,7 @@ fn every_shipped_distillation_and_vision_config_parses_and_names_files_that_exis
     }
     for path in toml_files("experiments/vision") {
         let config = runtime::TrainConfig::read(&path).unwrap_or_else(|e| panic!("{e}"));
-        assert_eq!(config.resolved_profile().unwrap().architecture.agent, policy::Agent::Vision, "{}", path.display());
+        assert_eq!(config.clone().resolve().unwrap().learner().architecture.agent, policy::Agent::Vision, "{}", path.display());
         if let Some(start) = &config.init_from {
             assert!(root.join(start).exists(), "{}: init_from {}", path.display(), start.display());
         }

@@ -436,8 +436,7 @@ fn bad_messages_are_refused_with_a_clear_status() {
         data: data.into(),
     };
     // Rows of the run's own observation length, so that only what each probe breaks is wrong.
-    let observation_dim =
-        runtime::TrainConfig::read(Path::new(&c.config)).unwrap().resolved_profile().unwrap().architecture.observation_dim;
+    let observation_dim = runtime::ResolvedRun::read(Path::new(&c.config)).unwrap().learner().architecture.observation_dim;
     let chunk = |version: u64, first_env: usize, poison: bool| {
         let mut chunk = policy::RolloutChunk::zeroed(version, first_env, 2, 3, observation_dim, sim::ACTION_DIM);
         if poison {

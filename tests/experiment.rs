@@ -176,7 +176,7 @@ fn every_documented_run_config_resolves() {
                     continue;
                 }
                 let config = runtime::TrainConfig::read(&path).unwrap_or_else(|e| panic!("{e}"));
-                config.resolved_profile().unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                config.clone().resolve().unwrap_or_else(|e| panic!("{}: {e}", path.display()));
                 count += 1;
             }
         }

@@ -20,7 +20,7 @@ const CHILD_OUTPUT: &str = "DRONERACE_KERNELS_OUTPUT";
 /// step of the cpu profile's MLP (512 samples) and of the vision agent (16 samples).
 fn step() -> serde_json::Value {
     let device = policy::Device::flex().autodiff();
-    let profile = learner::Profile::cpu();
+    let profile = learner::Profile::cpu().default_learner();
     serde_json::json!({
         "avx512f": std::arch::is_x86_feature_detected!("avx512f"),
         "state": learner::bench::gradient(&profile, 512, false, &device),

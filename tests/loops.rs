@@ -11,9 +11,9 @@ use learner::PpoConfig;
 use proto::ActorLink;
 use proto::board::LearnerBoard;
 use proto::memory::memory_link;
+use runtime::LearnerSettings;
 use runtime::actor_process::{ActorLoop, ActorSettings, Pass};
 use runtime::learner_process::{LearnerProcess, learner_only};
-use runtime::run::LearnerSettings;
 use runtime::{Run, TrainConfig};
 use taskctl::LocalTasks;
 
@@ -21,7 +21,7 @@ use taskctl::LocalTasks;
 /// with its end of an in-memory link, and a learner expecting both.
 struct TwoActors {
     _dir: tempfile::TempDir,
-    config: TrainConfig,
+    config: runtime::ResolvedRun,
     tasks: LocalTasks,
     stop: AtomicBool,
     links: [proto::memory::MemoryActorLink; 2],
@@ -38,14 +38,16 @@ impl TwoActors {
             envs: Some(4),
             ppo: Some(PpoConfig { n_steps: 16, batch_size: 32, n_epochs: 1, ..PpoConfig::default() }),
             ..TrainConfig::default()
-        };
-        let tasks = LocalTasks::new(config.task_controller(4).unwrap(), None);
+        }
+        .resolve()
+        .unwrap();
+        let tasks = LocalTasks::new(config.task_controller().unwrap(), None);
         let stop = AtomicBool::new(false);
         let settings = |name: &str| ActorSettings {
             name: name.into(),
             envs: 2,
             seed: 1,
-            env: config.env,
+            env: config.config().env,
             n_steps: 16,
             weights_timeout: Duration::from_secs(60),
             max_rollouts: None,
@@ -95,7 +97,7 @@ fn an_actor_that_misses_an_iteration_is_dropped_and_rejoins_with_its_next_rollou
     assert_eq!(a0.pass(&mut link0, &tasks, &stop).unwrap(), Pass::Sent);
     learner.iteration_step(&stop, Some(&tasks), &learner_only).unwrap().unwrap();
     assert_eq!(members(), ["a0"]);
-    let observation_dim = config.resolved_profile().unwrap().architecture.observation_dim;
+    let observation_dim = config.learner().architecture.observation_dim;
     let stale = policy::RolloutChunk::zeroed(3, 2, 2, 16, observation_dim, sim::ACTION_DIM);
     link1.send_rollout("a1", status.status().learner_epoch, &stale).unwrap();
     assert_eq!(a0.pass(&mut link0, &tasks, &stop).unwrap(), Pass::Sent);
@@ -111,13 +113,22 @@ fn an_actor_left_without_a_newer_version_resends_after_its_timeout_then_waits_tw
         envs: Some(2),
         ppo: Some(PpoConfig { n_steps: 16, batch_size: 32, n_epochs: 1, ..PpoConfig::default() }),
         ..TrainConfig::default()
-    };
+    }
+    .resolve()
+    .unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let tasks = LocalTasks::new(config.task_controller(2).unwrap(), None);
+    let tasks = LocalTasks::new(config.task_controller().unwrap(), None);
     let stop = AtomicBool::new(false);
     let timeout = Duration::from_millis(1000);
-    let settings =
-        ActorSettings { name: "a0".into(), envs: 2, seed: 1, env: config.env, n_steps: 16, weights_timeout: timeout, max_rollouts: None };
+    let settings = ActorSettings {
+        name: "a0".into(),
+        envs: 2,
+        seed: 1,
+        env: config.config().env,
+        n_steps: 16,
+        weights_timeout: timeout,
+        max_rollouts: None,
+    };
     let (mut link, learner_end) = memory_link();
     let mut actor = ActorLoop::register(&settings, &tasks, &stop).unwrap().unwrap();
     // The learner publishes version 0 and never trains: no newer version comes.
@@ -145,7 +156,7 @@ fn an_actor_left_without_a_newer_version_resends_after_its_timeout_then_waits_tw
 fn a_poisoned_rollout_and_one_for_another_actors_environments_are_refused_and_training_goes_on() {
     let TwoActors { config, tasks, stop, links: [mut link0, mut link1], actors: [mut a0, mut a1], status, mut learner, .. } =
         TwoActors::start();
-    let observation_dim = config.resolved_profile().unwrap().architecture.observation_dim;
+    let observation_dim = config.learner().architecture.observation_dim;
     let epoch = status.status().learner_epoch;
 
     let mut poisoned = policy::RolloutChunk::zeroed(0, 0, 2, 8, observation_dim, sim::ACTION_DIM);

@@ -41,11 +41,11 @@ fn straight_and_resumed(config: fn() -> TrainConfig, dir: &Path) -> (Trainer, Tr
     let (straight, resumed) = (dir.join("straight"), dir.join("resumed"));
     std::fs::create_dir_all(&straight).unwrap();
     std::fs::create_dir_all(&resumed).unwrap();
-    let mut a = Trainer::start(config(), &straight).unwrap();
+    let mut a = Trainer::start(config().resolve().unwrap(), &straight).unwrap();
     for _ in 0..3 {
         a.iteration_step().unwrap();
     }
-    let mut b = Trainer::start(config(), &resumed).unwrap();
+    let mut b = Trainer::start(config().resolve().unwrap(), &resumed).unwrap();
     for _ in 0..2 {
         b.iteration_step().unwrap();
     }
@@ -76,7 +76,7 @@ fn a_corrupt_newest_checkpoint_resumes_from_the_one_before_and_cut_off_writes_ar
     let dir = tempfile::tempdir().unwrap();
     let run = dir.path().join("run");
     let config = || TrainConfig { checkpoint_every: 1, ..tiny_config() };
-    let mut t = Trainer::start(config(), &run).unwrap();
+    let mut t = Trainer::start(config().resolve().unwrap(), &run).unwrap();
     for _ in 0..3 {
         t.iteration_step().unwrap();
     }
@@ -107,7 +107,7 @@ fn a_corrupt_newest_checkpoint_resumes_from_the_one_before_and_cut_off_writes_ar
 fn checkpoints_that_keep_failing_stop_the_run_with_a_fatal_error() {
     let dir = tempfile::tempdir().unwrap();
     let run = dir.path().join("run");
-    let mut t = Trainer::start(TrainConfig { checkpoint_every: 1, ..tiny_config() }, &run).unwrap();
+    let mut t = Trainer::start(TrainConfig { checkpoint_every: 1, ..tiny_config() }.resolve().unwrap(), &run).unwrap();
     t.iteration_step().unwrap();
     // A directory where a write's temporary file goes makes that write fail, as a full disk
     // would (root ignores permissions, so a read-only directory would not).
@@ -128,7 +128,7 @@ fn a_runs_wall_seconds_count_each_validation_once() {
     // run's wall seconds would exceed the time that passed.
     let dir = tempfile::tempdir().unwrap();
     let eval = runtime::EvalSettings { every: 1, tracks: 4, runs: 2, steps: 1000, ..runtime::EvalSettings::default() };
-    let mut trainer = Trainer::start(TrainConfig { eval, ..tiny_config() }, dir.path()).unwrap();
+    let mut trainer = Trainer::start(TrainConfig { eval, ..tiny_config() }.resolve().unwrap(), dir.path()).unwrap();
     let started = std::time::Instant::now();
     for _ in 0..3 {
         trainer.iteration_step().unwrap();
@@ -174,8 +174,8 @@ fn two_identical_runs_are_identical() {
     let (p, q) = (dir.path().join("p"), dir.path().join("q"));
     std::fs::create_dir_all(&p).unwrap();
     std::fs::create_dir_all(&q).unwrap();
-    let mut a = Trainer::start(tiny_config(), &p).unwrap();
-    let mut b = Trainer::start(tiny_config(), &q).unwrap();
+    let mut a = Trainer::start(tiny_config().resolve().unwrap(), &p).unwrap();
+    let mut b = Trainer::start(tiny_config().resolve().unwrap(), &q).unwrap();
     assert!(weights(&a) == weights(&b), "same initial weights");
     for i in 0..3 {
         a.iteration_step().unwrap();
@@ -190,13 +190,13 @@ fn fine_tuning_starts_from_the_given_policy_at_version_zero() {
     let (source, tuned) = (dir.path().join("source"), dir.path().join("tuned"));
     std::fs::create_dir_all(&source).unwrap();
     std::fs::create_dir_all(&tuned).unwrap();
-    let mut a = Trainer::start(tiny_config(), &source).unwrap();
+    let mut a = Trainer::start(tiny_config().resolve().unwrap(), &source).unwrap();
     for _ in 0..2 {
         a.iteration_step().unwrap();
     }
     let checkpoint = a.checkpoint().unwrap();
     let config = TrainConfig { init_from: Some(checkpoint), seed: 11, ..tiny_config() };
-    let b = Trainer::start(config.clone(), &tuned).unwrap();
+    let b = Trainer::start(config.clone().resolve().unwrap(), &tuned).unwrap();
     let (from, to) = (a.learner().weights(), b.learner().weights());
     assert_eq!(b.learner().version(), 0);
     assert_eq!(b.learner().env_steps(), 0);
@@ -204,7 +204,8 @@ fn fine_tuning_starts_from_the_given_policy_at_version_zero() {
     let values = |blob: &policy::WeightsBlob| blob.params.iter().map(|p| p.values.clone()).collect::<Vec<_>>();
     assert!(values(&to) == values(&from), "the network starts as the source policy");
     // A wider run (the paper profile's 512 × 512) starts from the policy's function.
-    let paper = Trainer::start(TrainConfig { profile: "paper".into(), ..config.clone() }, &dir.path().join("paper")).unwrap();
+    let paper =
+        Trainer::start(TrainConfig { profile: "paper".into(), ..config.clone() }.resolve().unwrap(), &dir.path().join("paper")).unwrap();
     let wide = paper.learner().weights();
     assert_eq!(wide.architecture.hidden, [512, 512]);
     let observations: Vec<f32> = (0..3 * from.architecture.observation_dim).map(|i| (i as f32 * 0.61).sin()).collect();
@@ -214,11 +215,11 @@ fn fine_tuning_starts_from_the_given_policy_at_version_zero() {
     }
     // A narrower run, or a policy of another shape, is refused, naming the file.
     let narrow = TrainConfig { hidden: Some(vec![8, 8]), ..config.clone() };
-    let err = Trainer::start(narrow, &dir.path().join("narrow")).err().expect("refused").to_string();
+    let err = Trainer::start(narrow.resolve().unwrap(), &dir.path().join("narrow")).err().expect("refused").to_string();
     assert!(err.contains("init_from") && err.contains("cannot widen"), "{err}");
     let mut fewer_points = config;
     fewer_points.env.observation.line_points = 2;
-    let err = Trainer::start(fewer_points, &dir.path().join("fewer-points")).err().expect("refused").to_string();
+    let err = Trainer::start(fewer_points.resolve().unwrap(), &dir.path().join("fewer-points")).err().expect("refused").to_string();
     assert!(err.contains("init_from") && err.contains("architecture"), "{err}");
 }
 
@@ -243,7 +244,7 @@ fn a_run_with_line_points_learns_from_46_numbers_and_resumes_bit_for_bit() {
     // A line spacing that is no distance is refused, naming the field.
     let mut bad = tiny_line_config();
     bad.env.observation.line_spacing = f64::NAN;
-    let err = Trainer::start(bad, &dir.path().join("bad-line")).err().expect("refused").to_string();
+    let err = Trainer::start(bad.resolve().unwrap(), &dir.path().join("bad-line")).err().expect("refused").to_string();
     assert!(err.contains("env.observation.line_spacing"), "{err}");
     let track = std::sync::Arc::new(racetracks::library_track("Figure8").unwrap().unwrap());
     let config = sim::eval::EvalConfig { runs: 2, steps: 50, ..sim::eval::EvalConfig::default() };
@@ -254,10 +255,10 @@ fn a_run_with_line_points_learns_from_46_numbers_and_resumes_bit_for_bit() {
 #[test]
 fn a_run_directory_with_checkpoints_is_not_overwritten() {
     let dir = tempfile::tempdir().unwrap();
-    let mut t = Trainer::start(tiny_config(), dir.path()).unwrap();
+    let mut t = Trainer::start(tiny_config().resolve().unwrap(), dir.path()).unwrap();
     t.iteration_step().unwrap();
     t.checkpoint().unwrap();
-    let err = Trainer::start(tiny_config(), dir.path()).err().expect("refused");
+    let err = Trainer::start(tiny_config().resolve().unwrap(), dir.path()).err().expect("refused");
     assert!(err.to_string().contains("already holds checkpoints"), "{err}");
 }
 
@@ -340,7 +341,7 @@ fn a_few_seconds_of_training_measurably_improve_the_mean_return() {
     config.switching.policy = taskctl::SwitchPolicy::None;
     config.env.race.max_episode_steps = 100;
     let dir = tempfile::tempdir().unwrap();
-    let mut trainer = Trainer::start(config, dir.path()).unwrap();
+    let mut trainer = Trainer::start(config.resolve().unwrap(), dir.path()).unwrap();
     let returns: Vec<f64> = (0..25).map(|_| trainer.iteration_step().unwrap().mean_return).collect();
     let first = returns[..4].iter().sum::<f64>() / 4.0;
     let last = returns[returns.len() - 4..].iter().sum::<f64>() / 4.0;
@@ -366,7 +367,7 @@ fn a_vision_config_takes_the_vb_columns_for_whatever_it_does_not_set() {
     assert_eq!(config.env.randomization, sim::RandomizationParams::vision_based());
     assert_eq!(config.env.reward, sim::RewardParams::vision_based());
     assert_eq!(config.switching.alpha, 100.0);
-    assert_eq!(config.resolved_profile().unwrap().architecture.agent, policy::Agent::Vision);
+    assert_eq!(config.clone().resolve().unwrap().learner().architecture.agent, policy::Agent::Vision);
     // A state-based file is read as before.
     let state = TrainConfig::from_toml("envs = 4\n").unwrap();
     assert_eq!((state.agent, state.switching.alpha, state.ppo), (policy::Agent::State, 1000.0, None));
@@ -380,7 +381,7 @@ fn a_vision_agent_trains_on_its_camera_images_and_resumes_bit_for_bit() {
     assert_eq!((blob.architecture.agent, blob.version), (policy::Agent::Vision, 3));
     assert!(weights(&b) == weights(&a), "the CNN, its optimiser and the camera-equipped environments continue exactly");
     // The learner refuses a rollout without the camera images its agent acted on.
-    let mut learner = tiny_vision_config().initial_learner().unwrap();
+    let mut learner = tiny_vision_config().resolve().unwrap().initial_learner().unwrap();
     let mut chunk = policy::RolloutChunk::zeroed(0, 0, 4, 16, sim::STATE_OBS_DIM, sim::ACTION_DIM);
     let err = learner.train(std::slice::from_ref(&chunk)).unwrap_err();
     assert!(err.to_string().contains("without its camera images"), "{err}");
@@ -390,7 +391,7 @@ fn a_vision_agent_trains_on_its_camera_images_and_resumes_bit_for_bit() {
     // SPEC §5's 40 numbers, as the vision chunk's rows: only the images are wrong for it.
     let mut spec_config = TrainConfig { hidden: Some(vec![8]), envs: Some(4), ..TrainConfig::default() };
     spec_config.env.observation.line_points = 0;
-    let mut state_learner = spec_config.initial_learner().unwrap();
+    let mut state_learner = spec_config.clone().resolve().unwrap().initial_learner().unwrap();
     let err = state_learner.train(std::slice::from_ref(&chunk)).unwrap_err();
     assert!(err.to_string().contains("camera images in a state-based"), "{err}");
 }

@@ -13,7 +13,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
-use crate::config::{PpoConfig, Profile};
+use crate::config::{LearnerConfig, PpoConfig};
 use crate::learner::adam;
 use crate::ppo::update::{PpoNetwork, TrainingBatch, clip_grad_norm, flat_gradients, minibatch_loss};
 
@@ -73,18 +73,18 @@ fn rendered_like_images(samples: usize, rng: &mut ChaCha8Rng) -> Vec<u8> {
 
 /// Runs one warm-up and `repeats` timed gradient steps of `model`: `loss` is the forward pass
 /// and the loss, then backward, gradient-norm clipping over `ids`, Adam
-/// with the profile's settings, and `force`, which reads a parameter so that the lazy update
+/// with the learner's settings, and `force`, which reads a parameter so that the lazy update
 /// runs inside the timing. Returns median (forward, backward, optimiser) seconds.
 fn time_steps<M: Module>(
-    profile: &Profile,
+    learner: &LearnerConfig,
     mut model: M,
     ids: &[(ParamId, usize)],
     repeats: usize,
     loss: impl Fn(&M) -> Tensor<1>,
     force: impl Fn(&M),
 ) -> (f64, f64, f64) {
-    let config = &profile.ppo;
-    let mut optimizer = adam(profile);
+    let mut optimizer = adam(learner);
+    let config = &learner.ppo;
     let (mut f, mut b, mut o) = (Vec::new(), Vec::new(), Vec::new());
     for round in 0..=repeats {
         let t0 = Instant::now();
@@ -113,17 +113,17 @@ fn time_steps<M: Module>(
 
 /// Times `repeats` gradient steps on `samples` random samples (after one warm-up step): the
 /// step training takes (`minibatch_loss`, backward, gradient-norm clipping, Adam with the
-/// profile's settings).
-pub fn time_gradient_step(profile: &Profile, samples: usize, repeats: usize, device: &Device) -> StepTiming {
-    let arch = &profile.architecture;
-    let config = &profile.ppo;
+/// learner's settings).
+pub fn time_gradient_step(learner: &LearnerConfig, samples: usize, repeats: usize, device: &Device) -> StepTiming {
+    let arch = &learner.architecture;
+    let config = &learner.ppo;
     let model = ActorCritic::new(arch, config.initial_log_std, 0, device);
     let batch = gaussian_batch(samples, arch.observation_dim, arch.action_dim, &mut ChaCha8Rng::seed_from_u64(0));
     let rows: Vec<usize> = (0..samples).collect();
     let ids = model.param_ids();
     let loss = |model: &ActorCritic| minibatch_loss(model, batch.minibatch(&rows, None, device), config).0;
     let force = |model: &ActorCritic| drop(model.log_std.val().into_data());
-    let (forward, backward, optimizer) = time_steps(profile, model, &ids, repeats, loss, force);
+    let (forward, backward, optimizer) = time_steps(learner, model, &ids, repeats, loss, force);
     let mut dims = vec![arch.observation_dim];
     dims.extend(&arch.hidden);
     let macs_per_sample: usize = dims.windows(2).map(|w| w[0] * w[1]).sum::<usize>() * 2
@@ -134,9 +134,9 @@ pub fn time_gradient_step(profile: &Profile, samples: usize, repeats: usize, dev
 
 /// [`time_gradient_step`] for the vision agent (SPEC §5): the CNN actor on random 84×84
 /// images and the state's proprioceptive part, the MLP critic on the state, the same PPO loss and optimiser.
-pub fn time_vision_gradient_step(profile: &Profile, samples: usize, repeats: usize, device: &Device) -> StepTiming {
-    let arch = &profile.architecture;
-    let config = &profile.ppo;
+pub fn time_vision_gradient_step(learner: &LearnerConfig, samples: usize, repeats: usize, device: &Device) -> StepTiming {
+    let arch = &learner.architecture;
+    let config = &learner.ppo;
     let model = VisionActorCritic::new(arch, config.initial_log_std, 0, device);
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     let mut batch = gaussian_batch(samples, arch.observation_dim, arch.action_dim, &mut rng);
@@ -145,7 +145,7 @@ pub fn time_vision_gradient_step(profile: &Profile, samples: usize, repeats: usi
     let ids = model.param_ids();
     let loss = |model: &VisionActorCritic| minibatch_loss(model, batch.minibatch(&rows, None, device), config).0;
     let force = |model: &VisionActorCritic| drop(model.log_std.val().into_data());
-    let (forward, backward, optimizer) = time_steps(profile, model, &ids, repeats, loss, force);
+    let (forward, backward, optimizer) = time_steps(learner, model, &ids, repeats, loss, force);
     let flops = 2.0 * 3.0 * (VisionActorCritic::macs_per_sample(arch) * samples) as f64;
     StepTiming { forward, backward, optimizer, gflops: flops / (forward + backward) / 1e9 }
 }
@@ -153,9 +153,9 @@ pub fn time_vision_gradient_step(profile: &Profile, samples: usize, repeats: usi
 /// The gradient of one minibatch loss on `samples` random samples — the MLP agent's, or with
 /// `vision` the CNN agent's on random images — every parameter's values in order: what the
 /// matrix kernels this CPU runs compute, for comparing them with another CPU's (tests/kernels.rs).
-pub fn gradient(profile: &Profile, samples: usize, vision: bool, device: &Device) -> Vec<f32> {
-    let arch = &profile.architecture;
-    let config = &profile.ppo;
+pub fn gradient(learner: &LearnerConfig, samples: usize, vision: bool, device: &Device) -> Vec<f32> {
+    let arch = &learner.architecture;
+    let config = &learner.ppo;
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     let mut batch = gaussian_batch(samples, arch.observation_dim, arch.action_dim, &mut rng);
     let rows: Vec<usize> = (0..samples).collect();

@@ -238,7 +238,7 @@ mod tests {
     fn validated_policies_keep_the_newest_and_drop_later_ones() {
         let dir = tempfile::tempdir().unwrap();
         let checkpoints = CheckpointDir::new(dir.path().to_path_buf(), 3).unwrap();
-        let policy = crate::Learner::new(crate::Profile::cpu(), 1000, 0).weights();
+        let policy = crate::Learner::new(crate::Profile::cpu().default_learner(), 1000, 0).weights();
         let names = |kept: Vec<PathBuf>| kept.iter().map(|p| p.file_name().unwrap().to_str().unwrap().to_owned()).collect::<Vec<_>>();
         for iteration in 1..=4 {
             checkpoints.save_validated(&policy, iteration, 2).unwrap();

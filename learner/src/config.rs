@@ -166,40 +166,48 @@ impl PpoConfig {
     }
 }
 
-/// A named combination of network, PPO settings and environment count.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+impl PpoConfig {
+    /// The project's state-based recipe: SPEC's column with γ = 0.998 (a crash costs the ~8 s of
+    /// progress after it, not ~4 s: SPEC §9 scores 20 s flights) and the mirror-symmetry term at
+    /// weight 1 (every policy trained without it flies a manoeuvre and its mirror image
+    /// differently; with it, unseen tracks are flown more often) taken on a quarter of each
+    /// minibatch (the same validation score over four seeds, 1.24× the whole run's speed:
+    /// experiments/mirror-fraction.toml). A run config's `[ppo]` table starts from it under
+    /// every profile; the thesis as written sets `gamma = 0.995` and `mirror_coef = 0`.
+    pub fn recipe() -> Self {
+        Self { gamma: 0.998, mirror_coef: 1.0, mirror_fraction: 0.25, ..Self::default() }
+    }
+}
+
+/// A named size of run: network widths, environments and how the rollout is cut into
+/// minibatches. Only sizes: the algorithm (γ, the mirror term, learning rates) is the run
+/// config's `[ppo]` table, the same under every profile.
+#[derive(Clone, Debug, PartialEq)]
 pub struct Profile {
     /// Name.
-    pub name: String,
-    /// Network shape.
+    pub name: &'static str,
+    /// Network shape (hidden widths; the observation layout is the run's).
     pub architecture: Architecture,
-    /// PPO settings.
-    pub ppo: PpoConfig,
     /// Parallel environments.
     pub envs: usize,
+    /// Minibatch size.
+    pub batch_size: usize,
+    /// Passes over the rollout per iteration.
+    pub n_epochs: usize,
 }
 
 impl Profile {
-    /// The thesis' configuration: 512×512 networks, 96 environments, SPEC §10 as is.
+    /// The thesis' sizes: 512×512 networks, 96 environments, minibatches of 28,000 over 10
+    /// epochs (SPEC §10).
     pub fn paper() -> Self {
-        Self { name: "paper".into(), architecture: Architecture::paper(), ppo: PpoConfig::default(), envs: 96 }
+        let spec = PpoConfig::default();
+        Self { name: "paper", architecture: Architecture::paper(), envs: 96, batch_size: spec.batch_size, n_epochs: spec.n_epochs }
     }
 
     /// For a 2-core CPU: 256×256 networks and 4000-sample minibatches over 5 epochs (more,
-    /// cheaper gradient steps per collected sample), γ = 0.998 (a crash costs the ~8 s of
-    /// progress after it, not ~4 s: SPEC §9 scores 20 s flights), and the mirror-symmetry term
-    /// at weight 1 (every policy trained without it flies a manoeuvre and its mirror image
-    /// differently; with it, unseen tracks are flown more often) taken on a quarter of each
-    /// minibatch (the same validation score over four seeds, 1.24× the whole run's speed:
-    /// experiments/mirror-fraction.toml); the rest as the paper.
+    /// cheaper gradient steps per collected sample); the rest as the paper.
     pub fn cpu() -> Self {
-        Self {
-            name: "cpu".into(),
-            architecture: Architecture::cpu(),
-            ppo: PpoConfig { batch_size: 4000, n_epochs: 5, gamma: 0.998, mirror_coef: 1.0, mirror_fraction: 0.25, ..PpoConfig::default() },
-            envs: 96,
-        }
+        Self { name: "cpu", architecture: Architecture::cpu(), batch_size: 4000, n_epochs: 5, ..Self::paper() }
     }
 
     /// A profile by name.
@@ -210,11 +218,47 @@ impl Profile {
             _ => None,
         }
     }
+
+    /// `ppo` cut into this profile's minibatches.
+    pub fn sized(&self, ppo: PpoConfig) -> PpoConfig {
+        PpoConfig { batch_size: self.batch_size, n_epochs: self.n_epochs, ..ppo }
+    }
+
+    /// The learner a run of this size trains by default: [`PpoConfig::recipe`] in this
+    /// profile's minibatches.
+    pub fn default_learner(&self) -> LearnerConfig {
+        self.learner_config(self.sized(PpoConfig::recipe()))
+    }
+
+    /// What a learner of this size trains with `ppo` (already sized, or set by the run).
+    pub fn learner_config(&self, ppo: PpoConfig) -> LearnerConfig {
+        LearnerConfig { architecture: self.architecture.clone(), ppo, envs: self.envs }
+    }
+}
+
+/// Everything a learner trains with: the network, the PPO settings and the environments whose
+/// rollouts each iteration takes. Saved with every checkpoint.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LearnerConfig {
+    /// Network shape.
+    pub architecture: Architecture,
+    /// PPO settings.
+    pub ppo: PpoConfig,
+    /// Parallel environments.
+    pub envs: usize,
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn profiles_differ_in_sizes_only() {
+        let (cpu, paper) = (Profile::cpu().sized(PpoConfig::recipe()), Profile::paper().sized(PpoConfig::recipe()));
+        assert_eq!((cpu.batch_size, cpu.n_epochs, paper.batch_size, paper.n_epochs), (4000, 5, 28_000, 10));
+        assert_eq!(PpoConfig { batch_size: 0, n_epochs: 0, ..cpu }, PpoConfig { batch_size: 0, n_epochs: 0, ..paper });
+        assert_eq!(Profile::paper().sized(PpoConfig::default()), PpoConfig::default(), "the paper's sizes are SPEC's");
+    }
 
     #[test]
     fn learning_rate_falls_linearly_from_start_to_end() {

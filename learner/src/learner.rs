@@ -9,7 +9,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::adam::FusedAdam;
-use crate::config::Profile;
+use crate::config::LearnerConfig;
 use crate::ppo::{GaeInput, MirrorTerm, TrainingBatch, UpdateStats, UpdateStep, gae, update};
 
 /// A batch of chunks the learner refuses.
@@ -53,7 +53,9 @@ struct Counters {
     version: u64,
     env_steps: u64,
     total_env_steps: u64,
-    profile: Profile,
+    /// Named `profile` in checkpoints written before the profile held only sizes.
+    #[serde(alias = "profile")]
+    config: LearnerConfig,
     normalizer: ObsNormalizer,
     rng: ChaCha8Rng,
 }
@@ -105,18 +107,18 @@ pub struct Learner {
 
 impl Learner {
     /// A fresh learner for a run of `total_env_steps` (the learning-rate schedule's length).
-    pub fn new(profile: Profile, total_env_steps: u64, seed: u64) -> Self {
+    pub fn new(config: LearnerConfig, total_env_steps: u64, seed: u64) -> Self {
         let device = Device::flex().autodiff();
-        let model = Some(Network::new(&profile.architecture, profile.ppo.initial_log_std, seed, &device));
+        let model = Some(Network::new(&config.architecture, config.ppo.initial_log_std, seed, &device));
         let counters = Counters {
             version: 0,
             env_steps: 0,
             total_env_steps,
-            normalizer: ObsNormalizer::new(profile.architecture.observation_dim),
+            normalizer: ObsNormalizer::new(config.architecture.observation_dim),
             rng: ChaCha8Rng::seed_from_u64(seed ^ 0x5050_4f00),
-            profile,
+            config,
         };
-        let optimizer = adam(&counters.profile);
+        let optimizer = adam(&counters.config);
         Self { counters, device, model, optimizer }
     }
 
@@ -124,15 +126,15 @@ impl Learner {
     /// trained policy: fine-tuning, e.g. the generalist on one track (thesis §3.4.4). The
     /// fine-tune may change `gate_sight`: the gate corners mean the same, only when they are
     /// shown changes. A vision actor that reads its previous action keeps reading it.
-    pub fn from_policy(profile: Profile, total_env_steps: u64, seed: u64, blob: &WeightsBlob) -> Result<Self, LearnerError> {
+    pub fn from_policy(config: LearnerConfig, total_env_steps: u64, seed: u64, blob: &WeightsBlob) -> Result<Self, LearnerError> {
         // Whether a vision actor reads its previous action is the policy's own (a distilled
         // student's): the environments write that action either way.
-        let mut profile = profile;
-        profile.architecture.vision_previous_action = blob.architecture.vision_previous_action;
-        let mut expected = profile.architecture.clone();
+        let mut config = config;
+        config.architecture.vision_previous_action = blob.architecture.vision_previous_action;
+        let mut expected = config.architecture.clone();
         expected.observation.gate_sight = blob.architecture.observation.gate_sight;
         blob.check_architecture(&expected).map_err(|e| LearnerError::State(e.to_string()))?;
-        let mut learner = Self::new(profile, total_env_steps, seed);
+        let mut learner = Self::new(config, total_env_steps, seed);
         learner.model = Some(Network::from_blob(blob, &learner.device).map_err(|e| LearnerError::State(e.to_string()))?);
         learner.counters.normalizer = blob.normalizer.clone();
         // `new`'s optimiser holds no moments yet, so it starts afresh for the imported ids.
@@ -149,16 +151,16 @@ impl Learner {
         self.counters.env_steps
     }
 
-    /// The profile being trained.
-    pub fn profile(&self) -> &Profile {
-        &self.counters.profile
+    /// What this learner trains with.
+    pub fn config(&self) -> &LearnerConfig {
+        &self.counters.config
     }
 
     /// Weights of the current version, for actors and checkpoints.
     #[allow(clippy::expect_used, reason = "the model is present between calls")]
     pub fn weights(&self) -> WeightsBlob {
         let c = &self.counters;
-        self.model.as_ref().expect("the model is present between calls").blob(c.version, &c.profile.architecture, &c.normalizer)
+        self.model.as_ref().expect("the model is present between calls").blob(c.version, &c.config.architecture, &c.normalizer)
     }
 
     /// One PPO iteration on admitted chunks (their versions were checked where they arrived,
@@ -169,7 +171,7 @@ impl Learner {
         if chunks.is_empty() {
             return Err(LearnerError::Empty);
         }
-        let ppo = self.counters.profile.ppo;
+        let ppo = self.counters.config.ppo;
         let mut batch = TrainingBatch::default();
         let mut transitions = 0;
         for chunk in chunks {
@@ -206,7 +208,7 @@ impl Learner {
         // Built from this version's statistics, the ones the batch was normalised with.
         // The term off (the default) builds no mirror map at all.
         let mirror = (ppo.mirror_coef > 0.0)
-            .then(|| c.profile.architecture.observation.mirror())
+            .then(|| c.config.architecture.observation.mirror())
             .flatten()
             .map(|m| MirrorTerm::new(&m, &c.normalizer, ppo.mirror_coef, &self.device).on_fraction(ppo.mirror_fraction));
         let step = UpdateStep { learning_rate, train_policy: c.version >= ppo.critic_warmup_iterations, mirror: mirror.as_ref() };
@@ -256,7 +258,7 @@ impl Learner {
     }
 
     fn check(&self, chunk: &RolloutChunk) -> Result<(), LearnerError> {
-        let arch = &self.counters.profile.architecture;
+        let arch = &self.counters.config.architecture;
         chunk.check(arch.observation_dim, arch.action_dim, arch.agent == Agent::Vision).map_err(LearnerError::Malformed)
     }
 
@@ -275,6 +277,24 @@ impl Learner {
         Self::restore_state(c.get("weights")?, c.get("optimizer")?, c.get("learner")?)
     }
 
+    /// Restores a learner from a checkpoint of the run `config` and `total_env_steps` describe:
+    /// the checkpoint must have trained the same network and PPO settings, and the learning-rate
+    /// schedule follows the run's length (a run whose `total_env_steps` grew goes on decaying to
+    /// the new end, which is also where the run stops).
+    pub fn resume(c: &crate::checkpoint::Checkpoint, config: &LearnerConfig, total_env_steps: u64) -> Result<Self, LearnerError> {
+        let mut learner = Self::from_checkpoint(c)?;
+        let trained = &learner.counters.config;
+        if trained.ppo != config.ppo || trained.envs != config.envs || trained.architecture.hidden != config.architecture.hidden {
+            return Err(LearnerError::State(format!(
+                "the checkpoint trained {:?} with {} environments and {:?}, and the run's config says {:?} with {} and {:?}: \
+                 set config.toml back to the checkpoint's settings, or start a new run",
+                trained.architecture.hidden, trained.envs, trained.ppo, config.architecture.hidden, config.envs, config.ppo
+            )));
+        }
+        learner.counters.total_env_steps = total_env_steps;
+        Ok(learner)
+    }
+
     /// Everything needed to continue training exactly: weights, optimiser moments, counters.
     #[allow(clippy::expect_used, reason = "optimiser state serialises; counters serialise")]
     pub fn save_state(&self) -> (Vec<u8>, Vec<u8>, Vec<u8>) {
@@ -288,10 +308,10 @@ impl Learner {
     pub fn restore_state(weights: &[u8], optimizer: &[u8], counters: &[u8]) -> Result<Self, LearnerError> {
         let counters: Counters = serde_json::from_slice(counters).map_err(|e| LearnerError::State(e.to_string()))?;
         let blob = WeightsBlob::from_bytes(weights).map_err(|e| LearnerError::State(e.to_string()))?;
-        blob.check_architecture(&counters.profile.architecture).map_err(|e| LearnerError::State(e.to_string()))?;
+        blob.check_architecture(&counters.config.architecture).map_err(|e| LearnerError::State(e.to_string()))?;
         let device = Device::flex().autodiff();
         let model = Some(Network::from_blob(&blob, &device).map_err(|e| LearnerError::State(e.to_string()))?);
-        let optimizer = adam(&counters.profile)
+        let optimizer = adam(&counters.config)
             .from_bytes(Bytes::from_bytes_vec(optimizer.to_vec()))
             .map_err(|e| LearnerError::State(format!("optimiser: {e:?}")))?;
         Ok(Self { counters, device, model, optimizer })
@@ -300,8 +320,8 @@ impl Learner {
 
 /// Adam with SPEC §10's ε and L2 weight decay added to the gradient (torch Adam semantics),
 /// fused ([`FusedAdam`]).
-pub(crate) fn adam(profile: &Profile) -> ModuleOptimizer {
-    let ppo = &profile.ppo;
+pub(crate) fn adam(config: &LearnerConfig) -> ModuleOptimizer {
+    let ppo = &config.ppo;
     let decay = (ppo.weight_decay > 0.0).then_some(ppo.weight_decay as f32);
     FusedAdam::new(ppo.adam_epsilon as f32, decay).init()
 }
@@ -309,7 +329,7 @@ pub(crate) fn adam(profile: &Profile) -> ModuleOptimizer {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::Profile;
+    use crate::config::{LearnerConfig, Profile};
 
     #[test]
     fn a_fine_tune_may_change_which_gate_corners_are_shown_and_nothing_else() {
@@ -317,7 +337,7 @@ mod tests {
         camera.observation.gate_sight = sim::GateSight::Camera;
         let net = ActorCritic::new(&camera, -0.5, 7, &Device::flex());
         let blob = WeightsBlob::from_model(3, &camera, &ObsNormalizer::new(camera.observation_dim), &net);
-        let profile = |architecture: Architecture| Profile { architecture, ..Profile::cpu() };
+        let profile = |architecture: Architecture| LearnerConfig { architecture, ..Profile::cpu().default_learner() };
         let mut all = camera.clone();
         all.observation.gate_sight = sim::GateSight::All;
         let learner = Learner::from_policy(profile(all.clone()), 1000, 0, &blob).unwrap();
@@ -339,7 +359,7 @@ mod tests {
             .unwrap()
             .with_log_std(-1.5)
             .unwrap();
-        let profile = Profile { architecture: vision, ..Profile::cpu() };
+        let profile = LearnerConfig { architecture: vision, ..Profile::cpu().default_learner() };
         let learner = Learner::from_policy(profile, 1000, 0, &student).unwrap();
         let weights = learner.weights();
         assert!(weights.architecture.vision_previous_action);
@@ -362,7 +382,10 @@ mod tests {
     /// goes on from them.
     #[test]
     fn a_poisoned_update_is_rolled_back_and_training_continues_from_the_last_good_weights() {
-        let profile = Profile { architecture: Architecture { hidden: vec![16, 16], ..Architecture::cpu() }, ..Profile::cpu() };
+        let profile = LearnerConfig {
+            architecture: Architecture { hidden: vec![16, 16], ..Architecture::cpu() },
+            ..Profile::cpu().default_learner()
+        };
         let (obs, act) = (profile.architecture.observation_dim, profile.architecture.action_dim);
         let mut learner = Learner::new(profile, 100_000, 3);
         let chunk = |log_prob: f32| {
@@ -377,9 +400,9 @@ mod tests {
         let refused = learner.train(&[chunk(-1.0e9)]).unwrap_err().to_string();
         assert!(refused.contains("log_probs[0]"), "{refused}");
         assert_eq!((learner.version(), learner.weights()), (0, good.clone()), "a refused rollout changes nothing");
-        let sane = learner.counters.profile.ppo;
-        learner.counters.profile.ppo.learning_rate_start = 1e7;
-        learner.counters.profile.ppo.learning_rate_end = 1e7;
+        let sane = learner.counters.config.ppo;
+        learner.counters.config.ppo.learning_rate_start = 1e7;
+        learner.counters.config.ppo.learning_rate_end = 1e7;
         let report = learner.train(&[chunk(-3.0)]).unwrap();
         let reason = report.refused_update.expect("the diverging update is refused");
         assert!(reason.contains("1e6") || reason.contains("not") || reason.contains("NaN") || reason.contains("inf"), "{reason}");
@@ -387,7 +410,7 @@ mod tests {
         assert_eq!(kept.params, good.params, "the weights are the last good ones");
         assert_eq!(kept.normalizer, good.normalizer, "the refused batch did not move the normaliser");
         assert_eq!((report.version, report.env_steps), (1, 0), "the next version, no steps learned");
-        learner.counters.profile.ppo = sane;
+        learner.counters.config.ppo = sane;
         let report = learner.train(&[chunk(-3.0)]).unwrap();
         assert_eq!(report.refused_update, None);
         assert_eq!((report.version, report.env_steps), (2, 128));

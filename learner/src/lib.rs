@@ -10,5 +10,5 @@ pub mod config;
 pub mod learner;
 pub mod ppo;
 
-pub use config::{Frozen, PpoConfig, Profile};
+pub use config::{Frozen, LearnerConfig, PpoConfig, Profile};
 pub use learner::{IterationReport, Learner, LearnerError, Network};

@@ -25,9 +25,10 @@ use policy::{Policy, PolicyController};
 use serde::{Deserialize, Serialize};
 use sim::eval::{EvalConfig, EvalReport, OutcomeCounts, evaluate};
 
+use crate::config::TrainConfig;
 use crate::overrides::merge;
 use crate::progress::IterationSummary;
-use crate::run::{TrainConfig, TrainError};
+use crate::run::TrainError;
 use crate::run_lock::{LockError, RunLock};
 use crate::trainer::Trainer;
 use learner::checkpoint::CheckpointDir;
@@ -178,7 +179,7 @@ impl Experiment {
         // Through text, so that toml's error shows the offending line and key.
         let text = toml::to_string(&table).map_err(|e| invalid(e.to_string()))?;
         let config = TrainConfig::from_toml(&text).map_err(|e| invalid(e.to_string()))?;
-        config.resolved_profile().map_err(|e| invalid(e.to_string()))?;
+        config.clone().resolve().map_err(|e| invalid(e.to_string()))?;
         Ok(config)
     }
 
@@ -301,7 +302,7 @@ pub fn run_experiment(
                 Trainer::resume(&dir).map_err(failed)?
             } else {
                 log.started.push(dir.clone());
-                Trainer::start(config, &dir).map_err(failed)?
+                Trainer::start(config.resolve().map_err(|e| failed(e.into()))?, &dir).map_err(failed)?
             };
             while !trainer.finished() {
                 if stop.load(Ordering::SeqCst) {

@@ -18,8 +18,9 @@ use proto::board::LearnerBoard;
 use proto::{Admission, Delivery, LearnerLink, LearnerStatus, Received, WeightsUpdate};
 use taskctl::TaskService;
 
+use crate::config::LearnerSettings;
 use crate::progress::IterationSummary;
-use crate::run::{IterationTiming, LearnerSettings, Run, TrainError};
+use crate::run::{IterationTiming, Run, TrainError};
 use crate::validation::Validator;
 use learner::checkpoint::Checkpoint;
 use learner::learner::Learner;
@@ -114,11 +115,12 @@ impl<L: LearnerLink> LearnerProcess<L> {
         board: Arc<LearnerBoard>,
         settings: LearnerSettings,
     ) -> Result<Self, TrainError> {
-        let profile = run.config().resolved_profile()?;
+        let resolved = run.resolved();
         let learner = match checkpoint {
-            Some(c) => Learner::from_checkpoint(c)?,
-            None => run.config().initial_learner()?,
+            Some(c) => Learner::resume(c, resolved.learner(), resolved.config().total_env_steps)?,
+            None => resolved.initial_learner()?,
         };
+        let total_envs = resolved.envs();
         // A fresh epoch per process lifetime: versions repeat after a restart, epochs do not.
         let clock = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default().as_nanos() as u64;
         let epoch = sim::seed::mix(clock ^ u64::from(std::process::id()));
@@ -130,7 +132,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
             board,
             settings,
             epoch,
-            total_envs: profile.envs,
+            total_envs,
             members: BTreeSet::new(),
             iterations_here: 0,
             refused_updates: 0,
@@ -156,7 +158,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
     }
 
     fn admission(&self) -> Admission {
-        let arch = &self.learner.profile().architecture;
+        let arch = &self.learner.config().architecture;
         Admission {
             learner_epoch: self.epoch,
             version: self.learner.version(),
@@ -165,7 +167,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
             action_dim: arch.action_dim,
             images: arch.agent == policy::Agent::Vision,
             total_envs: self.total_envs,
-            rollout_steps: self.learner.profile().ppo.n_steps,
+            rollout_steps: self.learner.config().ppo.n_steps,
         }
     }
 

@@ -1,4 +1,4 @@
-//! The training runtime: the run configuration and run directory (`run`), metrics files
+//! The training runtime: the run configuration, resolved once (`config`), the run directory (`run`), metrics files
 //! (`metrics`), validation during training (`validation`), the actor's and the learner's
 //! process loops (`actor_process`, `learner_process`), training in one process by turns of
 //! those same loops over an in-memory link (`trainer`), experiment files (`experiment`), config
@@ -9,6 +9,7 @@
 
 pub mod actor_process;
 pub mod chaos;
+pub mod config;
 pub mod experiment;
 pub mod learner_process;
 pub mod metrics;
@@ -21,7 +22,8 @@ pub mod supervisor;
 pub mod trainer;
 pub mod validation;
 
+pub use config::{ConfigError, LearnerSettings, ResolvedRun, TrackSource, TrainConfig, TrainFlags};
 pub use progress::IterationSummary;
-pub use run::{Run, TrackSource, TrainConfig, TrainError};
+pub use run::{Run, TrainError};
 pub use trainer::Trainer;
 pub use validation::{EvalSettings, Validation, Validator};

@@ -20,7 +20,7 @@ use taskctl::TaskService;
 
 use crate::learner_process::{LearnerProcess, learner_only};
 use crate::progress::{ProgressLog, progress_line};
-use crate::{Run, TrainConfig, TrainError};
+use crate::{ResolvedRun, Run, TrainConfig, TrainError};
 
 /// Why a process of the runtime could not start or stopped on an error.
 #[derive(Debug, thiserror::Error)]
@@ -81,11 +81,11 @@ impl ServiceError {
     }
 }
 
-/// The run configuration at `path`, or the defaults.
-pub fn read_config(path: Option<&Path>) -> Result<TrainConfig, TrainError> {
+/// The run configuration at `path`, or the defaults, resolved.
+pub fn read_config(path: Option<&Path>) -> Result<ResolvedRun, TrainError> {
     match path {
-        Some(p) => TrainConfig::read(p),
-        None => Ok(TrainConfig::default()),
+        Some(p) => ResolvedRun::read(p),
+        None => Ok(TrainConfig::default().resolve()?),
     }
 }
 
@@ -136,7 +136,7 @@ pub async fn until(stop: Arc<AtomicBool>) {
 /// What the task-controller process serves.
 pub struct TaskctlOptions {
     /// The run configuration (tracks, generator, switching, environment count, network).
-    pub config: TrainConfig,
+    pub config: ResolvedRun,
     /// Address to serve gRPC on.
     pub listen: SocketAddr,
     /// Snapshot file: restored at start when present, rewritten after every change.
@@ -147,9 +147,9 @@ pub struct TaskctlOptions {
 
 /// Serves the task controller until `stop`.
 pub fn taskctl(options: TaskctlOptions, stop: Arc<AtomicBool>) -> Result<(), ServiceError> {
-    let TaskctlOptions { config, listen, snapshot, health_listen } = options;
+    let TaskctlOptions { config: resolved, listen, snapshot, health_listen } = options;
+    let config = resolved.config();
     let security = Security::load(&config.network)?;
-    let envs = config.resolved_profile()?.envs; // also checks the config's values, the timeout among them
     // A write cut off by a kill leaves its temporary file; the snapshot itself is whole.
     let stale = durable::remove_stale_temporary(&snapshot)
         .map_err(|source| ServiceError::Io { what: format!("cleaning up beside {}", snapshot.display()), source })?;
@@ -161,7 +161,7 @@ pub fn taskctl(options: TaskctlOptions, stop: Arc<AtomicBool>) -> Result<(), Ser
         eprintln!("taskctl: restored {} environments and {} switches from {}", c.len(), c.history().len(), snapshot.display());
         c
     } else {
-        let c = config.task_controller(envs)?;
+        let c = resolved.task_controller()?;
         c.snapshot(&snapshot)?;
         c
     };
@@ -201,7 +201,7 @@ pub fn taskctl(options: TaskctlOptions, stop: Arc<AtomicBool>) -> Result<(), Ser
 /// What the learner process serves and trains.
 pub struct LearnerOptions {
     /// The run configuration of a new run (a run directory that holds a run keeps its own).
-    pub config: TrainConfig,
+    pub config: ResolvedRun,
     /// Run directory: a new run starts there, or the run there resumes from its newest checkpoint.
     pub out: PathBuf,
     /// Address to serve gRPC on (status, weights, and rollouts over gRPC).
@@ -301,7 +301,7 @@ fn drive<L: LearnerLink>(
 /// What an actor process runs and where it sends its rollouts.
 pub struct ActorOptions {
     /// The run configuration (environment, seed, n_steps of the profile, network).
-    pub config: TrainConfig,
+    pub config: ResolvedRun,
     /// Actor name (stable across restarts: it takes back its environments).
     pub name: String,
     /// Environments this actor runs.
@@ -327,8 +327,7 @@ pub fn actor(options: ActorOptions, stop: Arc<AtomicBool>) -> Result<(), Service
         return Err(option("--envs", "must be at least 1".into()));
     }
     proto::transport::check_actor_name(&options.name).map_err(|e| option("--name", e.to_string()))?;
-    let config = &options.config;
-    let profile = config.resolved_profile()?;
+    let config = options.config.config();
     let security = Security::load(&config.network)?;
     if let Some(owner) = security.token_actor().filter(|owner| *owner != options.name) {
         let message = format!(
@@ -345,7 +344,7 @@ pub fn actor(options: ActorOptions, stop: Arc<AtomicBool>) -> Result<(), Service
         envs: options.envs,
         seed: config.seed,
         env: config.env,
-        n_steps: profile.ppo.n_steps,
+        n_steps: options.config.n_steps(),
         weights_timeout: Duration::from_secs_f64(config.learner.actor_timeout_seconds.max(0.1)),
         max_rollouts: options.rollouts,
     };

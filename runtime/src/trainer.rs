@@ -18,9 +18,10 @@ use proto::board::LearnerBoard;
 use proto::memory::{MemoryActorLink, MemoryLearnerLink, memory_link};
 use taskctl::{LocalTasks, TaskController, TaskService};
 
+use crate::config::{LearnerSettings, ResolvedRun};
 use crate::learner_process::LearnerProcess;
 use crate::progress::IterationSummary;
-use crate::run::{LearnerSettings, Run, TrainConfig, TrainError};
+use crate::run::{Run, TrainError};
 use learner::checkpoint::Checkpoint;
 use learner::learner::Learner;
 
@@ -37,13 +38,13 @@ pub struct Trainer {
     stop: AtomicBool,
 }
 
-fn actor_settings(config: &TrainConfig, envs: usize, n_steps: usize) -> ActorSettings {
+fn actor_settings(resolved: &ResolvedRun) -> ActorSettings {
     ActorSettings {
         name: ACTOR.into(),
-        envs,
-        seed: config.seed,
-        env: config.env,
-        n_steps,
+        envs: resolved.envs(),
+        seed: resolved.config().seed,
+        env: resolved.config().env,
+        n_steps: resolved.n_steps(),
         weights_timeout: std::time::Duration::MAX,
         max_rollouts: None,
     }
@@ -51,14 +52,13 @@ fn actor_settings(config: &TrainConfig, envs: usize, n_steps: usize) -> ActorSet
 
 impl Trainer {
     /// Starts a new run in `dir` (which must not hold checkpoints already).
-    pub fn start(config: TrainConfig, dir: &Path) -> Result<Self, TrainError> {
-        let profile = config.resolved_profile()?;
-        let tasks = LocalTasks::new(config.task_controller(profile.envs)?, None);
-        let settings = actor_settings(&config, profile.envs, profile.ppo.n_steps);
+    pub fn start(resolved: ResolvedRun, dir: &Path) -> Result<Self, TrainError> {
+        let tasks = LocalTasks::new(resolved.task_controller()?, None);
+        let settings = actor_settings(&resolved);
         let stop = AtomicBool::new(false);
         let actor =
             ActorLoop::register(&settings, &tasks, &stop)?.ok_or_else(|| TrainError::TurnOrder("stopped while registering".into()))?;
-        let run = Run::create(config, dir)?;
+        let run = Run::create(resolved, dir)?;
         Self::assemble(run, None, actor, tasks)
     }
 
@@ -69,10 +69,9 @@ impl Trainer {
         let state: ActorState = serde_json::from_slice(checkpoint.get("actor")?)
             .map_err(|e| TrainError::Encoding { what: format!("{}: actor", origin.display()), reason: e.to_string() })?;
         let tasks = LocalTasks::new(TaskController::from_snapshot_bytes(checkpoint.get("taskctl")?, &origin)?, None);
-        let profile = run.config().resolved_profile()?;
-        let settings = actor_settings(run.config(), profile.envs, profile.ppo.n_steps);
+        let settings = actor_settings(run.resolved());
         // The controller knows the actor already: registering again tells where its reports continue.
-        let next_rollout = tasks.register(ACTOR, profile.envs)?.next_rollout;
+        let next_rollout = tasks.register(ACTOR, settings.envs)?.next_rollout;
         let actor = ActorLoop::restore(&settings, state, next_rollout);
         Self::assemble(run, Some(&checkpoint), actor, tasks)
     }

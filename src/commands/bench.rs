@@ -53,22 +53,23 @@ pub struct LearnerBenchArgs {
 
 /// Times forward, backward and the optimiser step of one PPO gradient step.
 fn learner_step(args: LearnerBenchArgs) -> anyhow::Result<()> {
-    let mut profile = learner::Profile::named(&args.profile).with_context(|| format!("--profile: unknown profile {:?}", args.profile))?;
+    let profile = learner::Profile::named(&args.profile).with_context(|| format!("--profile: unknown profile {:?}", args.profile))?;
+    let mut learner = profile.default_learner();
     anyhow::ensure!(args.samples > 0 && args.repeats > 0, "--samples and --repeats must be at least 1");
     if let Some(hidden) = args.hidden {
         anyhow::ensure!(!hidden.is_empty() && !hidden.contains(&0), "--hidden: widths must be at least 1, e.g. 128,128");
-        profile.architecture.hidden = hidden;
+        learner.architecture.hidden = hidden;
     }
     let device = learner::bench::device(&args.backend).context("--backend")?;
     let t = match super::train::parse_agent(&args.agent)? {
-        policy::Agent::State => learner::bench::time_gradient_step(&profile, args.samples, args.repeats, &device),
-        policy::Agent::Vision => learner::bench::time_vision_gradient_step(&profile, args.samples, args.repeats, &device),
+        policy::Agent::State => learner::bench::time_gradient_step(&learner, args.samples, args.repeats, &device),
+        policy::Agent::Vision => learner::bench::time_vision_gradient_step(&learner, args.samples, args.repeats, &device),
     };
     println!(
         "{} {} profile {:?}, {} samples, {} backend, {} threads: forward {:.1} ms, backward {:.1} ms, optimiser {:.1} ms, {:.1} GFLOP/s (forward+backward)",
         args.agent,
         profile.name,
-        profile.architecture.hidden,
+        learner.architecture.hidden,
         args.samples,
         args.backend,
         rayon::current_num_threads(),

@@ -38,8 +38,7 @@ pub struct ServeArgs {
 
 /// Serves the policy until SIGINT/SIGTERM.
 pub fn serve(args: ServeArgs) -> anyhow::Result<()> {
-    let config = runtime::services::read_config(args.config.as_deref())?;
-    let security = proto::Security::load(&config.network)?;
+    let security = super::client_security(args.config.as_deref())?;
     security.check_listen(&args.listen)?;
     let blob = learner::checkpoint::read_policy(&args.policy)?;
     let mut pilot = PolicyPilot::new(Arc::new(Policy::from_blob(&blob)?));

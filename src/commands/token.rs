@@ -7,8 +7,6 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 
-use runtime::services::read_config;
-
 /// Arguments of `dronerace token`.
 #[derive(Args)]
 pub struct TokenArgs {
@@ -23,8 +21,7 @@ pub struct TokenArgs {
 /// Prints the token of `--actor`: put it in a file on that actor's machine and name the file
 /// as its `[network] token_file`.
 pub fn run(args: TokenArgs) -> anyhow::Result<()> {
-    let config = read_config(Some(&args.config))?;
-    let security = proto::Security::load(&config.network)?;
+    let security = super::client_security(Some(&args.config))?;
     let token = security.actor_token(&args.actor).with_context(|| format!("{}", args.config.display()))?;
     println!("{token}");
     Ok(())

@@ -10,7 +10,7 @@ use std::sync::atomic::Ordering;
 use crate::signal::stop_flag;
 use learner::checkpoint::CheckpointDir;
 use runtime::progress::{ProgressLog, progress_line};
-use runtime::{TrackSource, TrainConfig, Trainer};
+use runtime::{ResolvedRun, Run, TrainConfig, TrainFlags, Trainer};
 
 use runtime::supervisor::{self, ClusterPlan};
 
@@ -72,46 +72,26 @@ pub(crate) fn parse_agent(name: &str) -> anyhow::Result<policy::Agent> {
     }
 }
 
-/// The run directory and its config: a new one (written to `<dir>/config.toml`), or the one
-/// being resumed.
-fn prepare(args: &TrainArgs) -> anyhow::Result<(PathBuf, TrainConfig, bool)> {
+/// The run directory and its resolved config: a new one, or the one being resumed.
+fn prepare(args: &TrainArgs) -> anyhow::Result<(PathBuf, ResolvedRun, bool)> {
     if let Some(dir) = &args.resume {
-        let config = TrainConfig::read(&dir.join("config.toml"))?;
-        return Ok((dir.clone(), config, true));
+        return Ok((dir.clone(), ResolvedRun::read(&dir.join("config.toml"))?, true));
     }
-    let mut config = match (&args.config, &args.agent) {
+    let config = match (&args.config, &args.agent) {
         (Some(path), _) => TrainConfig::read(path)?,
         (None, Some(agent)) => TrainConfig::defaults_for(parse_agent(agent)?),
         (None, None) => TrainConfig::default(),
     };
-    if let Some(p) = &args.profile {
-        config.profile = p.clone();
-    }
-    if let Some(t) = &args.track {
-        // A path (a file that exists, or anything ending in .toml) is a track file; otherwise
-        // a library name. Either way the validation flies the same track.
-        let is_file = t.ends_with(".toml") || Path::new(t).is_file();
-        // Absolute, so that the run's config.toml still finds the file from elsewhere (resume).
-        let file = || std::fs::canonicalize(t).with_context(|| format!("--track {t}"));
-        let (names, files) = if is_file { (Vec::new(), vec![file()?]) } else { (vec![t.clone()], Vec::new()) };
-        racetracks::chosen_tracks(["--track"; 2], &names, &files)?;
-        config.eval.library = names.clone();
-        config.eval.files = files.clone();
-        config.tracks = TrackSource::Chosen { names, files };
-        config.switching.policy = taskctl::SwitchPolicy::None;
-    }
-    if let Some(n) = args.total_env_steps {
-        config.total_env_steps = n;
-    }
-    if let Some(s) = args.seed {
-        config.seed = s;
-    }
-    if let Some(p) = &args.init_from {
-        config.init_from = Some(p.clone());
-    }
-    config.resolved_profile()?;
-    let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("runs").join(&config.name));
-    Ok((dir, config, false))
+    let flags = TrainFlags {
+        profile: args.profile.clone(),
+        track: args.track.clone(),
+        total_env_steps: args.total_env_steps,
+        seed: args.seed,
+        init_from: args.init_from.clone(),
+    };
+    let resolved = config.with_flags(&flags)?.resolve()?;
+    let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("runs").join(&resolved.config().name));
+    Ok((dir, resolved, false))
 }
 
 /// Runs `dronerace train` in the mode the flags choose.
@@ -133,40 +113,28 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
 /// resumed one needs a checkpoint to resume from.
 fn with_processes(
     dir: &Path,
-    config: TrainConfig,
+    resolved: ResolvedRun,
     resume: bool,
     actors: usize,
     transport: TransportArg,
     iterations: Option<u64>,
 ) -> anyhow::Result<()> {
-    let checkpoints = CheckpointDir::new(dir.join("checkpoints"), config.keep_checkpoints)?;
     if resume {
+        let checkpoints = CheckpointDir::new(dir.join("checkpoints"), resolved.config().keep_checkpoints)?;
         anyhow::ensure!(checkpoints.latest().is_some(), "{} has no checkpoint to resume from", dir.display());
     } else {
-        anyhow::ensure!(
-            checkpoints.latest().is_none(),
-            "{} already holds checkpoints: resume it (--resume), or choose another run directory",
-            dir.display()
-        );
+        Run::prepare(&resolved, dir)?;
         let _ = std::fs::remove_file(dir.join("taskctl.snapshot"));
-        let text = toml::to_string(&config).context("serialising the config")?;
-        let path = dir.join("config.toml");
-        durable::write_atomic(&path, text.as_bytes()).with_context(|| format!("writing {}", path.display()))?;
     }
-    let envs = config.resolved_profile()?.envs;
+    let plan = ClusterPlan { dir: dir.to_path_buf(), actors, envs: resolved.envs(), transport: transport.into(), iterations };
     let stop = stop_flag()?;
-    Ok(supervisor::run(ClusterPlan { dir: dir.to_path_buf(), actors, envs, transport: transport.into(), iterations }, &stop)?)
+    Ok(supervisor::run(plan, &stop)?)
 }
 
 /// Trains in this process, by turns of the actor's and the learner's loops, until the budget is
 /// spent, `iterations` are done, or Ctrl-C; then checkpoints.
-fn in_process(dir: &Path, config: TrainConfig, resume: bool, iterations: Option<u64>) -> anyhow::Result<()> {
-    let mut trainer = if resume {
-        Trainer::resume(dir)?
-    } else {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        Trainer::start(config, dir)?
-    };
+fn in_process(dir: &Path, resolved: ResolvedRun, resume: bool, iterations: Option<u64>) -> anyhow::Result<()> {
+    let mut trainer = if resume { Trainer::resume(dir)? } else { Trainer::start(resolved, dir)? };
     let stop = stop_flag()?;
     let mut log = ProgressLog::open(trainer.dir())?;
     let first = trainer.iteration();

@@ -41,7 +41,7 @@ pub fn run(args: TransportBenchArgs) -> anyhow::Result<()> {
         actors: args.actors,
         weights_bytes: args.weights_bytes,
         broadcasts: args.broadcasts,
-        rollout_memory_bytes: runtime::run::LearnerSettings::default().rollout_memory_mib << 20,
+        rollout_memory_bytes: runtime::LearnerSettings::default().rollout_memory_mib << 20,
     };
     let t = proto::bench::measure_transport(&bench)?;
     println!(
