@@ -184,6 +184,14 @@ fn every_documented_run_config_resolves() {
     assert!(count >= 10, "found {count} run configs");
 }
 
+#[test]
+fn the_paper_profile_with_specs_ppo_column_is_spec_section_10_as_is() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/bench/paper-spec-ppo.toml");
+    let resolved = runtime::ResolvedRun::read(&path).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(resolved.learner().ppo, learner::PpoConfig::default(), "SPEC §10's state-based column");
+    assert_eq!((resolved.learner().architecture.hidden.as_slice(), resolved.envs()), ([512, 512].as_slice(), 96));
+}
+
 const SEQUENTIAL: &str = r#"
 description = "tiny sequential curriculum"
 seeds = [0]
