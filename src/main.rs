@@ -55,7 +55,7 @@ enum Command {
     #[command(subcommand)]
     Bench(commands::bench::BenchCommand),
     /// Kill -9 random processes of a training run for minutes, then audit what was lost.
-    Chaos(commands::chaos::ChaosArgs),
+    Chaos(runtime::chaos::ChaosOptions),
     /// Draw runs' learning curves (training return, validation S_pw and success against env
     /// steps, the runs overlaid) from their metrics.csv.
     Plot(commands::curves::PlotArgs),

@@ -118,7 +118,7 @@ fn an_exported_onnx_actor_acts_as_dronerace_in_onnxruntime() {
 
     let model_path = dir.path().join("policy.onnx");
     let o = Command::new(env!("CARGO_BIN_EXE_dronerace"))
-        .args(["export", "--policy", blob_path.to_str().unwrap(), "--format", "onnx", "--out", model_path.to_str().unwrap()])
+        .args(["export", blob_path.to_str().unwrap(), "--format", "onnx", "--out", model_path.to_str().unwrap()])
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));

@@ -9,5 +9,5 @@ pub mod run;
 pub mod student;
 
 pub use dataset::DistillDataset;
-pub use run::{DistillConfig, Distiller, PILOT_TEACHER, RoundSummary, progress_line};
+pub use run::{DistillConfig, DistillFlags, Distiller, PILOT_TEACHER, RoundSummary, progress_line};
 pub use student::Student;

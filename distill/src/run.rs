@@ -141,6 +141,19 @@ impl Default for DistillConfig {
     }
 }
 
+/// What `dronerace distill`'s flags set over a config file; `None` keeps the file's value.
+#[derive(Clone, Debug, Default)]
+pub struct DistillFlags {
+    /// `--student`.
+    pub student: Option<Agent>,
+    /// `--teacher`: a state-based checkpoint or weights blob, or `pilot`.
+    pub teacher: Option<PathBuf>,
+    /// `--total-rounds`.
+    pub rounds: Option<u64>,
+    /// `--seed`.
+    pub seed: Option<u64>,
+}
+
 impl DistillConfig {
     /// The defaults of a `student`: a vision student's as [`Default`]; a state-based
     /// student's take SPEC's SB columns of randomisation (§3), reward (§5) and α = 1000 (§8),
@@ -163,6 +176,28 @@ impl DistillConfig {
         let error = |e: runtime::overrides::OverrideError| anyhow::anyhow!("{}: {e}", path.display());
         let student = runtime::overrides::parse_over(&Self::default(), &text).map_err(error)?.student;
         runtime::overrides::parse_over(&Self::defaults_for(student), &text).map_err(error)
+    }
+
+    /// A new distillation's config: the file's (or the defaults of the student the flags name,
+    /// a vision student without one), with the flags set over it.
+    pub fn with_flags(file: Option<&Path>, flags: &DistillFlags) -> anyhow::Result<Self> {
+        let mut config = match file {
+            Some(path) => Self::read(path)?,
+            None => Self::defaults_for(flags.student.unwrap_or(Agent::Vision)),
+        };
+        if let Some(student) = flags.student {
+            config.student = student;
+        }
+        if let Some(teacher) = &flags.teacher {
+            config.teacher = teacher.clone();
+        }
+        if let Some(rounds) = flags.rounds {
+            config.rounds = rounds;
+        }
+        if let Some(seed) = flags.seed {
+            config.seed = seed;
+        }
+        Ok(config)
     }
 
     /// Writes the config as TOML, atomically.
@@ -372,6 +407,18 @@ impl Distiller {
         Ok(Self { config, dir, teacher, student, data, env, tasks, progress, checkpoints, metrics, validator })
     }
 
+    /// Continues the distillation in `dir` from its newest checkpoint, `total_rounds` long if
+    /// given (written to its config.toml: the run is extended or shortened).
+    pub fn resume_for(dir: &Path, total_rounds: Option<u64>) -> anyhow::Result<Self> {
+        if let Some(rounds) = total_rounds {
+            let path = dir.join("config.toml");
+            let mut config = DistillConfig::read(&path)?;
+            config.rounds = rounds;
+            config.write(&path)?;
+        }
+        Self::resume(dir)
+    }
+
     /// Continues the distillation in `dir` from its newest checkpoint.
     pub fn resume(dir: &Path) -> anyhow::Result<Self> {
         let (config, checkpoints, path, c) = newest_checkpoint(dir)?;
@@ -565,6 +612,19 @@ impl Distiller {
             loss += self.student.train_step(&self.data, &rows, self.config.learning_rate);
         }
         if self.config.updates_per_round > 0 { loss / self.config.updates_per_round as f64 } else { f64::NAN }
+    }
+
+    /// Distils until every round is done, `rounds` more are done, or `stop` rises, reporting
+    /// each round to the run's `train.log`; then checkpoints, and returns where.
+    pub fn run(&mut self, dir: &Path, rounds: Option<u64>, stop: &std::sync::atomic::AtomicBool) -> anyhow::Result<PathBuf> {
+        let mut log = runtime::progress::ProgressLog::open(dir)?;
+        let first = self.round();
+        log.report(&format!("distilling in {} (from round {first})", dir.display()))?;
+        while !self.finished() && !stop.load(std::sync::atomic::Ordering::SeqCst) && rounds.is_none_or(|n| self.round() - first < n) {
+            let s = self.round_step()?;
+            log.report(&progress_line(&s, self.config().rounds))?;
+        }
+        self.checkpoint()
     }
 
     /// Writes a periodic checkpoint of everything.

@@ -14,6 +14,19 @@ pub enum Agent {
     Vision,
 }
 
+impl std::str::FromStr for Agent {
+    type Err = String;
+
+    /// `state` or `vision`, as config files spell them.
+    fn from_str(name: &str) -> Result<Self, String> {
+        match name {
+            "state" => Ok(Self::State),
+            "vision" => Ok(Self::Vision),
+            other => Err(format!("{other:?} is neither state nor vision")),
+        }
+    }
+}
+
 impl std::fmt::Display for Agent {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {

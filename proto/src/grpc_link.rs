@@ -41,6 +41,20 @@ pub fn learner_client(url: &str, security: &Security) -> Result<AuthedLearnerCli
         .max_encoding_message_size(MAX_MESSAGE_BYTES))
 }
 
+/// The learner's `Status` at `url`, asked and waited for up to `timeout` (blocks).
+pub fn learner_status(url: &str, security: &Security, timeout: std::time::Duration) -> Result<crate::v1::StatusResponse, LinkError> {
+    let context = format!("Learner/Status at {url}");
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().map_err(|e| LinkError::new(&context, e))?;
+    rt.block_on(async {
+        let mut client = learner_client(url, security).map_err(|e| LinkError::new(&context, e))?;
+        match tokio::time::timeout(timeout, client.status(crate::v1::StatusRequest {})).await {
+            Ok(Ok(reply)) => Ok(reply.into_inner()),
+            Ok(Err(status)) => Err(LinkError::new(&context, status.message())),
+            Err(_) => Err(LinkError::new(&context, format!("no answer within {} s", timeout.as_secs_f64()))),
+        }
+    })
+}
+
 /// The actor's end over gRPC (calls run on the given tokio runtime; methods block).
 pub struct GrpcActorLink {
     runtime: Handle,

@@ -33,6 +33,18 @@ impl Transport {
     }
 }
 
+impl std::str::FromStr for Transport {
+    type Err = String;
+
+    /// A `--transport` value: `shm` or `grpc`.
+    fn from_str(flag: &str) -> Result<Self, String> {
+        [Transport::Shm, Transport::Grpc]
+            .into_iter()
+            .find(|t| t.flag() == flag)
+            .ok_or_else(|| format!("{flag:?} is neither shm (iceoryx2, actors on this machine) nor grpc (actors anywhere)"))
+    }
+}
+
 /// Weights as they travel to actors.
 #[derive(Clone, Debug, PartialEq)]
 pub struct WeightsUpdate {

@@ -132,6 +132,17 @@ pub enum Rejection {
     Geometry(#[from] TrackGeometryError),
 }
 
+/// Why [`TrackGenerator::write_tracks`] stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum WriteTracksError {
+    /// A seed gave no track.
+    #[error(transparent)]
+    Generate(#[from] GenerateError),
+    /// A file or the directory could not be written.
+    #[error(transparent)]
+    File(#[from] crate::TrackFileError),
+}
+
 /// A generated track and how it came about.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Generated {
@@ -154,6 +165,20 @@ pub struct TrackGenerator {
 }
 
 impl TrackGenerator {
+    /// Writes the tracks of seeds `first..first + count` into `dir` (created if missing) as
+    /// `<generator>-<seed>.toml`, each named so; returns the candidates drawn for them.
+    pub fn write_tracks(&self, first: u64, count: usize, dir: &std::path::Path) -> Result<usize, WriteTracksError> {
+        std::fs::create_dir_all(dir).map_err(|source| crate::TrackFileError::Io { file: dir.to_path_buf(), source })?;
+        let mut attempts = 0;
+        for seed in first..first + count as u64 {
+            let name = format!("{:?}-{seed}", self.kind).to_lowercase();
+            let g = self.generate(seed, &name)?;
+            attempts += g.attempts;
+            crate::write_track(&g.track, &dir.join(format!("{name}.toml")))?;
+        }
+        Ok(attempts)
+    }
+
     /// Generates the track of `seed`, named `name`.
     pub fn generate(&self, seed: u64, name: &str) -> Result<Generated, GenerateError> {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);

@@ -8,7 +8,7 @@ pub mod spline;
 pub mod track_file;
 pub mod track_sets;
 
-pub use generator::{GenerateError, GeneratorKind, Rejection, TrackGenParams, TrackGenerator};
+pub use generator::{GenerateError, GeneratorKind, Rejection, TrackGenParams, TrackGenerator, WriteTracksError};
 pub use library::{ChosenTracksError, chosen_tracks, library, library_track};
 pub use track_file::{TrackFileError, parse_track, read_track, read_track_dir, track_from_csv, track_to_toml, write_track};
 pub use track_sets::{TrackSetError, test_set, validation_set, validation_tracks};

@@ -17,21 +17,29 @@ use proto::Transport;
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
-/// What a chaos run does.
+/// What a chaos run does (`dronerace chaos`'s flags).
+#[derive(Clone, Debug, clap::Args)]
 pub struct ChaosOptions {
-    /// Run configuration file (none: the built-in defaults, i.e. the main job).
+    /// Run configuration (TOML; default: the built-in defaults, i.e. the main job).
+    #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Run directory (must not hold checkpoints yet).
+    /// Run directory (must not hold checkpoints yet); the audit goes to `<out>/chaos.json`.
+    #[arg(long)]
     pub out: PathBuf,
     /// Seconds between two kills.
+    #[arg(long, default_value_t = 20.0)]
     pub every: f64,
     /// Minutes of fault injection.
+    #[arg(long, default_value_t = 30.0)]
     pub minutes: f64,
     /// Actor processes.
+    #[arg(long, default_value_t = 2)]
     pub actors: usize,
-    /// How rollouts travel.
+    /// How rollouts travel: `shm` (iceoryx2) or `grpc`.
+    #[arg(long, default_value = "shm")]
     pub transport: Transport,
     /// Seed of the choice of victims.
+    #[arg(long, default_value_t = 0)]
     pub seed: u64,
 }
 

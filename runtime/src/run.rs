@@ -97,6 +97,9 @@ pub enum TrainError {
     /// The rollout transport failed.
     #[error(transparent)]
     Link(#[from] proto::LinkError),
+    /// The run's `train.log` could not be written.
+    #[error(transparent)]
+    Log(#[from] crate::progress::LogError),
     /// The task-controller snapshot inside a checkpoint is unusable.
     #[error(transparent)]
     Snapshot(#[from] taskctl::SnapshotError),

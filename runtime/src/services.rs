@@ -133,21 +133,24 @@ pub async fn until(stop: Arc<AtomicBool>) {
     }
 }
 
-/// What the task-controller process serves.
+/// What the task-controller process serves (`dronerace taskctl`'s flags).
+#[derive(Clone, Debug, clap::Args)]
 pub struct TaskctlOptions {
-    /// The run configuration (tracks, generator, switching, environment count, network).
-    pub config: ResolvedRun,
     /// Address to serve gRPC on.
+    #[arg(long, default_value = "127.0.0.1:50051")]
     pub listen: SocketAddr,
     /// Snapshot file: restored at start when present, rewritten after every change.
+    #[arg(long)]
     pub snapshot: PathBuf,
-    /// Address for gRPC health alone, in plaintext, for probes that cannot speak TLS.
+    /// Also serve gRPC health alone, in plaintext, here: for probes that cannot speak TLS.
+    #[arg(long)]
     pub health_listen: Option<SocketAddr>,
 }
 
-/// Serves the task controller until `stop`.
-pub fn taskctl(options: TaskctlOptions, stop: Arc<AtomicBool>) -> Result<(), ServiceError> {
-    let TaskctlOptions { config: resolved, listen, snapshot, health_listen } = options;
+/// Serves the task controller of the run `resolved` describes (tracks, generator, switching,
+/// environment count, network) until `stop`.
+pub fn taskctl(resolved: ResolvedRun, options: TaskctlOptions, stop: Arc<AtomicBool>) -> Result<(), ServiceError> {
+    let TaskctlOptions { listen, snapshot, health_listen } = options;
     let config = resolved.config();
     let security = Security::load(&config.network)?;
     // A write cut off by a kill leaves its temporary file; the snapshot itself is whole.
@@ -198,31 +201,40 @@ pub fn taskctl(options: TaskctlOptions, stop: Arc<AtomicBool>) -> Result<(), Ser
     served.map_err(|e| ServiceError::Serve { what: format!("taskctl on {listen}"), message: e.to_string() })
 }
 
-/// What the learner process serves and trains.
+/// What the learner process serves and trains (`dronerace learner`'s flags).
+#[derive(Clone, Debug, clap::Args)]
 pub struct LearnerOptions {
-    /// The run configuration of a new run (a run directory that holds a run keeps its own).
-    pub config: ResolvedRun,
     /// Run directory: a new run starts there, or the run there resumes from its newest checkpoint.
+    #[arg(long)]
     pub out: PathBuf,
-    /// Address to serve gRPC on (status, weights, and rollouts over gRPC).
+    /// Address to serve gRPC on (status, weights, and rollouts with `--transport grpc`).
+    #[arg(long, default_value = "127.0.0.1:50052")]
     pub listen: SocketAddr,
-    /// Address for gRPC health alone, in plaintext (once the checkpoint is restored).
+    /// Also serve gRPC health alone, in plaintext, here (once the checkpoint is restored): for
+    /// probes that cannot speak TLS.
+    #[arg(long)]
     pub health_listen: Option<SocketAddr>,
-    /// How rollouts arrive.
+    /// How rollouts arrive: `shm` (iceoryx2) or `grpc`.
+    #[arg(long, default_value = "shm")]
     pub transport: Transport,
-    /// iceoryx2 run identifier (shared memory).
+    /// iceoryx2 run identifier (with `--transport shm`).
+    #[arg(long, default_value = "main")]
     pub shm_run: String,
     /// Actors the first iteration waits for.
+    #[arg(long, default_value_t = 1)]
     pub actors: usize,
     /// Task controller address (for the switch count in the progress line).
+    #[arg(long)]
     pub taskctl: Option<String>,
     /// Stop after this many iterations (a checkpoint is written on the way out).
+    #[arg(long)]
     pub iterations: Option<u64>,
 }
 
 /// Runs the learner process until the budget is spent, `iterations` are done, or `stop`.
-pub fn learner(options: LearnerOptions, stop: Arc<AtomicBool>) -> Result<(), ServiceError> {
-    let (run, checkpoint) = Run::open_or_create(options.config.clone(), &options.out)?;
+/// A new run starts from `resolved`; a run directory that holds a run keeps its own config.
+pub fn learner(resolved: ResolvedRun, options: LearnerOptions, stop: Arc<AtomicBool>) -> Result<(), ServiceError> {
+    let (run, checkpoint) = Run::open_or_create(resolved, &options.out)?;
     let security = Security::load(&run.config().network)?;
     security.check_listen(&options.listen)?;
     let mut settings = run.config().learner;
@@ -298,36 +310,44 @@ fn drive<L: LearnerLink>(
     Ok(())
 }
 
-/// What an actor process runs and where it sends its rollouts.
+/// What an actor process runs and where it sends its rollouts (`dronerace actor`'s flags).
+#[derive(Clone, Debug, clap::Args)]
 pub struct ActorOptions {
-    /// The run configuration (environment, seed, n_steps of the profile, network).
-    pub config: ResolvedRun,
     /// Actor name (stable across restarts: it takes back its environments).
+    #[arg(long)]
     pub name: String,
     /// Environments this actor runs.
+    #[arg(long)]
     pub envs: usize,
     /// Task controller address.
+    #[arg(long, default_value = "http://127.0.0.1:50051")]
     pub taskctl: String,
-    /// How rollouts travel.
+    /// How rollouts travel: `shm` (iceoryx2) or `grpc`.
+    #[arg(long, default_value = "shm")]
     pub transport: Transport,
-    /// Learner address (over gRPC).
+    /// Learner address (with `--transport grpc`).
+    #[arg(long, default_value = "http://127.0.0.1:50052")]
     pub learner: String,
-    /// iceoryx2 run identifier (shared memory).
+    /// iceoryx2 run identifier (with `--transport shm`).
+    #[arg(long, default_value = "main")]
     pub shm_run: String,
     /// Most actors of the run on this machine (sizes the iceoryx2 services; same on all).
+    #[arg(long, default_value_t = 1)]
     pub max_actors: usize,
     /// Stop after this many rollouts.
+    #[arg(long)]
     pub rollouts: Option<u64>,
 }
 
 /// Runs one actor until `stop`.
-pub fn actor(options: ActorOptions, stop: Arc<AtomicBool>) -> Result<(), ServiceError> {
+/// The run `resolved` describes gives the environment, seed, n_steps and network settings.
+pub fn actor(resolved: ResolvedRun, options: ActorOptions, stop: Arc<AtomicBool>) -> Result<(), ServiceError> {
     let option = |option, message: String| ServiceError::Option { option, message };
     if options.envs == 0 {
         return Err(option("--envs", "must be at least 1".into()));
     }
     proto::transport::check_actor_name(&options.name).map_err(|e| option("--name", e.to_string()))?;
-    let config = options.config.config();
+    let config = resolved.config();
     let security = Security::load(&config.network)?;
     if let Some(owner) = security.token_actor().filter(|owner| *owner != options.name) {
         let message = format!(
@@ -344,7 +364,7 @@ pub fn actor(options: ActorOptions, stop: Arc<AtomicBool>) -> Result<(), Service
         envs: options.envs,
         seed: config.seed,
         env: config.env,
-        n_steps: options.config.n_steps(),
+        n_steps: resolved.n_steps(),
         weights_timeout: Duration::from_secs_f64(config.learner.actor_timeout_seconds.max(0.1)),
         max_rollouts: options.rollouts,
     };

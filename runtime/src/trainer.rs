@@ -134,6 +134,20 @@ impl Trainer {
         checkpoint.put("taskctl", tasks.read(TaskController::to_snapshot_bytes));
     }
 
+    /// Trains until the budget is spent, `iterations` more are done, or `stop` rises, reporting
+    /// each iteration to the run's `train.log`; then checkpoints, and returns where.
+    pub fn train(&mut self, iterations: Option<u64>, stop: &AtomicBool) -> Result<PathBuf, TrainError> {
+        let mut log = crate::progress::ProgressLog::open(self.dir())?;
+        let first = self.iteration();
+        log.report(&format!("training in {} (from iteration {first}, in one process)", self.dir().display()))?;
+        while !self.finished() && !stop.load(std::sync::atomic::Ordering::SeqCst) && iterations.is_none_or(|n| self.iteration() - first < n)
+        {
+            let s = self.iteration_step()?;
+            log.report(&crate::progress::progress_line(&s, self.eta_seconds()))?;
+        }
+        self.checkpoint()
+    }
+
     /// Writes a periodic checkpoint of the current state.
     pub fn checkpoint(&self) -> Result<PathBuf, TrainError> {
         self.learner.checkpoint(&|c| Self::add_sections(&self.actor, &self.tasks, c))

@@ -6,6 +6,7 @@ pub mod eval;
 pub mod mirror;
 pub mod observation;
 pub mod params;
+pub mod poses_text;
 pub mod quadrotor;
 pub mod race;
 pub mod racer;

@@ -47,8 +47,8 @@ pub struct LearnerBenchArgs {
     hidden: Option<Vec<usize>>,
     /// `state`: the MLP actor-critic; `vision`: the CNN actor on 84×84 images (SPEC §5) with
     /// the profile's MLP widths.
-    #[arg(long, default_value = "state", value_parser = ["state", "vision"])]
-    agent: String,
+    #[arg(long, default_value = "state")]
+    agent: policy::Agent,
 }
 
 /// Times forward, backward and the optimiser step of one PPO gradient step.
@@ -61,7 +61,7 @@ fn learner_step(args: LearnerBenchArgs) -> anyhow::Result<()> {
         learner.architecture.hidden = hidden;
     }
     let device = learner::bench::device(&args.backend).context("--backend")?;
-    let t = match super::train::parse_agent(&args.agent)? {
+    let t = match args.agent {
         policy::Agent::State => learner::bench::time_gradient_step(&learner, args.samples, args.repeats, &device),
         policy::Agent::Vision => learner::bench::time_vision_gradient_step(&learner, args.samples, args.repeats, &device),
     };

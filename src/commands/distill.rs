@@ -1,14 +1,11 @@
 //! `dronerace distill`: a student learns from a teacher by DAgger (the `distill` crate): a
 //! vision student from a state-based policy, or a state-based student from the pilot.
 
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args;
-use distill::{DistillConfig, Distiller, progress_line};
-use policy::WeightsBlob;
-use runtime::progress::ProgressLog;
+use distill::{DistillConfig, DistillFlags, Distiller};
 
 /// Arguments of `dronerace distill`.
 #[derive(Args)]
@@ -19,7 +16,7 @@ pub struct DistillArgs {
     teacher: Option<PathBuf>,
     /// The student: `vision` (default) or `state` (overrides the config; without a config, the
     /// student's defaults).
-    #[arg(long, value_parser = super::train::parse_agent)]
+    #[arg(long)]
     student: Option<policy::Agent>,
     /// TOML configuration (every field optional; see distill::DistillConfig).
     #[arg(long)]
@@ -48,64 +45,22 @@ pub struct DistillArgs {
 /// Runs the distillation and reports where the student is.
 pub fn run(args: DistillArgs) -> anyhow::Result<()> {
     let stop = crate::signal::stop_flag()?;
-    let (dir, config) = match &args.resume {
-        Some(dir) => {
-            if let Some(rounds) = args.total_rounds {
-                let path = dir.join("config.toml");
-                let mut config = DistillConfig::read(&path)?;
-                config.rounds = rounds;
-                config.write(&path)?;
-            }
-            (dir.clone(), None)
-        }
+    let mut distiller = match &args.resume {
+        Some(dir) => Distiller::resume_for(dir, args.total_rounds)?,
         None => {
-            let mut config = match &args.config {
-                Some(path) => DistillConfig::read(path)?,
-                None => DistillConfig::defaults_for(args.student.unwrap_or(policy::Agent::Vision)),
-            };
-            if let Some(student) = args.student {
-                config.student = student;
-            }
-            if let Some(teacher) = &args.teacher {
-                config.teacher = teacher.clone();
-            }
-            if let Some(rounds) = args.total_rounds {
-                config.rounds = rounds;
-            }
-            if let Some(seed) = args.seed {
-                config.seed = seed;
-            }
-            (args.out.clone(), Some(config))
+            let flags = DistillFlags { student: args.student, teacher: args.teacher.clone(), rounds: args.total_rounds, seed: args.seed };
+            std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+            Distiller::start(DistillConfig::with_flags(args.config.as_deref(), &flags)?, &args.out)?
         }
     };
-    let student = distil(&dir, config, args.rounds, &stop)?;
+    let dir = args.resume.clone().unwrap_or_else(|| args.out.clone());
+    let path = distiller.run(&dir, args.rounds, &stop)?;
+    eprintln!("checkpoint written to {} ({:.0} s of distillation so far)", path.display(), distiller.wall_seconds());
+    let student = distiller.student();
     if let Some(path) = &args.save {
         super::write_atomic(path, &student.to_bytes()).with_context(|| format!("saving the student to {}", path.display()))?;
         println!("student (version {}) written to {}", student.version, path.display());
     }
     println!("best student by validation S_pw: {}", dir.join("checkpoints/best.bin").display());
     Ok(())
-}
-
-/// Distils until every round is done, `rounds` more are done, or `stop` is raised; then
-/// checkpoints and returns the student. A new run starts from `config` in `dir`; without one
-/// the run there continues.
-fn distil(dir: &Path, config: Option<DistillConfig>, rounds: Option<u64>, stop: &AtomicBool) -> anyhow::Result<WeightsBlob> {
-    let mut distiller = match config {
-        Some(config) => {
-            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-            Distiller::start(config, dir)?
-        }
-        None => Distiller::resume(dir)?,
-    };
-    let mut log = ProgressLog::open(dir)?;
-    let first = distiller.round();
-    eprintln!("distilling in {} (from round {first})", dir.display());
-    while !distiller.finished() && !stop.load(Ordering::SeqCst) && rounds.is_none_or(|n| distiller.round() - first < n) {
-        let s = distiller.round_step()?;
-        log.report(&progress_line(&s, distiller.config().rounds))?;
-    }
-    let path = distiller.checkpoint()?;
-    eprintln!("checkpoint written to {} ({:.0} s of distillation so far)", path.display(), distiller.wall_seconds());
-    Ok(distiller.student())
 }

@@ -6,6 +6,7 @@ use ::sim::ReferencePilot;
 use ::sim::eval::{EvalConfig, evaluate_recording};
 use anyhow::Context;
 use clap::{Args, ValueEnum};
+use learner::export::{ExportFormat, Exported};
 use policy::ControllerFactory;
 
 use super::{load_tracks, read_text, write_atomic};
@@ -84,11 +85,6 @@ pub fn controller_factory(kind: ControllerKind, policy: Option<&Path>) -> anyhow
     })
 }
 
-/// The policies of several checkpoints or weights blobs, an error naming the file that fails.
-fn read_policies(paths: &[PathBuf]) -> anyhow::Result<Vec<policy::WeightsBlob>> {
-    paths.iter().map(|path| learner::checkpoint::read_policy(path).with_context(|| format!("reading {}", path.display()))).collect()
-}
-
 /// Runs the evaluation, prints the table and writes JSON and Markdown.
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.runs > 0, "--runs must be at least 1");
@@ -127,74 +123,43 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Formats `dronerace export` writes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-pub enum ExportFormat {
-    /// The policy as a weights blob (safetensors: architecture, normaliser, version, weights),
-    /// what `eval --policy`, `serve`, `train --init-from` and actors read.
-    Safetensors,
-    /// The deterministic actor with its normaliser folded in, as an ONNX model (opset 13).
-    Onnx,
-}
-
 /// Arguments of `dronerace export`.
 #[derive(Args)]
 pub struct ExportArgs {
     /// Checkpoint or weights blob to take the policy from; with `--average`, several of one run.
     policies: Vec<PathBuf>,
-    /// The policy (an earlier spelling of the first argument).
-    #[arg(long = "policy", hide = true)]
-    policy_flag: Option<PathBuf>,
     /// Export the mean of the given policies' weights, under the newest one's normaliser
     /// (stochastic weight averaging).
     #[arg(long)]
     average: bool,
-    /// Format of the file to write [default: onnx for a `.onnx` file (or with the earlier
-    /// `--policy` spelling), else safetensors].
-    #[arg(long, value_enum)]
+    /// `safetensors` (a weights blob, what `eval --policy`, `serve`, `train --init-from` and
+    /// actors read) or `onnx` (the deterministic actor with its normaliser folded in, opset 13)
+    /// [default: onnx for a `.onnx` file, else safetensors].
+    #[arg(long)]
     format: Option<ExportFormat>,
     /// File to write.
     #[arg(long)]
     out: PathBuf,
 }
 
-/// Writes a checkpoint's policy — or the weight average of several — as a stand-alone weights
-/// blob without optimiser, environments or curriculum, or as a model other programs run (ONNX
-/// Runtime, TensorRT, …).
+/// Writes a checkpoint's policy, or the weight average of several, as a weights blob or ONNX.
 pub fn export(args: ExportArgs) -> anyhow::Result<()> {
-    let paths: Vec<PathBuf> = args.policies.iter().chain(&args.policy_flag).cloned().collect();
-    anyhow::ensure!(!paths.is_empty(), "export: name the checkpoint or weights blob to export");
-    anyhow::ensure!(
-        paths.len() == 1 || args.average,
-        "export: {} policies given; pass --average to export the mean of their weights",
-        paths.len()
-    );
-    let blobs = read_policies(&paths)?;
-    let blob = match blobs.as_slice() {
-        [one] => one.clone(),
-        many => policy::averaging::average(many).context("averaging the policies")?,
-    };
+    let n = args.policies.len();
+    anyhow::ensure!(n <= 1 || args.average, "export: {n} policies given; pass --average to export the mean of their weights");
     let onnx_file = args.out.extension().is_some_and(|e| e.eq_ignore_ascii_case("onnx"));
-    // `--policy` is the earlier spelling of `export`, whose only format was ONNX.
-    let onnx_default = onnx_file || args.policy_flag.is_some();
-    let format = args.format.unwrap_or(if onnx_default { ExportFormat::Onnx } else { ExportFormat::Safetensors });
-    let bytes = match format {
-        ExportFormat::Safetensors => blob.to_bytes(),
-        ExportFormat::Onnx => policy::onnx::actor_model(&blob)?,
-    };
+    let format = args.format.unwrap_or(if onnx_file { ExportFormat::Onnx } else { ExportFormat::Safetensors });
+    let Exported { blob, bytes } = learner::export::export(&args.policies, format)?;
     write_atomic(&args.out, &bytes)?;
-    let of = if blobs.len() > 1 { format!("mean of {} policies, newest ", blobs.len()) } else { String::new() };
-    match format {
-        ExportFormat::Safetensors => println!("wrote {} ({of}policy v{}, {} bytes)", args.out.display(), blob.version, bytes.len()),
-        ExportFormat::Onnx => println!(
-            "wrote {} ({of}policy v{}: {} raw observations in the {} frame -> {} actions in [-1, 1], {} bytes)",
-            args.out.display(),
-            blob.version,
+    let of = if n > 1 { format!("mean of {n} policies, newest ") } else { String::new() };
+    let what = match format {
+        ExportFormat::Safetensors => String::new(),
+        ExportFormat::Onnx => format!(
+            ": {} raw observations in the {} frame -> {} actions in [-1, 1]",
             blob.architecture.observation_dim,
             blob.architecture.observation.frame.name(),
-            blob.architecture.action_dim,
-            bytes.len()
+            blob.architecture.action_dim
         ),
-    }
+    };
+    println!("wrote {} ({of}policy v{}{what}, {} bytes)", args.out.display(), blob.version, bytes.len());
     Ok(())
 }

@@ -35,11 +35,8 @@ pub enum ExperimentCommand {
         /// Experiment file.
         file: PathBuf,
         /// Directory of the experiment's runs (as given to `experiment run`).
-        #[arg(long, required_unless_present = "dir")]
-        out: Option<PathBuf>,
-        /// The directory as a second argument (an earlier spelling of --out).
-        #[arg(hide = true, conflicts_with = "out")]
-        dir: Option<PathBuf>,
+        #[arg(long)]
+        out: PathBuf,
     },
 }
 
@@ -68,10 +65,7 @@ pub fn run(command: ExperimentCommand) -> anyhow::Result<()> {
             );
             report(&experiment, &out)
         }
-        ExperimentCommand::Report { file, out, dir } => {
-            let out = out.or(dir).context("experiment report: --out DIR names the experiment's runs")?;
-            report(&Experiment::read(&file)?, &out)
-        }
+        ExperimentCommand::Report { file, out } => report(&Experiment::read(&file)?, &out),
     }
 }
 

@@ -23,24 +23,6 @@ use std::sync::Arc;
 use ::sim::Track;
 use anyhow::Context;
 
-/// How rollouts travel between the actor processes and the learner (`--transport`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum TransportArg {
-    /// iceoryx2 shared memory (actors on the learner's machine).
-    Shm,
-    /// gRPC streams (actors anywhere).
-    Grpc,
-}
-
-impl From<TransportArg> for proto::Transport {
-    fn from(arg: TransportArg) -> Self {
-        match arg {
-            TransportArg::Shm => proto::Transport::Shm,
-            TransportArg::Grpc => proto::Transport::Grpc,
-        }
-    }
-}
-
 /// Tracks from files and directories of `*.toml`; the built-in library when `paths` is empty.
 pub fn load_tracks(paths: &[PathBuf]) -> anyhow::Result<Vec<Arc<Track>>> {
     let tracks = if paths.is_empty() { racetracks::library()? } else { racetracks::chosen_tracks(["--tracks"; 2], &[], paths)? };
@@ -68,18 +50,4 @@ pub fn write_atomic(path: &Path, contents: &[u8]) -> anyhow::Result<()> {
 /// [`durable::MAX_TEXT_FILE_BYTES`].
 pub fn read_text(path: &Path) -> std::io::Result<String> {
     durable::read_text_limited(path, durable::MAX_TEXT_FILE_BYTES)
-}
-
-/// Comma-separated finite numbers; a bad one is named by its column.
-pub fn parse_numbers(text: &str) -> anyhow::Result<Vec<f64>> {
-    text.split(',')
-        .enumerate()
-        .map(|(i, field)| {
-            let field = field.trim();
-            match field.parse::<f64>() {
-                Ok(x) if x.is_finite() => Ok(x),
-                _ => anyhow::bail!("column {}: {field:?} is not a finite number", i + 1),
-            }
-        })
-        .collect()
 }

@@ -7,13 +7,12 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use ::sim::Track;
-use ::sim::nalgebra::{Quaternion, UnitQuaternion, Vector3};
-use anyhow::{Context, bail, ensure};
+use anyhow::{Context, ensure};
 use clap::Args;
 use figures::flight::{FlightPlan, camera_png, fly};
 
 use super::eval::{ControllerKind, controller_factory};
-use super::{parse_numbers, write_atomic};
+use super::write_atomic;
 
 /// Arguments of `dronerace sim render`.
 #[derive(Args)]
@@ -66,22 +65,11 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
 /// Writes the observation at one pose as an 8-bit greyscale PNG.
 fn single_frame(track: &Track, pose: &str, target: usize, out: &Path) -> anyhow::Result<()> {
     ensure!(target < track.gates.len(), "--target {target}: track {} has gates 0–{}", track.name, track.gates.len() - 1);
-    let (position, rotation) = parse_pose(pose).with_context(|| format!("--pose {pose:?}"))?;
+    let (position, rotation) = ::sim::poses_text::parse_pose_quaternion(pose).with_context(|| format!("--pose {pose:?}"))?;
     let (png, seen) = camera_png(track, target, &position, &rotation.to_rotation_matrix().into_inner())?;
     write_atomic(out, &png)?;
     println!("wrote {} (84×84, {seen} pixels show a gate)", out.display());
     Ok(())
-}
-
-/// Parses `x,y,z,qw,qx,qy,qz`; the quaternion is normalised, but must not be zero.
-fn parse_pose(text: &str) -> anyhow::Result<(Vector3<f64>, UnitQuaternion<f64>)> {
-    let values = parse_numbers(text)?;
-    let [x, y, z, qw, qx, qy, qz] = values[..] else {
-        bail!("expected x,y,z,qw,qx,qy,qz (7 numbers), found {}", values.len());
-    };
-    let q = Quaternion::new(qw, qx, qy, qz);
-    ensure!(q.norm() > 1e-9, "the attitude quaternion is zero");
-    Ok((Vector3::new(x, y, z), UnitQuaternion::from_quaternion(q)))
 }
 
 /// Flies the track with the chosen controller and writes the GIF and, if asked, the strip.
@@ -108,19 +96,4 @@ fn flight(track: &Arc<Track>, args: &RenderArgs) -> anyhow::Result<()> {
         println!("wrote {} ({} frames)", path.display(), pictures.strip_frames);
     }
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn poses_parse_and_bad_ones_are_named() {
-        let (p, q) = parse_pose("1,2,3,2,0,0,0").unwrap();
-        assert_eq!(p, Vector3::new(1.0, 2.0, 3.0));
-        assert!((q.w - 1.0).abs() < 1e-12, "normalised");
-        assert!(parse_pose("1,2,3,1,0,0").unwrap_err().to_string().contains("7 numbers"));
-        assert!(parse_pose("1,2,x,1,0,0,0").unwrap_err().to_string().contains("column 3"));
-        assert!(parse_pose("1,2,3,0,0,0,0").unwrap_err().to_string().contains("zero"));
-    }
 }

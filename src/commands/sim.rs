@@ -3,13 +3,11 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use ::sim::Pose;
-use ::sim::nalgebra::Vector3;
 use actor::bench::{BenchActions, BenchObs, SimBench, SimBenchReport};
-use anyhow::{Context, bail};
+use anyhow::Context;
 use clap::Subcommand;
 
-use super::{load_tracks, parse_numbers, read_text, write_atomic};
+use super::{load_tracks, read_text, write_atomic};
 
 /// Simulator subcommands.
 #[derive(Subcommand)]
@@ -63,7 +61,8 @@ pub fn run(command: SimCommand) -> anyhow::Result<()> {
     match command {
         SimCommand::Replay { track, actions, out, start } => {
             let track = Arc::new(racetracks::read_track(&track)?);
-            let start = start.as_deref().map(parse_start).transpose()?;
+            let start =
+                start.as_deref().map(|t| ::sim::poses_text::parse_pose_yaw(t).with_context(|| format!("--start {t:?}"))).transpose()?;
             let text = read_text(&actions).with_context(|| format!("reading {}", actions.display()))?;
             let actions = ::sim::replay::parse_actions(&text).with_context(|| actions.display().to_string())?;
             let rows = ::sim::replay::replay(track, start, &actions);
@@ -76,15 +75,6 @@ pub fn run(command: SimCommand) -> anyhow::Result<()> {
         }
         SimCommand::Render(args) => super::render::run(args),
     }
-}
-
-/// Parses `x,y,z,yaw_deg`.
-fn parse_start(text: &str) -> anyhow::Result<Pose> {
-    let values = parse_numbers(text).with_context(|| format!("--start {text:?}"))?;
-    let [x, y, z, yaw_deg] = values[..] else {
-        bail!("--start {text:?}: expected x,y,z,yaw_deg (4 numbers), found {}", values.len());
-    };
-    Ok(Pose { position: Vector3::new(x, y, z), yaw: yaw_deg.to_radians() })
 }
 
 /// Steps the library's tracks (round robin) and prints the rate.

@@ -4,9 +4,7 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use anyhow::Context;
 use clap::Args;
-use proto::v1::StatusRequest;
 
 /// Arguments of `dronerace status`.
 #[derive(Args)]
@@ -22,14 +20,7 @@ pub struct StatusArgs {
 /// Prints the learner's status.
 pub fn run(args: StatusArgs) -> anyhow::Result<()> {
     let security = super::client_security(args.config.as_deref())?;
-    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
-    let status = rt
-        .block_on(async {
-            let mut client = proto::grpc_link::learner_client(&args.learner, &security)?;
-            let call = tokio::time::timeout(Duration::from_secs(10), client.status(StatusRequest {}));
-            anyhow::Ok(call.await.context("no answer within 10 s")??.into_inner())
-        })
-        .with_context(|| format!("Learner/Status at {}", args.learner))?;
+    let status = proto::grpc_link::learner_status(&args.learner, &security, Duration::from_secs(10))?;
     println!("iteration {}", status.iteration);
     println!("env steps {}", status.env_steps);
     println!("env-steps/s {:.0}", status.sps);

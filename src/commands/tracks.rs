@@ -3,8 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use ::sim::nalgebra::Vector3;
-use anyhow::{Context, bail};
+use anyhow::Context;
 use clap::{Subcommand, ValueEnum};
 use racetracks::{GeneratorKind, TrackGenParams, TrackGenerator};
 
@@ -146,10 +145,7 @@ pub fn run(command: TracksCommand) -> anyhow::Result<()> {
             let params = TrackGenParams { gates, gates_max, ..TrackGenParams::default() };
             let generator = TrackGenerator { kind: generator.into(), params };
             let started = Instant::now();
-            let attempts = generate_into(&generator, seed, count, &out, |i| {
-                let name = format!("{:?}-{}", generator.kind, seed + i as u64).to_lowercase();
-                (name.clone(), format!("{name}.toml"))
-            })?;
+            let attempts = generator.write_tracks(seed, count, &out)?;
             println!(
                 "wrote {count} tracks to {} in {:.2} s; acceptance {:.1} % ({count} of {attempts} candidates)",
                 out.display(),
@@ -186,50 +182,13 @@ pub fn run(command: TracksCommand) -> anyhow::Result<()> {
     }
 }
 
-/// Generates `count` tracks from seeds `seed..seed+count` into `out`, named by `names(i)` =
-/// (track name, file name); returns the number of candidates drawn.
-fn generate_into(
-    generator: &TrackGenerator,
-    seed: u64,
-    count: usize,
-    out: &Path,
-    names: impl Fn(usize) -> (String, String),
-) -> anyhow::Result<usize> {
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let mut attempts = 0;
-    for i in 0..count {
-        let (name, file) = names(i);
-        let g = generator.generate(seed + i as u64, &name)?;
-        attempts += g.attempts;
-        racetracks::write_track(&g.track, &out.join(file))?;
-    }
-    Ok(attempts)
-}
-
 /// `tracks fit`: reads `x,y,z` rows and prints scipy's tck layout as JSON.
 fn fit(points: &Path, smoothing: f64) -> anyhow::Result<()> {
     let text = read_text(points).with_context(|| format!("reading {}", points.display()))?;
-    let mut control = Vec::new();
-    for (i, line) in text.lines().enumerate() {
-        if line.trim().is_empty() {
-            continue;
-        }
-        let values: Vec<f64> = line
-            .split(',')
-            .map(|f| f.trim().parse::<f64>().ok().filter(|x| x.is_finite()))
-            .collect::<Option<_>>()
-            .with_context(|| format!("{}:{}: {line:?} is not three finite numbers", points.display(), i + 1))?;
-        let [x, y, z] = values[..] else {
-            bail!("{}:{}: expected x,y,z (3 numbers), found {}", points.display(), i + 1, values.len());
-        };
-        control.push(Vector3::new(x, y, z));
-    }
-    let fit = racetracks::spline::fit_closed_curve(&control, smoothing).with_context(|| points.display().to_string())?;
-    let json = serde_json::json!({
-        "u": fit.u,
-        "knots": fit.curve.knots,
-        "coefficients": fit.curve.coefficients,
-    });
+    let at = || points.display().to_string();
+    let control = racetracks::spline::control_points_from_csv(&text).with_context(at)?;
+    let fit = racetracks::spline::fit_closed_curve(&control, smoothing).with_context(at)?;
+    let json = serde_json::json!({ "u": fit.u, "knots": fit.curve.knots, "coefficients": fit.curve.coefficients });
     println!("{}", serde_json::to_string_pretty(&json)?);
     Ok(())
 }

@@ -5,16 +5,12 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
-use std::sync::atomic::Ordering;
 
 use crate::signal::stop_flag;
 use learner::checkpoint::CheckpointDir;
-use runtime::progress::{ProgressLog, progress_line};
 use runtime::{ResolvedRun, Run, TrainConfig, TrainFlags, Trainer};
 
 use runtime::supervisor::{self, ClusterPlan};
-
-use super::TransportArg;
 
 /// Arguments of `dronerace train`.
 #[derive(Args)]
@@ -52,24 +48,15 @@ pub struct TrainArgs {
     #[arg(long)]
     actors: Option<usize>,
     /// How rollouts travel between the actor processes and the learner.
-    #[arg(long, value_enum, default_value_t = TransportArg::Shm)]
-    transport: TransportArg,
+    #[arg(long, default_value = "shm")]
+    transport: proto::Transport,
     /// Run everything in this one process (no services; for debugging and tests).
     #[arg(long, conflicts_with_all = ["actors"])]
     in_process: bool,
     /// The agent of a new run, with its defaults [default: state] (a config file names its
     /// agent itself, `agent = "vision"`).
-    #[arg(long, conflicts_with_all = ["config", "resume"], value_parser = ["state", "vision"])]
-    agent: Option<String>,
-}
-
-/// The agent a command-line flag names.
-pub(crate) fn parse_agent(name: &str) -> anyhow::Result<policy::Agent> {
-    match name {
-        "state" => Ok(policy::Agent::State),
-        "vision" => Ok(policy::Agent::Vision),
-        other => anyhow::bail!("{other:?} is neither state nor vision"),
-    }
+    #[arg(long, conflicts_with_all = ["config", "resume"])]
+    agent: Option<policy::Agent>,
 }
 
 /// The run directory and its resolved config: a new one, or the one being resumed.
@@ -79,7 +66,7 @@ fn prepare(args: &TrainArgs) -> anyhow::Result<(PathBuf, ResolvedRun, bool)> {
     }
     let config = match (&args.config, &args.agent) {
         (Some(path), _) => TrainConfig::read(path)?,
-        (None, Some(agent)) => TrainConfig::defaults_for(parse_agent(agent)?),
+        (None, Some(agent)) => TrainConfig::defaults_for(*agent),
         (None, None) => TrainConfig::default(),
     };
     let flags = TrainFlags {
@@ -116,7 +103,7 @@ fn with_processes(
     resolved: ResolvedRun,
     resume: bool,
     actors: usize,
-    transport: TransportArg,
+    transport: proto::Transport,
     iterations: Option<u64>,
 ) -> anyhow::Result<()> {
     if resume {
@@ -126,7 +113,7 @@ fn with_processes(
         Run::prepare(&resolved, dir)?;
         let _ = std::fs::remove_file(dir.join("taskctl.snapshot"));
     }
-    let plan = ClusterPlan { dir: dir.to_path_buf(), actors, envs: resolved.envs(), transport: transport.into(), iterations };
+    let plan = ClusterPlan { dir: dir.to_path_buf(), actors, envs: resolved.envs(), transport, iterations };
     let stop = stop_flag()?;
     Ok(supervisor::run(plan, &stop)?)
 }
@@ -136,14 +123,7 @@ fn with_processes(
 fn in_process(dir: &Path, resolved: ResolvedRun, resume: bool, iterations: Option<u64>) -> anyhow::Result<()> {
     let mut trainer = if resume { Trainer::resume(dir)? } else { Trainer::start(resolved, dir)? };
     let stop = stop_flag()?;
-    let mut log = ProgressLog::open(trainer.dir())?;
-    let first = trainer.iteration();
-    eprintln!("training in {} (from iteration {first}, in one process)", trainer.dir().display());
-    while !trainer.finished() && !stop.load(Ordering::SeqCst) && iterations.is_none_or(|n| trainer.iteration() - first < n) {
-        let s = trainer.iteration_step()?;
-        log.report(&progress_line(&s, trainer.eta_seconds()))?;
-    }
-    let path = trainer.checkpoint()?;
+    let path = trainer.train(iterations, &stop)?;
     eprintln!("checkpoint written to {}", path.display());
     Ok(())
 }

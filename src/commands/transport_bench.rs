@@ -3,14 +3,12 @@
 
 use clap::Args;
 
-use super::TransportArg;
-
 /// Arguments of `dronerace bench transport`.
 #[derive(Args)]
 pub struct TransportBenchArgs {
     /// Transport to measure.
-    #[arg(long, value_enum, default_value_t = TransportArg::Shm)]
-    transport: TransportArg,
+    #[arg(long, default_value = "shm")]
+    transport: proto::Transport,
     /// Environments per rollout chunk.
     #[arg(long, default_value_t = 48)]
     envs: usize,
@@ -34,7 +32,7 @@ pub struct TransportBenchArgs {
 /// Measures one transport and prints what it found.
 pub fn run(args: TransportBenchArgs) -> anyhow::Result<()> {
     let bench = proto::bench::TransportBench {
-        transport: args.transport.into(),
+        transport: args.transport,
         envs: args.envs,
         steps: args.steps,
         chunks: args.chunks,

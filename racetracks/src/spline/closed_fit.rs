@@ -68,6 +68,32 @@ pub struct ClosedCurveFit {
     pub residual: f64,
 }
 
+/// A row of a control-point CSV that is not `x,y,z`.
+#[derive(Debug, PartialEq, thiserror::Error)]
+#[error("line {line}: expected x,y,z (3 finite numbers), found {found:?}")]
+pub struct ControlPointsError {
+    /// 1-based line number.
+    pub line: usize,
+    /// The line as read.
+    pub found: String,
+}
+
+/// Control points from CSV text, one `x,y,z` a row, no header; blank lines are skipped.
+pub fn control_points_from_csv(text: &str) -> Result<Vec<Vector3<f64>>, ControlPointsError> {
+    let mut points = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let values: Vec<Option<f64>> = line.split(',').map(|f| f.trim().parse::<f64>().ok().filter(|x| x.is_finite())).collect();
+        let [Some(x), Some(y), Some(z)] = values[..] else {
+            return Err(ControlPointsError { line: i + 1, found: line.to_string() });
+        };
+        points.push(Vector3::new(x, y, z));
+    }
+    Ok(points)
+}
+
 /// Fits a closed cubic smoothing spline through `points` (the closing point is added here).
 pub fn fit_closed_curve(points: &[Vector3<f64>], s: f64) -> Result<ClosedCurveFit, SplineError> {
     let k = DEGREE;

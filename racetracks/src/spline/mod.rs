@@ -4,4 +4,4 @@ mod bspline;
 mod closed_fit;
 
 pub use bspline::{BSplineCurve, basis};
-pub use closed_fit::{ClosedCurveFit, DEGREE, SplineError, fit_closed_curve};
+pub use closed_fit::{ClosedCurveFit, ControlPointsError, DEGREE, SplineError, control_points_from_csv, fit_closed_curve};
