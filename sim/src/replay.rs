@@ -104,7 +104,7 @@ pub fn write_csv(rows: &[ReplayRow], mut out: impl Write) -> std::io::Result<()>
 #[derive(Debug, PartialEq, thiserror::Error)]
 pub enum ActionsError {
     /// A row with another count of values, or a value that is not a finite number.
-    #[error("line {line}: expected 4 finite action values, found {found:?}")]
+    #[error("expected 4 finite action values, found {found:?}")]
     BadRow {
         /// 1-based line number.
         line: usize,

@@ -64,7 +64,10 @@ pub fn run(command: SimCommand) -> anyhow::Result<()> {
             let start =
                 start.as_deref().map(|t| ::sim::poses_text::parse_pose_yaw(t).with_context(|| format!("--start {t:?}"))).transpose()?;
             let text = read_text(&actions).with_context(|| format!("reading {}", actions.display()))?;
-            let actions = ::sim::replay::parse_actions(&text).with_context(|| actions.display().to_string())?;
+            let actions = ::sim::replay::parse_actions(&text).map_err(|e| match &e {
+                ::sim::replay::ActionsError::BadRow { line, .. } => anyhow::anyhow!("{}:{line}: {e}", actions.display()),
+                ::sim::replay::ActionsError::Empty => anyhow::anyhow!("{}: {e}", actions.display()),
+            })?;
             let rows = ::sim::replay::replay(track, start, &actions);
             let mut csv = Vec::new();
             ::sim::replay::write_csv(&rows, &mut csv)?;

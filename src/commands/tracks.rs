@@ -186,7 +186,8 @@ pub fn run(command: TracksCommand) -> anyhow::Result<()> {
 fn fit(points: &Path, smoothing: f64) -> anyhow::Result<()> {
     let text = read_text(points).with_context(|| format!("reading {}", points.display()))?;
     let at = || points.display().to_string();
-    let control = racetracks::spline::control_points_from_csv(&text).with_context(at)?;
+    let control =
+        racetracks::spline::control_points_from_csv(&text).map_err(|e| anyhow::anyhow!("{}:{}: {e}", points.display(), e.line))?;
     let fit = racetracks::spline::fit_closed_curve(&control, smoothing).with_context(at)?;
     let json = serde_json::json!({ "u": fit.u, "knots": fit.curve.knots, "coefficients": fit.curve.coefficients });
     println!("{}", serde_json::to_string_pretty(&json)?);

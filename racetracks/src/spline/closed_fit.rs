@@ -70,7 +70,7 @@ pub struct ClosedCurveFit {
 
 /// A row of a control-point CSV that is not `x,y,z`.
 #[derive(Debug, PartialEq, thiserror::Error)]
-#[error("line {line}: expected x,y,z (3 finite numbers), found {found:?}")]
+#[error("expected x,y,z (3 finite numbers), found {found:?}")]
 pub struct ControlPointsError {
     /// 1-based line number.
     pub line: usize,
