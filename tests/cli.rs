@@ -420,7 +420,8 @@ fn eval_flies_a_vision_policy_with_the_camera() {
     let dir = tempfile::tempdir().unwrap();
     let arch = policy::Architecture { hidden: vec![16, 16], ..policy::Architecture::cpu() };
     let net = policy::VisionActorCritic::new(&arch, -0.5, 2, &policy::Device::flex());
-    let blob = policy::WeightsBlob::from_vision_model(3, &arch, &policy::ObsNormalizer::new(arch.observation_dim), &net);
+    let blob =
+        <policy::WeightsBlob as policy::NetworkBlob>::from_vision_model(3, &arch, &policy::ObsNormalizer::new(arch.observation_dim), &net);
     let path = dir.path().join("vision.bin");
     std::fs::write(&path, blob.to_bytes()).unwrap();
     let out = dir.path().join("eval");

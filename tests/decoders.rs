@@ -22,11 +22,12 @@ use std::sync::Once;
 
 use learner::Learner;
 use learner::checkpoint::Checkpoint;
-use policy::{EpisodeRecord, RolloutChunk, WeightsBlob};
+use policy::WeightsBlob;
 use prost::Message;
 use racetracks::TrackGenerator;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rollout::{EpisodeRecord, RolloutChunk};
 use runtime::TrainConfig;
 use taskctl::TaskController;
 
@@ -114,7 +115,7 @@ fn reframe(mut b: Vec<u8>) -> Vec<u8> {
 /// bytes came from (`VALID_FILE`) with one metadata value, tensor shape or tensor's data
 /// replaced by bytes taken from the mutation, then written out (and so sealed) again.
 fn reseal(mutated: Vec<u8>) -> Vec<u8> {
-    use policy::safetensors::TensorData;
+    use policyfile::safetensors::TensorData;
     let Some(mut file) = VALID_FILE.with_borrow(Clone::clone) else { return mutated };
     let mut rng = ChaCha8Rng::seed_from_u64(crc32fast::hash(&mutated).into());
     let junk = |rng: &mut ChaCha8Rng| {
@@ -165,7 +166,7 @@ fn reseal(mutated: Vec<u8>) -> Vec<u8> {
 
 thread_local! {
     /// The valid safetensors file [`reseal`] mutates.
-    static VALID_FILE: std::cell::RefCell<Option<policy::safetensors::TensorFile>> = const { std::cell::RefCell::new(None) };
+    static VALID_FILE: std::cell::RefCell<Option<policyfile::safetensors::TensorFile>> = const { std::cell::RefCell::new(None) };
 }
 
 /// What one decoder made of the mutated inputs.
@@ -219,7 +220,7 @@ fn chunk() -> RolloutChunk {
 #[test]
 fn every_mutated_weights_blob_is_refused_and_none_panics_the_parser() {
     let valid = tiny_learner().weights().to_bytes();
-    VALID_FILE.set(Some(policy::safetensors::TensorFile::from_bytes(&valid).unwrap()));
+    VALID_FILE.set(Some(policyfile::safetensors::TensorFile::from_bytes(&valid).unwrap()));
     let decode = |b: &[u8]| WeightsBlob::from_bytes(b).is_ok();
     let raw = fuzz("weights blob", 1, &valid, |b| b, decode);
     assert_eq!(raw.accepted, 0);
@@ -227,8 +228,8 @@ fn every_mutated_weights_blob_is_refused_and_none_panics_the_parser() {
 }
 
 /// What the learner of the fuzzed rollouts admits: 8 environments of 3-step rollouts.
-const LIMITS: policy::ChunkLimits =
-    policy::ChunkLimits { observation_dim: sim::STATE_OBS_DIM, action_dim: sim::ACTION_DIM, max_envs: 8, max_steps: 3, images: false };
+const LIMITS: rollout::ChunkLimits =
+    rollout::ChunkLimits { observation_dim: sim::STATE_OBS_DIM, action_dim: sim::ACTION_DIM, max_envs: 8, max_steps: 3, images: false };
 
 #[test]
 fn every_mutated_rollout_chunk_is_refused_and_none_panics_the_parser() {
@@ -248,7 +249,7 @@ fn every_mutated_rollout_with_camera_images_is_refused_and_none_panics_the_parse
     for (i, image) in c.images.chunks_mut(sim::camera::IMAGE_PIXELS).enumerate() {
         image[300 + 7 * i..380 + 7 * i].fill(155);
     }
-    let vision = policy::ChunkLimits { images: true, ..LIMITS };
+    let vision = rollout::ChunkLimits { images: true, ..LIMITS };
     let valid = c.to_bytes();
     let decode = |b: &[u8]| RolloutChunk::from_bytes(b, &vision).is_ok_and(|c| c.check(sim::STATE_OBS_DIM, sim::ACTION_DIM, true).is_ok());
     let raw = fuzz("rollout chunk with images", 12, &valid, |b| b, decode);
@@ -307,7 +308,7 @@ fn no_mutated_act_request_panics_the_served_policy() {
 #[test]
 fn every_mutated_checkpoint_is_refused_and_none_panics_the_restore() {
     let valid = tiny_learner().checkpoint().to_bytes();
-    VALID_FILE.set(Some(policy::safetensors::TensorFile::from_bytes(&valid).unwrap()));
+    VALID_FILE.set(Some(policyfile::safetensors::TensorFile::from_bytes(&valid).unwrap()));
     let origin = Path::new("fuzzed.bin");
     let raw = fuzz("checkpoint", 5, &valid, |b| b, |b| Checkpoint::from_bytes(b, origin).is_ok());
     assert_eq!(raw.accepted, 0);
@@ -341,7 +342,7 @@ fn no_mutated_track_file_panics_the_parser() {
 fn no_mutated_grpc_message_panics_its_decoders() {
     use proto::v1;
     // A rollout part: protobuf, then reassembly, then the chunk format, then admission.
-    let admission = proto::Admission {
+    let admission = transport::Admission {
         learner_epoch: 1,
         version: 4,
         max_policy_lag: 2,
@@ -367,7 +368,7 @@ fn no_mutated_grpc_message_panics_its_decoders() {
         |b| b,
         |b| {
             let Ok(p) = v1::RolloutPart::decode(b) else { return false };
-            let Ok(Some(payload)) = proto::chunking::Reassembler::default().push(p.part, p.parts, &p.data) else { return false };
+            let Ok(Some(payload)) = transport::chunking::Reassembler::default().push(p.part, p.parts, &p.data) else { return false };
             RolloutChunk::from_bytes(&payload, &admission.limits()).is_ok_and(|c| admission.check(&p.actor, p.learner_epoch, &c).is_ok())
         },
     );
@@ -383,7 +384,7 @@ fn no_mutated_grpc_message_panics_its_decoders() {
         |b| b,
         |b| {
             let Ok(r) = v1::ReportRequest::decode(b) else { return false };
-            proto::transport::check_actor_name(&r.actor).is_ok()
+            transport::link::check_actor_name(&r.actor).is_ok()
                 && taskctl::TaskService::report(&tasks, &r.actor, r.rollout, &r.cumulative_rewards).is_ok()
         },
     );

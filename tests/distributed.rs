@@ -278,7 +278,7 @@ fn an_actor_killed_mid_rollout_is_dropped_and_a_restarted_one_rejoins() {
     let _serial = serial();
     let tmp = tempfile::tempdir().unwrap();
     let c = Cluster::new(tmp.path(), "grpc", "");
-    let clients = Clients::new(proto::Security::default());
+    let clients = Clients::new(transport::Security::default());
     let _taskctl = c.taskctl();
     let learner = c.learner();
     let a0 = c.actor("a0");
@@ -324,7 +324,7 @@ fn a_killed_learner_resumes_from_its_checkpoint_and_the_running_actors_reconnect
     let _serial = serial();
     let tmp = tempfile::tempdir().unwrap();
     let c = Cluster::new(tmp.path(), "shm", "");
-    let clients = Clients::new(proto::Security::default());
+    let clients = Clients::new(transport::Security::default());
     let _taskctl = c.taskctl();
     let mut learner = c.learner();
     let mut a0 = c.actor("a0");
@@ -355,7 +355,7 @@ fn a_killed_task_controller_restores_its_snapshot_and_loses_no_report() {
     let _serial = serial();
     let tmp = tempfile::tempdir().unwrap();
     let c = Cluster::new(tmp.path(), "shm", "");
-    let clients = Clients::new(proto::Security::default());
+    let clients = Clients::new(transport::Security::default());
     let mut taskctl = c.taskctl();
     let learner = c.learner();
     let a0 = c.actor("a0");
@@ -397,9 +397,9 @@ fn bad_messages_are_refused_with_a_clear_status() {
     let _taskctl = c.taskctl();
     let learner = c.learner();
     let authed = Clients::new(
-        proto::Security::load(&proto::NetworkConfig { token_file: Some(token.clone().into()), ..Default::default() }).unwrap(),
+        transport::Security::load(&transport::NetworkConfig { token_file: Some(token.clone().into()), ..Default::default() }).unwrap(),
     );
-    let anonymous = Clients::new(proto::Security::default());
+    let anonymous = Clients::new(transport::Security::default());
     // The server answers Status while the learner is still starting (with epoch 0); rollouts
     // are admitted once it has published its first weights and set its epoch.
     wait_until(MINUTE, "the learner", &[&learner], || authed.status(&c.learner_url()).is_some_and(|s| s.learner_epoch != 0));
@@ -408,11 +408,11 @@ fn bad_messages_are_refused_with_a_clear_status() {
 
     // Missing and wrong tokens.
     std::fs::write(tmp.path().join("wrong"), "t0keN\n").unwrap();
-    let wrong_token = proto::NetworkConfig { token_file: Some(tmp.path().join("wrong")), ..Default::default() };
-    let wrong = Clients::new(proto::Security::load(&wrong_token).unwrap());
+    let wrong_token = transport::NetworkConfig { token_file: Some(tmp.path().join("wrong")), ..Default::default() };
+    let wrong = Clients::new(transport::Security::load(&wrong_token).unwrap());
     for clients in [&anonymous, &wrong] {
         let _g = clients.rt.enter();
-        let mut learner_client = proto::grpc_link::learner_client(&c.learner_url(), &clients.security).unwrap();
+        let mut learner_client = transport::grpc_link::learner_client(&c.learner_url(), &clients.security).unwrap();
         let e = clients.rt.block_on(learner_client.status(v1::StatusRequest {})).unwrap_err();
         assert_eq!(e.code(), tonic::Code::Unauthenticated, "{e:?}");
         let e = clients.tasks(&c.taskctl_url()).tasks().unwrap_err();
@@ -423,7 +423,7 @@ fn bad_messages_are_refused_with_a_clear_status() {
     let push = |parts: Vec<v1::RolloutPart>| {
         let _g = authed.rt.enter();
         // The client's own limit would stop an oversized message before the server sees it.
-        let client = proto::grpc_link::learner_client(&c.learner_url(), &authed.security).unwrap();
+        let client = transport::grpc_link::learner_client(&c.learner_url(), &authed.security).unwrap();
         let mut client = client.max_encoding_message_size(64 << 20);
         authed.rt.block_on(client.push_rollouts(tokio_stream::iter(parts))).map(|r| r.into_inner().accepted)
     };
@@ -438,7 +438,7 @@ fn bad_messages_are_refused_with_a_clear_status() {
     // Rows of the run's own observation length, so that only what each probe breaks is wrong.
     let observation_dim = runtime::ResolvedRun::read(Path::new(&c.config)).unwrap().learner().architecture.observation_dim;
     let chunk = |version: u64, first_env: usize, poison: bool| {
-        let mut chunk = policy::RolloutChunk::zeroed(version, first_env, 2, 3, observation_dim, sim::ACTION_DIM);
+        let mut chunk = rollout::RolloutChunk::zeroed(version, first_env, 2, 3, observation_dim, sim::ACTION_DIM);
         if poison {
             chunk.observations[5] = f32::NAN;
         }
@@ -451,7 +451,7 @@ fn bad_messages_are_refused_with_a_clear_status() {
     assert_eq!(code(push(vec![part(chunk(version, 7, false), epoch, version)])), tonic::Code::InvalidArgument, "unknown envs");
     assert_eq!(code(push(vec![part(chunk(version + 5, 0, false), epoch, version + 5)])), tonic::Code::FailedPrecondition, "future version");
     assert_eq!(code(push(vec![part(chunk(version, 0, false), epoch ^ 1, version)])), tonic::Code::FailedPrecondition, "other epoch");
-    let oversized = vec![0u8; proto::security::MAX_MESSAGE_BYTES + 1024];
+    let oversized = vec![0u8; transport::security::MAX_MESSAGE_BYTES + 1024];
     assert_eq!(code(push(vec![part(oversized, epoch, version)])), tonic::Code::OutOfRange, "oversized");
     let mut split = part(chunk(version, 0, false), epoch, version);
     split.parts = 2;

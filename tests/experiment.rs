@@ -248,7 +248,7 @@ fn a_sequential_experiment_starts_each_stage_from_the_last_and_tracks_every_vali
         assert_eq!(steps, vec![128, 256, 384, 512], "{}: both stages, laid end to end", c.track);
     }
     let o = Command::new(env!("CARGO_BIN_EXE_dronerace"))
-        .args(["experiment", "report", file.to_str().unwrap(), out.to_str().unwrap()])
+        .args(["experiment", "report", file.to_str().unwrap(), "--out", out.to_str().unwrap()])
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));

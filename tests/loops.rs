@@ -8,14 +8,14 @@ use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use learner::PpoConfig;
-use proto::ActorLink;
-use proto::board::LearnerBoard;
-use proto::memory::memory_link;
 use runtime::LearnerSettings;
 use runtime::actor_process::{ActorLoop, ActorSettings, Pass};
 use runtime::learner_process::{LearnerProcess, learner_only};
 use runtime::{Run, TrainConfig};
 use taskctl::LocalTasks;
+use transport::ActorLink;
+use transport::board::LearnerBoard;
+use transport::memory::memory_link;
 
 /// Two registered actors (a0 on environments 0..2, a1 on 2..4) of a 4-environment run, each
 /// with its end of an in-memory link, and a learner expecting both.
@@ -24,10 +24,10 @@ struct TwoActors {
     config: runtime::ResolvedRun,
     tasks: LocalTasks,
     stop: AtomicBool,
-    links: [proto::memory::MemoryActorLink; 2],
+    links: [transport::memory::MemoryActorLink; 2],
     actors: [ActorLoop; 2],
     status: std::sync::Arc<LearnerBoard>,
-    learner: LearnerProcess<proto::memory::MemoryLearnerLink>,
+    learner: LearnerProcess<transport::memory::MemoryLearnerLink>,
 }
 
 impl TwoActors {
@@ -98,7 +98,7 @@ fn an_actor_that_misses_an_iteration_is_dropped_and_rejoins_with_its_next_rollou
     learner.iteration_step(&stop, Some(&tasks), &learner_only).unwrap().unwrap();
     assert_eq!(members(), ["a0"]);
     let observation_dim = config.learner().architecture.observation_dim;
-    let stale = policy::RolloutChunk::zeroed(3, 2, 2, 16, observation_dim, sim::ACTION_DIM);
+    let stale = rollout::RolloutChunk::zeroed(3, 2, 2, 16, observation_dim, sim::ACTION_DIM);
     link1.send_rollout("a1", status.status().learner_epoch, &stale).unwrap();
     assert_eq!(a0.pass(&mut link0, &tasks, &stop).unwrap(), Pass::Sent);
     let waited = Instant::now();
@@ -159,11 +159,11 @@ fn a_poisoned_rollout_and_one_for_another_actors_environments_are_refused_and_tr
     let observation_dim = config.learner().architecture.observation_dim;
     let epoch = status.status().learner_epoch;
 
-    let mut poisoned = policy::RolloutChunk::zeroed(0, 0, 2, 8, observation_dim, sim::ACTION_DIM);
+    let mut poisoned = rollout::RolloutChunk::zeroed(0, 0, 2, 8, observation_dim, sim::ACTION_DIM);
     poisoned.observations.fill(1.0e9);
     link1.send_rollout("ghost", epoch, &poisoned).unwrap();
     // a1 holds environments 2..4: a rollout of 0..2 under its name is not its to send.
-    let borrowed = policy::RolloutChunk::zeroed(0, 0, 2, 16, observation_dim, sim::ACTION_DIM);
+    let borrowed = rollout::RolloutChunk::zeroed(0, 0, 2, 16, observation_dim, sim::ACTION_DIM);
     link1.send_rollout("a1", epoch, &borrowed).unwrap();
     assert_eq!(a0.pass(&mut link0, &tasks, &stop).unwrap(), Pass::Sent);
     assert_eq!(a1.pass(&mut link1, &tasks, &stop).unwrap(), Pass::Sent);

@@ -7,6 +7,7 @@
 
 mod support;
 
+use policy::NetworkBlob;
 use std::path::Path;
 use std::process::Command;
 
@@ -153,7 +154,7 @@ fn a_format_2_policy_file_upgrades_with_its_tensors_unchanged() {
     let blob = WeightsBlob::from_bytes(&std::fs::read(&new).unwrap()).unwrap();
     let layout = sim::ObservationLayout { line_points: 2, ..sim::ObservationLayout::spec(sim::ObservationFrame::Heading) };
     assert_eq!((blob.architecture.observation, blob.architecture.observation_dim, blob.version), (layout, 46, 1));
-    let tensors = |path: &Path| policy::safetensors::TensorFile::from_bytes(&std::fs::read(path).unwrap()).unwrap().tensors;
+    let tensors = |path: &Path| policyfile::safetensors::TensorFile::from_bytes(&std::fs::read(path).unwrap()).unwrap().tensors;
     assert_eq!(tensors(&old), tensors(&new), "every tensor as it was");
     let again = upgrade(&new, &dir.path().join("again.bin"));
     assert!(!again.status.success() && String::from_utf8_lossy(&again.stderr).contains("format 3, not 2"));

@@ -9,6 +9,7 @@
 
 mod support;
 
+use policy::NetworkBlob;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
@@ -348,7 +349,7 @@ fn a_hostile_race_start_is_refused_and_the_server_keeps_answering() {
         // An error that would quote a 60 kB line quotes at most 1 kB of it.
         let echo = refusal(client.clone(), format!("name = \"{}", "x".repeat(60_000))).await;
         assert_eq!(echo.code(), tonic::Code::InvalidArgument);
-        assert!(echo.message().len() <= proto::refusal::MAX_STATUS_MESSAGE, "{} bytes", echo.message().len());
+        assert!(echo.message().len() <= transport::refusal::MAX_STATUS_MESSAGE, "{} bytes", echo.message().len());
 
         // Sixteen streams (each on a connection of its own: a connection takes 16 streams at
         // most) start the largest admitted track; the server answers meanwhile.

@@ -161,7 +161,7 @@ fn best_bin_is_the_weight_average_of_the_last_validated_policies_and_resumes_bit
         assert_eq!(names, ["v-000000002.bin", "v-000000003.bin"], "{run}: the last two validations kept");
         let policies: Vec<_> = kept.iter().map(|p| learner::checkpoint::read_policy(p).unwrap()).collect();
         assert!(policies[0].params != policies[1].params, "{run}: two different policies");
-        let average = policy::averaging::average(&policies).unwrap();
+        let average = policyfile::averaging::average(&policies).unwrap();
         let best = std::fs::read(dir.path().join(run).join("checkpoints/best.bin")).unwrap();
         assert!(best == average.to_bytes(), "{run}: best.bin is their weight average");
     }
@@ -244,7 +244,7 @@ fn a_run_with_line_points_learns_from_46_numbers_and_resumes_bit_for_bit() {
     // A line spacing that is no distance is refused, naming the field.
     let mut bad = tiny_line_config();
     bad.env.observation.line_spacing = f64::NAN;
-    let err = Trainer::start(bad.resolve().unwrap(), &dir.path().join("bad-line")).err().expect("refused").to_string();
+    let err = bad.resolve().expect_err("refused").to_string();
     assert!(err.contains("env.observation.line_spacing"), "{err}");
     let track = std::sync::Arc::new(racetracks::library_track("Figure8").unwrap().unwrap());
     let config = sim::eval::EvalConfig { runs: 2, steps: 50, ..sim::eval::EvalConfig::default() };
@@ -382,7 +382,7 @@ fn a_vision_agent_trains_on_its_camera_images_and_resumes_bit_for_bit() {
     assert!(weights(&b) == weights(&a), "the CNN, its optimiser and the camera-equipped environments continue exactly");
     // The learner refuses a rollout without the camera images its agent acted on.
     let mut learner = tiny_vision_config().resolve().unwrap().initial_learner().unwrap();
-    let mut chunk = policy::RolloutChunk::zeroed(0, 0, 4, 16, sim::STATE_OBS_DIM, sim::ACTION_DIM);
+    let mut chunk = rollout::RolloutChunk::zeroed(0, 0, 4, 16, sim::STATE_OBS_DIM, sim::ACTION_DIM);
     let err = learner.train(std::slice::from_ref(&chunk)).unwrap_err();
     assert!(err.to_string().contains("without its camera images"), "{err}");
     chunk.images = vec![0; chunk.transitions() * sim::camera::IMAGE_PIXELS];

@@ -125,7 +125,7 @@ impl SimBench {
                 if !env.images.is_empty() && k % 10 == 0 {
                     for image in env.images.chunks(sim::camera::IMAGE_PIXELS) {
                         let mut code = Vec::new();
-                        policy::run_length::encode(image, &mut code);
+                        rollout::run_length::encode(image, &mut code);
                         coded.push(code.len());
                     }
                 }

@@ -6,9 +6,10 @@ pub mod bench;
 
 use std::sync::Arc;
 
-use policy::{ActingPolicy, BlobError, EpisodeRecord, RolloutChunk, WeightsBlob};
+use policy::{ActingPolicy, BlobError, WeightsBlob};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use rollout::{EpisodeRecord, RolloutChunk};
 use serde::{Deserialize, Serialize};
 use sim::{EnvConfig, RaceEnv, Track, VecEnv};
 

@@ -6,6 +6,7 @@ use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Bytes, Device, Tensor, TensorData};
 use learner::ppo::update::scalar;
 use learner::{LearnerError, Network};
+use policy::NetworkBlob;
 use policy::vision::image_tensor;
 use policy::{Agent, Architecture, ObsNormalizer, WeightsBlob};
 use sim::ACTION_DIM;

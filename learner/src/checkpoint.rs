@@ -2,7 +2,7 @@
 //! in one safetensors file, written atomically; the last N are kept, plus the best.
 //!
 //! The file is the policy file of the `weights` section (its tensors and metadata, see
-//! `policy::blob`) with every other section added: text sections of at most 64 KiB (counters,
+//! `policyfile::blob`) with every other section added: text sections of at most 64 KiB (counters,
 //! run progress) as metadata `section.<name>`, the rest as `U8` tensors `section.<name>`; and
 //! metadata `checkpoint_format` = `dronerace-checkpoint`, `checkpoint_format_version`. So a
 //! checkpoint opens in Python like a policy file, and `WeightsBlob::from_bytes` reads its
@@ -11,7 +11,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use policy::safetensors::{Tensor, TensorData, TensorFile};
+use policyfile::safetensors::{Tensor, TensorData, TensorFile};
 
 /// `checkpoint_format` in the metadata.
 const FORMAT_NAME: &str = "dronerace-checkpoint";
@@ -281,7 +281,8 @@ mod tests {
     fn a_checkpoint_holds_its_policy_tensors_and_round_trips_every_section() {
         let arch = policy::Architecture { hidden: vec![8], ..policy::Architecture::paper() };
         let net = policy::ActorCritic::new(&arch, -0.5, 1, &policy::Device::flex());
-        let blob = policy::WeightsBlob::from_model(2, &arch, &policy::ObsNormalizer::new(arch.observation_dim), &net);
+        let blob =
+            <policy::WeightsBlob as policy::NetworkBlob>::from_model(2, &arch, &policy::ObsNormalizer::new(arch.observation_dim), &net);
         let mut c = Checkpoint::default();
         c.put("weights", blob.to_bytes());
         c.put("learner", br#"{"version":2}"#.to_vec());

@@ -66,11 +66,11 @@ pub fn export(paths: &[PathBuf], format: ExportFormat) -> Result<Exported, Expor
     let blob = match blobs.as_slice() {
         [] => return Err(ExportError::Nothing),
         [one] => one.clone(),
-        many => policy::averaging::average(many)?,
+        many => policyfile::averaging::average(many)?,
     };
     let bytes = match format {
         ExportFormat::Safetensors => blob.to_bytes(),
-        ExportFormat::Onnx => policy::onnx::actor_model(&blob)?,
+        ExportFormat::Onnx => policyfile::onnx::actor_model(&blob)?,
     };
     Ok(Exported { blob, bytes })
 }

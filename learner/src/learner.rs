@@ -3,9 +3,11 @@
 use burn::module::Module;
 use burn::optim::ModuleOptimizer;
 use burn::tensor::{Bytes, Device};
-use policy::{ActorCritic, Agent, Architecture, ObsNormalizer, RolloutChunk, VisionActorCritic, WeightsBlob};
+use policy::NetworkBlob;
+use policy::{ActorCritic, Agent, Architecture, ObsNormalizer, VisionActorCritic, WeightsBlob};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use rollout::RolloutChunk;
 use serde::{Deserialize, Serialize};
 
 use crate::adam::FusedAdam;
@@ -18,7 +20,7 @@ pub enum LearnerError {
     /// A chunk's arrays do not have the lengths its header promises, or hold numbers no
     /// healthy run makes.
     #[error("malformed rollout chunk: {0}")]
-    Malformed(#[from] policy::RolloutCheckError),
+    Malformed(#[from] rollout::RolloutCheckError),
     /// No chunks.
     #[error("no rollout chunks to learn from")]
     Empty,
@@ -243,7 +245,7 @@ impl Learner {
     }
 
     /// Why an update's result must not be used: a non-finite loss or gradient, or weights that
-    /// are not finite or beyond [`policy::blob::MAX_WEIGHT`].
+    /// are not finite or beyond [`policyfile::blob::MAX_WEIGHT`].
     fn divergence(&self, stats: &UpdateStats) -> Option<String> {
         let losses = [
             ("policy_loss", stats.policy_loss),

@@ -10,9 +10,10 @@ use rand_distr::StandardNormal;
 use sim::camera::IMAGE_PIXELS;
 use sim::{Controller, RaceEnv};
 
-use crate::blob::{BlobError, WeightsBlob};
+use policyfile::{BlobError, ObsNormalizer, WeightsBlob};
+
+use crate::models::NetworkBlob;
 use crate::network::ActorCritic;
-use crate::normalizer::ObsNormalizer;
 use crate::vision::{VisionActorCritic, image_tensor};
 
 /// ln(2π) / 2, the normalising constant of a Gaussian log-density per dimension.
@@ -345,7 +346,7 @@ pub fn controller_factory(blob: &WeightsBlob) -> Result<ControllerFactory, BlobE
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::architecture::Architecture;
+    use policyfile::architecture::Architecture;
     use rand::SeedableRng;
 
     #[test]

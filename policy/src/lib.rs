@@ -1,32 +1,21 @@
-//! Policies: the actor-critic network (burn), the observation normaliser, the versioned
-//! weights blob that carries both to actors, inference for acting and evaluating, and the
-//! rollout chunk actors send back.
+//! The networks of a policy (burn): the state-based actor-critic (`network`), the vision
+//! agent's (`vision`), both to and from their weights blobs (`models`), and inference for
+//! acting and evaluating (`inference`). The matrix kernels are the `kernels` crate's; the policy
+//! file (architecture, normaliser, weights blob, ONNX) is the `policyfile` crate's, whose main
+//! types are re-exported here.
 
-pub mod architecture;
-pub mod averaging;
-pub mod blob;
-pub mod dense;
 pub mod inference;
-mod narrow;
+pub mod models;
 pub mod network;
-pub mod normalizer;
-pub mod onnx;
-pub mod rollout;
-mod rows;
-pub mod run_length;
-pub mod safetensors;
-pub mod surgery;
 pub mod vision;
 
-pub use architecture::{Agent, Architecture};
-pub use blob::{BlobError, WeightsBlob};
 /// The burn device networks are built on (the CPU).
 pub use burn::tensor::Device;
 pub use inference::{
     Acting, ActingPolicy, ControllerFactory, HALF_LN_2PI, Policy, PolicyController, VisionPolicy, VisionPolicyController,
     controller_factory, gaussian_log_prob,
 };
+pub use models::NetworkBlob;
 pub use network::ActorCritic;
-pub use normalizer::ObsNormalizer;
-pub use rollout::{ChunkLimits, EpisodeRecord, RolloutCheckError, RolloutChunk, RolloutWireError};
+pub use policyfile::{Agent, Architecture, BlobError, ObsNormalizer, WeightsBlob};
 pub use vision::{VisionActorCritic, pixels_to_unit};

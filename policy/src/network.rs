@@ -9,8 +9,9 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use sim::nalgebra::DMatrix;
 
-use crate::architecture::Architecture;
-use crate::dense::{Dense, dense_stack};
+use kernels::dense::{Dense, dense_stack};
+use policyfile::shapes::{ExportedParam, ShapeMismatch, check_shapes, parameter_shapes};
+use policyfile::{Agent, Architecture};
 
 /// A multilayer perceptron: LeakyReLU between layers, none after the last.
 #[derive(Module, Debug)]
@@ -80,11 +81,6 @@ impl Mlp {
         Self { layers, negative_slope }
     }
 
-    /// (weight, bias) shapes of the layers between `dims`.
-    pub(crate) fn shapes(dims: &[usize]) -> Vec<Vec<usize>> {
-        dims.windows(2).flat_map(|w| [vec![w[0], w[1]], vec![w[1]]]).collect()
-    }
-
     /// Width of the input the first layer reads.
     pub fn input_dim(&self) -> usize {
         self.layers.first().map_or(0, |l| l.weight.dims()[0])
@@ -138,17 +134,6 @@ pub struct ActorCritic {
     pub log_std: Param<Tensor<1>>,
 }
 
-/// One exported parameter: its id (so optimiser state can follow it), shape and values.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ExportedParam {
-    /// burn's parameter id.
-    pub id: u64,
-    /// Shape.
-    pub shape: Vec<usize>,
-    /// Row-major values.
-    pub values: Vec<f32>,
-}
-
 impl ActorCritic {
     /// A freshly initialised network (gains: √2 hidden, 0.01 policy head, 1 value head); the
     /// same seed gives the same weights.
@@ -191,18 +176,9 @@ impl ActorCritic {
         params
     }
 
-    /// Parameter shapes of `arch`, in [`ActorCritic::export`] order.
-    pub fn shapes(arch: &Architecture) -> Vec<Vec<usize>> {
-        let (actor, critic) = arch.mlp_dims();
-        let mut shapes = Mlp::shapes(&actor);
-        shapes.extend(Mlp::shapes(&critic));
-        shapes.push(vec![arch.action_dim]);
-        shapes
-    }
-
     /// Rebuilds a network of `arch` from [`ActorCritic::export`]'s output, keeping parameter ids.
     pub fn import(arch: &Architecture, params: &[ExportedParam], device: &Device) -> Result<Self, ShapeMismatch> {
-        check_shapes(&Self::shapes(arch), params)?;
+        check_shapes(&parameter_shapes(&Architecture { agent: Agent::State, ..arch.clone() }), params)?;
         let (actor, rest) = params.split_at(2 * (arch.hidden.len() + 1));
         let (critic, log_std) = rest.split_at(actor.len());
         Ok(Self {
@@ -211,22 +187,6 @@ impl ActorCritic {
             log_std: loaded(&log_std[0], device),
         })
     }
-}
-
-/// Exported parameters whose shapes do not fit the architecture they are imported into.
-#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
-#[error("parameter shapes {got:?} do not fit the architecture's {expected:?}")]
-pub struct ShapeMismatch {
-    /// The parameters' shapes, in export order.
-    pub got: Vec<Vec<usize>>,
-    /// The architecture's.
-    pub expected: Vec<Vec<usize>>,
-}
-
-/// Refuses exported parameters whose shapes are not `expected`.
-pub(crate) fn check_shapes(expected: &[Vec<usize>], params: &[ExportedParam]) -> Result<(), ShapeMismatch> {
-    let got: Vec<Vec<usize>> = params.iter().map(|p| p.shape.clone()).collect();
-    if expected == got { Ok(()) } else { Err(ShapeMismatch { got, expected: expected.to_vec() }) }
 }
 
 #[cfg(test)]
@@ -251,7 +211,7 @@ mod tests {
     fn shapes_follow_the_export_order() {
         let arch = Architecture { hidden: vec![8, 6], ..Architecture::paper() };
         let exported: Vec<Vec<usize>> = ActorCritic::new(&arch, -0.5, 2, &Device::flex()).export().into_iter().map(|p| p.shape).collect();
-        assert_eq!(ActorCritic::shapes(&arch), exported);
+        assert_eq!(parameter_shapes(&arch), exported);
     }
 
     #[test]

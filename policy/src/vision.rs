@@ -12,25 +12,13 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use sim::camera::IMAGE_PIXELS;
 
-use crate::architecture::Architecture;
-use crate::dense::{dense, leaky_relu};
-use crate::network::{ExportedParam, Mlp, ShapeMismatch, check_shapes, exported, loaded, orthogonal, parameter};
+use kernels::dense::{dense, leaky_relu};
+use policyfile::Architecture;
+/// The vision agent's sizes (SPEC §5), which its policy files record.
+pub use policyfile::shapes::{CONV_OUTPUT, EMBEDDING, IMAGE_SIDE, PROPRIOCEPTION, actor_state_len};
+use policyfile::shapes::{CONVOLUTIONS, ExportedParam, ShapeMismatch, check_shapes, parameter_shapes};
 
-/// Side of the camera image (pixels).
-pub const IMAGE_SIDE: usize = 84;
-/// Length of the CNN's embedding.
-pub const EMBEDDING: usize = 128;
-/// Length of the actor's state part: R_WB columns 0–1 (6), v (3), ω (3) — the first 12
-/// numbers of the state observation (SPEC §5 order), normalised as the critic's are.
-pub const PROPRIOCEPTION: usize = sim::PREVIOUS_ACTION_RANGE.start;
-/// Length of the previous action, which follows the proprioception in the state observation.
-const PREVIOUS_ACTION: usize = sim::ACTION_DIM;
-
-/// How many of the state observation's first numbers a vision actor of `arch` reads: the
-/// proprioception, and the previous action after it when `arch.vision_previous_action`.
-pub fn actor_state_len(arch: &Architecture) -> usize {
-    PROPRIOCEPTION + if arch.vision_previous_action { PREVIOUS_ACTION } else { 0 }
-}
+use crate::network::{Mlp, exported, loaded, orthogonal, parameter};
 
 /// Camera bytes as the network reads them: scaled to [0, 1].
 pub fn pixels_to_unit(image: &[u8]) -> Vec<f32> {
@@ -44,11 +32,6 @@ pub fn image_tensor(pixels: &[u8], device: &Device) -> Tensor<4> {
     assert_eq!(pixels.len(), n * IMAGE_PIXELS, "whole 84×84 images");
     Tensor::<4>::from_data(TensorData::new(pixels_to_unit(pixels), [n, 1, IMAGE_SIDE, IMAGE_SIDE]), device)
 }
-
-/// The three convolutions: (output channels, kernel, stride).
-const CONVOLUTIONS: [(usize, usize, usize); 3] = [(32, 8, 4), (64, 4, 2), (64, 3, 1)];
-/// Flattened length after the convolutions: 64 channels × 7 × 7 for an 84×84 image.
-pub const CONV_OUTPUT: usize = 64 * 7 * 7;
 
 /// The vision actor-critic.
 #[derive(Module, Debug)]
@@ -168,9 +151,6 @@ impl VisionActorCritic {
         ids
     }
 
-    /// Number of convolutions.
-    pub const CONVOLUTION_COUNT: usize = CONVOLUTIONS.len();
-
     /// Every parameter's values in [`VisionActorCritic::param_ids`] order.
     pub fn export(&self) -> Vec<ExportedParam> {
         let mut out = Vec::new();
@@ -186,25 +166,9 @@ impl VisionActorCritic {
         out
     }
 
-    /// Parameter shapes of a vision agent of `arch`, in export order.
-    pub fn shapes(arch: &Architecture) -> Vec<Vec<usize>> {
-        let mut shapes = Vec::new();
-        let mut channels = 1;
-        for (out, kernel, _) in CONVOLUTIONS {
-            shapes.push(vec![out, channels, kernel, kernel]);
-            shapes.push(vec![out]);
-            channels = out;
-        }
-        shapes.extend(Mlp::shapes(&[CONV_OUTPUT, EMBEDDING]));
-        shapes.extend(Mlp::shapes(&arch.layer_dims(EMBEDDING + actor_state_len(arch), arch.action_dim)));
-        shapes.extend(Mlp::shapes(&arch.layer_dims(arch.observation_dim, 1)));
-        shapes.push(vec![arch.action_dim]);
-        shapes
-    }
-
     /// Rebuilds a network of `arch` from [`VisionActorCritic::export`]'s output, keeping ids.
     pub fn import(arch: &Architecture, params: &[ExportedParam], device: &Device) -> Result<Self, ShapeMismatch> {
-        check_shapes(&Self::shapes(arch), params)?;
+        check_shapes(&parameter_shapes(&Architecture { agent: policyfile::Agent::Vision, ..arch.clone() }), params)?;
         let (convs, rest) = params.split_at(2 * CONVOLUTIONS.len());
         let convolutions = convs
             .chunks(2)
@@ -255,6 +219,7 @@ impl VisionActorCritic {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::models::NetworkBlob;
     use burn::tensor::TensorData;
 
     #[test]
@@ -280,8 +245,8 @@ mod tests {
 
     #[test]
     fn a_vision_blob_round_trips_and_each_kind_refuses_the_other() {
-        use crate::architecture::Agent;
         use crate::{ActorCritic, BlobError, ObsNormalizer, Policy, WeightsBlob};
+        use policyfile::Agent;
         let arch = Architecture { hidden: vec![16, 8], ..Architecture::paper() };
         let device = Device::flex();
         let net = VisionActorCritic::new(&arch, -0.5, 3, &device);
@@ -323,7 +288,7 @@ mod tests {
         // A policy head with gain 1, so that the image visibly moves the action.
         let mut net = VisionActorCritic::new(&arch, -0.5, 5, &device);
         let mut params = net.export();
-        let head = 2 * VisionActorCritic::CONVOLUTION_COUNT + 2 + 2 * arch.hidden.len();
+        let head = 2 * policyfile::shapes::CONVOLUTION_COUNT + 2 + 2 * arch.hidden.len();
         params[head].values.iter_mut().for_each(|v| *v *= 100.0);
         net = VisionActorCritic::import(&arch, &params, &device).unwrap();
         let blob = WeightsBlob::from_vision_model(1, &arch, &ObsNormalizer::new(arch.observation_dim), &net);
@@ -379,7 +344,7 @@ mod tests {
         let device = Device::flex();
         let net = VisionActorCritic::new(&arch, -0.5, 2, &device);
         let mut params = net.export();
-        let head = 2 * VisionActorCritic::CONVOLUTION_COUNT + 2 + 2 * arch.hidden.len();
+        let head = 2 * policyfile::shapes::CONVOLUTION_COUNT + 2 + 2 * arch.hidden.len();
         params[head].values.iter_mut().for_each(|v| *v *= 100.0);
         let spec = WeightsBlob::from_vision_model(
             1,
@@ -402,7 +367,7 @@ mod tests {
         assert_eq!(act(&back, &other_previous), act(&spec, &state));
 
         let mut trained = back.clone();
-        let first = 2 * VisionActorCritic::CONVOLUTION_COUNT + 2;
+        let first = 2 * policyfile::shapes::CONVOLUTION_COUNT + 2;
         let rows = trained.params[first].shape[0];
         assert_eq!(rows, EMBEDDING + PROPRIOCEPTION + sim::ACTION_DIM);
         let outputs = trained.params[first].shape[1];
@@ -443,7 +408,7 @@ mod tests {
         }
         // The actor's output layer: rows 6..9 are the new second-layer units' outgoing weights.
         let mut trained = wide.clone();
-        let output = 2 * VisionActorCritic::CONVOLUTION_COUNT + 2 + 2 * arch.hidden.len();
+        let output = 2 * policyfile::shapes::CONVOLUTION_COUNT + 2 + 2 * arch.hidden.len();
         assert_eq!(trained.params[output].shape, [9, arch.action_dim]);
         trained.params[output].values[8 * arch.action_dim] = 1.0;
         assert_ne!(run(&trained).0, after.0, "the new units feed the actor once their weights move");

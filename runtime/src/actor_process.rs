@@ -8,9 +8,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use policy::WeightsBlob;
-use proto::ActorLink;
 use sim::EnvConfig;
 use taskctl::{TaskService, TaskServiceError};
+use transport::ActorLink;
 
 use actor::{Actor, ActorError, ActorState};
 

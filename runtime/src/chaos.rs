@@ -13,9 +13,9 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use learner::checkpoint::Checkpoint;
-use proto::Transport;
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
+use transport::Transport;
 
 /// What a chaos run does (`dronerace chaos`'s flags).
 #[derive(Clone, Debug, clap::Args)]

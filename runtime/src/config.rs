@@ -14,32 +14,7 @@ use serde::{Deserialize, Serialize};
 use sim::EnvConfig;
 use taskctl::{SwitchParams, TaskController};
 
-use crate::run::TrainError;
-
-/// A setting of a run config that cannot be used, named as the file spells it.
-#[derive(Clone, Debug, PartialEq, thiserror::Error)]
-#[error("{}{}{message}", file.as_ref().map_or(String::new(), |f| format!("{}: ", f.display())), if field.is_empty() { String::new() } else { format!("{field}: ") })]
-pub struct ConfigError {
-    /// The config file, when the config came from one.
-    pub file: Option<PathBuf>,
-    /// The dotted field (`ppo.gamma`, `learner.actor_timeout_seconds`); empty for text that is
-    /// not a config at all (toml's message then names the line and key).
-    pub field: String,
-    /// What is wrong with it.
-    pub message: String,
-}
-
-impl ConfigError {
-    /// An error in `field`.
-    pub fn new(field: impl Into<String>, message: impl Into<String>) -> Self {
-        Self { file: None, field: field.into(), message: message.into() }
-    }
-
-    /// The same error, in `file`.
-    pub fn in_file(self, file: &Path) -> Self {
-        Self { file: Some(file.to_path_buf()), ..self }
-    }
-}
+use crate::error::{ConfigError, TrainError};
 
 /// Where the training tracks come from.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -126,7 +101,7 @@ pub struct TrainConfig {
     /// How the learner process treats its actors.
     pub learner: LearnerSettings,
     /// TLS and bearer-token settings of every server and client of the run.
-    pub network: proto::NetworkConfig,
+    pub network: transport::NetworkConfig,
     /// Evaluation on the validation set during training (default 100 tracks; a vision run's
     /// 20).
     pub eval: crate::validation::EvalSettings,
@@ -306,7 +281,7 @@ impl TrainConfig {
         // A gRPC learner must be able to hold at least one rollout of every environment, as
         // sent and as decoded.
         let arch = &learner.architecture;
-        let limits = policy::ChunkLimits {
+        let limits = rollout::ChunkLimits {
             observation_dim: arch.observation_dim,
             action_dim: arch.action_dim,
             max_envs: learner.envs,

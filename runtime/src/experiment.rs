@@ -26,9 +26,9 @@ use serde::{Deserialize, Serialize};
 use sim::eval::{EvalConfig, EvalReport, OutcomeCounts, evaluate};
 
 use crate::config::TrainConfig;
+use crate::error::TrainError;
 use crate::overrides::merge;
 use crate::progress::IterationSummary;
-use crate::run::TrainError;
 use crate::run_lock::{LockError, RunLock};
 use crate::trainer::Trainer;
 use learner::checkpoint::CheckpointDir;

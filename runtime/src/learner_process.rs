@@ -14,13 +14,14 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use proto::board::LearnerBoard;
-use proto::{Admission, Delivery, LearnerLink, LearnerStatus, Received, WeightsUpdate};
 use taskctl::TaskService;
+use transport::board::LearnerBoard;
+use transport::{Admission, Delivery, LearnerLink, LearnerStatus, Received, WeightsUpdate};
 
 use crate::config::LearnerSettings;
+use crate::error::TrainError;
 use crate::progress::IterationSummary;
-use crate::run::{IterationTiming, Run, TrainError};
+use crate::run::{IterationTiming, Run};
 use crate::validation::Validator;
 use learner::checkpoint::Checkpoint;
 use learner::learner::Learner;
@@ -300,7 +301,7 @@ impl<L: LearnerLink> LearnerProcess<L> {
         batch.sort_by_key(|d| d.chunk.first_env);
         let version = self.learner.version();
         let version_lag = batch.iter().map(|d| version - d.chunk.policy_version).max().unwrap_or(0);
-        let chunks: Vec<policy::RolloutChunk> = batch.into_iter().map(|d| d.chunk).collect();
+        let chunks: Vec<rollout::RolloutChunk> = batch.into_iter().map(|d| d.chunk).collect();
         let updating = Instant::now();
         let report = self.learner.train(&chunks)?;
         let update_seconds = updating.elapsed().as_secs_f64();

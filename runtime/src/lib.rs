@@ -1,4 +1,4 @@
-//! The training runtime: the run configuration, resolved once (`config`), the run directory (`run`), metrics files
+//! The training runtime: the run configuration, resolved once (`config`), why a run stops (`error`), the run directory (`run`), metrics files
 //! (`metrics`), validation during training (`validation`), the actor's and the learner's
 //! process loops (`actor_process`, `learner_process`), training in one process by turns of
 //! those same loops over an in-memory link (`trainer`), experiment files (`experiment`), config
@@ -10,6 +10,7 @@
 pub mod actor_process;
 pub mod chaos;
 pub mod config;
+pub mod error;
 pub mod experiment;
 pub mod learner_process;
 pub mod metrics;
@@ -22,8 +23,9 @@ pub mod supervisor;
 pub mod trainer;
 pub mod validation;
 
-pub use config::{ConfigError, LearnerSettings, ResolvedRun, TrackSource, TrainConfig, TrainFlags};
+pub use config::{LearnerSettings, ResolvedRun, TrackSource, TrainConfig, TrainFlags};
+pub use error::{ConfigError, TrainError};
 pub use progress::IterationSummary;
-pub use run::{Run, TrainError};
+pub use run::Run;
 pub use trainer::Trainer;
 pub use validation::{EvalSettings, Validation, Validator};

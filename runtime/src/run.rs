@@ -4,120 +4,17 @@
 
 use std::path::{Path, PathBuf};
 
-use policy::{Agent, RolloutChunk, WeightsBlob};
+use policy::{Agent, WeightsBlob};
+use rollout::RolloutChunk;
 use serde::{Deserialize, Serialize};
 
-use crate::config::{ConfigError, ResolvedRun, TrainConfig};
+use crate::config::{ResolvedRun, TrainConfig};
+use crate::error::TrainError;
 use crate::metrics::{MetricsRow, MetricsWriter};
 use crate::progress::{Eta, IterationSummary};
 use crate::validation::Validation;
-use learner::checkpoint::{Checkpoint, CheckpointDir, CheckpointError};
-use learner::learner::{IterationReport, LearnerError};
-
-/// Why training cannot go on.
-#[derive(Debug, thiserror::Error)]
-pub enum TrainError {
-    /// Bad configuration.
-    #[error("config: {0}")]
-    Config(#[from] ConfigError),
-    /// The run directory holds no run to resume, or one that must not be started again.
-    #[error("{}: {message}", dir.display())]
-    RunDirectory {
-        /// The run directory.
-        dir: PathBuf,
-        /// What is wrong.
-        message: String,
-    },
-    /// Learner refused a rollout or a state.
-    #[error(transparent)]
-    Learner(#[from] LearnerError),
-    /// Checkpoint I/O.
-    #[error(transparent)]
-    Checkpoint(#[from] CheckpointError),
-    /// Task controller error.
-    #[error(transparent)]
-    Task(#[from] taskctl::TaskError),
-    /// A task-controller call failed.
-    #[error(transparent)]
-    TaskService(#[from] taskctl::TaskServiceError),
-    /// Actor error.
-    #[error(transparent)]
-    Actor(#[from] actor::ActorError),
-    /// The actor's loop failed (training in one process).
-    #[error(transparent)]
-    ActorLoop(#[from] crate::actor_process::ActorProcessError),
-    /// Training in one process lost its turn order (a bug, reported rather than hidden).
-    #[error("in-process training: {0}")]
-    TurnOrder(String),
-    /// The validation set could not be built.
-    #[error("validation set: {0}")]
-    ValidationSet(#[from] crate::validation::ValidationSetError),
-    /// The test set could not be built.
-    #[error("test set: {0}")]
-    TestSet(#[from] racetracks::TrackSetError),
-    /// A weights blob could not be used.
-    #[error(transparent)]
-    Blob(#[from] policy::BlobError),
-    /// Updates kept diverging: each was refused and rolled back, and the next one diverged too.
-    #[error(
-        "{count} updates in a row were refused (non-finite or exploding) and rolled back; the last: {last}. The run stops at its last good weights: lower the learning rate or check the rollouts"
-    )]
-    Diverged {
-        /// Refused updates in a row.
-        count: u32,
-        /// Why the last was refused.
-        last: String,
-    },
-    /// Checkpoints (or the task controller's snapshots) kept failing to be written (a full or
-    /// failing disk): going on would train what nothing keeps.
-    #[error("{count} writes of the run's state in a row failed; the last: {last}. Free space in the run directory, then resume")]
-    CheckpointsFailing {
-        /// Failed writes in a row.
-        count: u32,
-        /// The last error.
-        last: String,
-    },
-    /// A file or directory of the run could not be read or written.
-    #[error("{}: {source}", file.display())]
-    Io {
-        /// The file or directory.
-        file: PathBuf,
-        /// What the system said.
-        #[source]
-        source: std::io::Error,
-    },
-    /// A section of a checkpoint or a config could not be encoded or decoded.
-    #[error("{what}: {reason}")]
-    Encoding {
-        /// Which file and section.
-        what: String,
-        /// Why.
-        reason: String,
-    },
-    /// The rollout transport failed.
-    #[error(transparent)]
-    Link(#[from] proto::LinkError),
-    /// The run's `train.log` could not be written.
-    #[error(transparent)]
-    Log(#[from] crate::progress::LogError),
-    /// The task-controller snapshot inside a checkpoint is unusable.
-    #[error(transparent)]
-    Snapshot(#[from] taskctl::SnapshotError),
-}
-
-impl TrainError {
-    /// A failure that restarting the process from its checkpoint would only repeat: the
-    /// supervisor stops the run instead (see [`crate::supervisor::EXIT_FATAL`]).
-    pub fn is_fatal(&self) -> bool {
-        match self {
-            Self::Diverged { .. } | Self::CheckpointsFailing { .. } => true,
-            // A full disk stays full across a restart (which would lose the iterations since
-            // the last checkpoint each time).
-            Self::Io { source, .. } => matches!(source.kind(), std::io::ErrorKind::StorageFull | std::io::ErrorKind::QuotaExceeded),
-            _ => false,
-        }
-    }
-}
+use learner::checkpoint::{Checkpoint, CheckpointDir};
+use learner::learner::IterationReport;
 
 /// Run bookkeeping saved with checkpoints.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -297,8 +194,8 @@ impl Run {
         // `timing.seconds` runs from publication to publication, so it already holds the
         // validation that followed the previous iteration's.
         self.progress.wall_seconds += timing.seconds;
-        let episodes: Vec<&policy::EpisodeRecord> = chunks.iter().flat_map(|c| &c.episodes).collect();
-        let mean = |f: &dyn Fn(&policy::EpisodeRecord) -> f64| {
+        let episodes: Vec<&rollout::EpisodeRecord> = chunks.iter().flat_map(|c| &c.episodes).collect();
+        let mean = |f: &dyn Fn(&rollout::EpisodeRecord) -> f64| {
             if episodes.is_empty() { f64::NAN } else { episodes.iter().map(|e| f(e)).sum::<f64>() / episodes.len() as f64 }
         };
         let fastest = episodes.iter().filter_map(|e| e.fastest_lap).fold(f64::NAN, f64::min);
@@ -405,7 +302,7 @@ impl Run {
             let keep = if policy.architecture.agent == Agent::Vision { 1 } else { self.config().eval.average };
             let kept = self.checkpoints.save_validated(&policy, self.progress.iteration, keep)?;
             let policies = kept.iter().map(|p| learner::checkpoint::read_policy(p)).collect::<Result<Vec<_>, _>>()?;
-            policy::averaging::average(&policies)?
+            policyfile::averaging::average(&policies)?
         } else {
             policy
         };

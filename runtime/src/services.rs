@@ -11,12 +11,12 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use proto::board::LearnerBoard;
-use proto::grpc_link::{GrpcActorLink, LearnerService};
-use proto::shm::{ShmActorLink, ShmConfig, ShmLearnerLink};
-use proto::task_client::TaskClient;
-use proto::{LearnerLink, Security, Transport};
 use taskctl::TaskService;
+use transport::board::LearnerBoard;
+use transport::grpc_link::{GrpcActorLink, LearnerService};
+use transport::shm::{ShmActorLink, ShmConfig, ShmLearnerLink};
+use transport::task_client::TaskClient;
+use transport::{LearnerLink, Security, Transport};
 
 use crate::learner_process::{LearnerProcess, learner_only};
 use crate::progress::{ProgressLog, progress_line};
@@ -30,10 +30,10 @@ pub enum ServiceError {
     Train(#[from] TrainError),
     /// TLS or token settings.
     #[error(transparent)]
-    Security(#[from] proto::SecurityError),
+    Security(#[from] transport::SecurityError),
     /// A rollout or weights transport.
     #[error(transparent)]
-    Link(#[from] proto::LinkError),
+    Link(#[from] transport::LinkError),
     /// The task controller's state.
     #[error(transparent)]
     Task(#[from] taskctl::TaskError),
@@ -119,7 +119,7 @@ pub fn spawn_health(
     let listener = bind(rt, "health", addr)?;
     eprintln!("health (plaintext, for probes): serving on {addr}");
     rt.spawn(async move {
-        if let Err(e) = proto::serve_health(listener, serving, until(stop)).await {
+        if let Err(e) = transport::serve_health(listener, serving, until(stop)).await {
             tracing::error!("health server on {addr}: {e}");
         }
     });
@@ -172,7 +172,7 @@ pub fn taskctl(resolved: ResolvedRun, options: TaskctlOptions, stop: Arc<AtomicB
         taskctl::LocalTasks::new(controller, Some(snapshot.clone()))
             .release_after(Duration::from_secs_f64(config.learner.actor_timeout_seconds)),
     );
-    let service = proto::task_grpc::TaskControllerService::new(tasks.clone());
+    let service = transport::task_grpc::TaskControllerService::new(tasks.clone());
     // Snapshots that keep failing (a full disk) refuse every report: stop rather than leave the
     // actors retrying forever; the supervisor then stops the run (exit code 3).
     let failing = Arc::new(std::sync::Mutex::new(None));
@@ -192,7 +192,7 @@ pub fn taskctl(resolved: ResolvedRun, options: TaskctlOptions, stop: Arc<AtomicB
     eprintln!("taskctl: serving on {listen}");
     let rt = async_runtime(1)?;
     spawn_health(&rt, health_listen, &["dronerace.v1.TaskController"], stop.clone())?;
-    let served = rt.block_on(proto::task_grpc::serve(listen, &security, service, until(stop.clone())));
+    let served = rt.block_on(transport::task_grpc::serve(listen, &security, service, until(stop.clone())));
     stop.store(true, Ordering::SeqCst);
     let _ = watcher.join();
     if let Some(fatal) = failing.lock().unwrap_or_else(|e| e.into_inner()).take() {
@@ -273,7 +273,7 @@ fn serve_learner(
     train: impl FnOnce() -> Result<(), ServiceError>,
 ) -> Result<(), ServiceError> {
     let listener = bind(rt, "learner", options.listen)?;
-    let server = rt.spawn(proto::grpc_link::serve_learner(listener, security.clone(), service, until(stop.clone())));
+    let server = rt.spawn(transport::grpc_link::serve_learner(listener, security.clone(), service, until(stop.clone())));
     spawn_health(rt, options.health_listen, &["dronerace.v1.Learner"], stop.clone())?;
     eprintln!("learner: serving on {}", options.listen);
     let trained = train();
@@ -346,7 +346,7 @@ pub fn actor(resolved: ResolvedRun, options: ActorOptions, stop: Arc<AtomicBool>
     if options.envs == 0 {
         return Err(option("--envs", "must be at least 1".into()));
     }
-    proto::transport::check_actor_name(&options.name).map_err(|e| option("--name", e.to_string()))?;
+    transport::link::check_actor_name(&options.name).map_err(|e| option("--name", e.to_string()))?;
     let config = resolved.config();
     let security = Security::load(&config.network)?;
     if let Some(owner) = security.token_actor().filter(|owner| *owner != options.name) {

@@ -15,7 +15,7 @@ use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use proto::Transport;
+use transport::Transport;
 
 /// Why the supervisor could not start or keep a run's processes.
 #[derive(Debug, thiserror::Error)]
@@ -226,7 +226,7 @@ pub fn run(plan: ClusterPlan, stop: &AtomicBool) -> Result<(), SupervisorError> 
     }
     cluster.learner.stop(Duration::from_secs(120));
     cluster.taskctl.stop(Duration::from_secs(10));
-    if let Err(e) = proto::shm::cleanup_dead_nodes() {
+    if let Err(e) = transport::shm::cleanup_dead_nodes() {
         eprintln!("train: shared-memory cleanup: {e}");
     }
     outcome

@@ -14,14 +14,15 @@ use std::sync::atomic::AtomicBool;
 
 use crate::actor_process::{ActorLoop, ActorSettings, Pass};
 use actor::ActorState;
-use proto::board::LearnerBoard;
-use proto::memory::{MemoryActorLink, MemoryLearnerLink, memory_link};
 use taskctl::{LocalTasks, TaskController, TaskService};
+use transport::board::LearnerBoard;
+use transport::memory::{MemoryActorLink, MemoryLearnerLink, memory_link};
 
 use crate::config::{LearnerSettings, ResolvedRun};
+use crate::error::TrainError;
 use crate::learner_process::LearnerProcess;
 use crate::progress::IterationSummary;
-use crate::run::{Run, TrainError};
+use crate::run::Run;
 use learner::checkpoint::Checkpoint;
 use learner::learner::Learner;
 

@@ -1,7 +1,7 @@
 //! A trained policy flying for someone else: what `dronerace serve` answers, with no transport
 //! in it. [`Pilot`] is the service — an action for an observation, or a race flown from the
 //! drone's state, with the server keeping target gate, laps and previous action — and
-//! [`PilotError`] says what was refused and why; the gRPC adapter (`proto::pilot_grpc`) maps it
+//! [`PilotError`] says what was refused and why; the gRPC adapter (`transport::pilot_grpc`) maps it
 //! to status codes in one place. (The reference pilot that policies are compared with is
 //! another thing: `sim::ReferencePilot`.)
 
@@ -203,7 +203,7 @@ mod tests {
     fn a_policy_file_with_nan_weights_is_refused_and_no_nan_action_is_sent() {
         let arch = Architecture::cpu();
         let net = ActorCritic::new(&arch, -0.5, 1, &Device::flex());
-        let mut blob = WeightsBlob::from_model(1, &arch, &ObsNormalizer::new(arch.observation_dim), &net);
+        let mut blob = <WeightsBlob as policy::NetworkBlob>::from_model(1, &arch, &ObsNormalizer::new(arch.observation_dim), &net);
         let healthy = PolicyPilot::new(Arc::new(Policy::from_blob(&blob).unwrap()));
         assert!(healthy.act(&vec![0.1; arch.observation_dim]).unwrap().iter().all(|a| a.is_finite()));
         // A file with a NaN weight is refused when read, naming the parameter. (Built in memory

@@ -30,12 +30,12 @@ pub fn load_tracks(paths: &[PathBuf]) -> anyhow::Result<Vec<Arc<Track>>> {
 }
 
 /// A client's TLS and token settings: the `[network]` section of a run config, or none.
-pub fn client_security(config: Option<&Path>) -> anyhow::Result<proto::Security> {
+pub fn client_security(config: Option<&Path>) -> anyhow::Result<transport::Security> {
     let network = match config {
         Some(p) => runtime::TrainConfig::read(p)?.network,
         None => Default::default(),
     };
-    Ok(proto::Security::load(&network)?)
+    Ok(transport::Security::load(&network)?)
 }
 
 /// Writes `contents` to `path` atomically, creating parent directories.

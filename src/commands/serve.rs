@@ -2,7 +2,7 @@
 //! stack or a companion computer. One observation in raw units → the policy's deterministic
 //! action (its own normaliser applied, clipped to [-1, 1] as evaluation does), unary or over a
 //! stream for a control loop; health, reflection, TLS and the token as on every other server
-//! (`proto::pilot_grpc`).
+//! (`transport::pilot_grpc`).
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -50,6 +50,6 @@ pub fn serve(args: ServeArgs) -> anyhow::Result<()> {
     let listener = rt.block_on(tokio::net::TcpListener::bind(args.listen)).with_context(|| format!("serve: binding {}", args.listen))?;
     runtime::services::spawn_health(&rt, args.health_listen, &["dronerace.v1.Pilot"], stop.clone())?;
     eprintln!("serve: policy v{} from {} on {}", blob.version, args.policy.display(), args.listen);
-    rt.block_on(proto::pilot_grpc::serve(listener, &security, pilot, runtime::services::until(stop)))
+    rt.block_on(transport::pilot_grpc::serve(listener, &security, pilot, runtime::services::until(stop)))
         .map_err(|e| anyhow::anyhow!("serve on {}: {e}", args.listen))
 }

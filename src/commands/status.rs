@@ -20,7 +20,7 @@ pub struct StatusArgs {
 /// Prints the learner's status.
 pub fn run(args: StatusArgs) -> anyhow::Result<()> {
     let security = super::client_security(args.config.as_deref())?;
-    let status = proto::grpc_link::learner_status(&args.learner, &security, Duration::from_secs(10))?;
+    let status = transport::grpc_link::learner_status(&args.learner, &security, Duration::from_secs(10))?;
     println!("iteration {}", status.iteration);
     println!("env steps {}", status.env_steps);
     println!("env-steps/s {:.0}", status.sps);

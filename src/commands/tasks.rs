@@ -4,8 +4,8 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use proto::task_client::TaskClient;
 use taskctl::{TaskInfo, TaskService};
+use transport::task_client::TaskClient;
 
 /// Arguments of `dronerace tasks`.
 #[derive(Args)]

@@ -1,6 +1,6 @@
 //! `dronerace token`: an actor's own bearer token, made from the run's token, for an actor
 //! machine to hold instead of the run's. With it the actor can register, report and send
-//! rollouts under its own name only (`proto::security::Caller`).
+//! rollouts under its own name only (`transport::security::Caller`).
 
 use std::path::PathBuf;
 

@@ -49,7 +49,7 @@ pub struct TrainArgs {
     actors: Option<usize>,
     /// How rollouts travel between the actor processes and the learner.
     #[arg(long, default_value = "shm")]
-    transport: proto::Transport,
+    transport: transport::Transport,
     /// Run everything in this one process (no services; for debugging and tests).
     #[arg(long, conflicts_with_all = ["actors"])]
     in_process: bool,
@@ -103,7 +103,7 @@ fn with_processes(
     resolved: ResolvedRun,
     resume: bool,
     actors: usize,
-    transport: proto::Transport,
+    transport: transport::Transport,
     iterations: Option<u64>,
 ) -> anyhow::Result<()> {
     if resume {

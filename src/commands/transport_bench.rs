@@ -1,5 +1,5 @@
 //! `dronerace bench transport`: rollout throughput (MB/s) and weight-broadcast latency of the
-//! iceoryx2 and gRPC transports, and the learner's capacity as actors grow (`proto::bench`).
+//! iceoryx2 and gRPC transports, and the learner's capacity as actors grow (`transport::bench`).
 
 use clap::Args;
 
@@ -8,7 +8,7 @@ use clap::Args;
 pub struct TransportBenchArgs {
     /// Transport to measure.
     #[arg(long, default_value = "shm")]
-    transport: proto::Transport,
+    transport: transport::Transport,
     /// Environments per rollout chunk.
     #[arg(long, default_value_t = 48)]
     envs: usize,
@@ -31,7 +31,7 @@ pub struct TransportBenchArgs {
 
 /// Measures one transport and prints what it found.
 pub fn run(args: TransportBenchArgs) -> anyhow::Result<()> {
-    let bench = proto::bench::TransportBench {
+    let bench = transport::bench::TransportBench {
         transport: args.transport,
         envs: args.envs,
         steps: args.steps,
@@ -41,7 +41,7 @@ pub fn run(args: TransportBenchArgs) -> anyhow::Result<()> {
         broadcasts: args.broadcasts,
         rollout_memory_bytes: runtime::LearnerSettings::default().rollout_memory_mib << 20,
     };
-    let t = proto::bench::measure_transport(&bench)?;
+    let t = transport::bench::measure_transport(&bench)?;
     println!(
         "{:?}, {} actor(s): rollouts {} × {:.2} MB: {:.0} MB/s ({:.1} chunks/s, encode + send + decode), learner CPU {:.2} s per GB; weights {:.2} MB to {}: until the last holds them p50 {:.3} ms, p99 {:.3} ms",
         bench.transport,

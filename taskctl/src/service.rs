@@ -1,6 +1,6 @@
 //! The curriculum as a service: what actors, the learner and `dronerace tasks` ask of the task
 //! controller, with no transport in sight. [`LocalTasks`] serves it in a process; the gRPC
-//! adapter (`proto::task_grpc`) puts a `LocalTasks` on the network and `proto::task_client::TaskClient`
+//! adapter (`transport::task_grpc`) puts a `LocalTasks` on the network and `transport::task_client::TaskClient`
 //! implements the same trait on the caller's side, so a loop written against [`TaskService`]
 //! runs unchanged in one process or across machines.
 

@@ -12,8 +12,8 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-use proto::Security;
 use proto::v1;
+use transport::Security;
 
 /// Tests that start processes or touch /dev/shm run one at a time.
 pub fn serial() -> MutexGuard<'static, ()> {
@@ -152,7 +152,7 @@ impl Drop for Proc {
         let _ = self.child.kill();
         let _ = self.child.wait();
         // Whatever a killed process left behind.
-        let _ = proto::shm::cleanup_dead_nodes();
+        let _ = transport::shm::cleanup_dead_nodes();
     }
 }
 
@@ -184,14 +184,14 @@ impl Clients {
     /// The learner's status, if it answers.
     pub fn status(&self, url: &str) -> Option<v1::StatusResponse> {
         let _guard = self.rt.enter();
-        let mut client = proto::grpc_link::learner_client(url, &self.security).ok()?;
+        let mut client = transport::grpc_link::learner_client(url, &self.security).ok()?;
         let call = tokio::time::timeout(Duration::from_secs(2), client.status(v1::StatusRequest {}));
         self.rt.block_on(call).ok()?.ok().map(|r| r.into_inner())
     }
 
     /// A task-controller client.
-    pub fn tasks(&self, url: &str) -> proto::task_client::TaskClient {
-        proto::task_client::TaskClient::new(self.rt.handle().clone(), url, &self.security).unwrap()
+    pub fn tasks(&self, url: &str) -> transport::task_client::TaskClient {
+        transport::task_client::TaskClient::new(self.rt.handle().clone(), url, &self.security).unwrap()
     }
 }
 

@@ -666,7 +666,7 @@ mod tests {
             );
         }
         // Export order: three convolutions (weight, bias each), the embedding layer, then the actor.
-        let convolution_params = 2 * VisionActorCritic::CONVOLUTION_COUNT;
+        let convolution_params = 2 * policyfile::shapes::CONVOLUTION_COUNT;
         let params = |m: &VisionActorCritic| m.export().into_iter().map(|p| p.values).collect::<Vec<_>>();
         let before = params(&model);
         let after = |frozen: Frozen| {

@@ -1,5 +1,5 @@
 //! The three matrix products of a dense layer's PPO step (forward y = x·w, weight gradient
-//! xᵀ·dz, input gradient dz·wᵀ) through the gemm crate, strided the way `policy::dense` calls it,
+//! xᵀ·dz, input gradient dz·wᵀ) through the gemm crate, strided the way `kernels::dense` calls it,
 //! on two threads: median GFLOP/s of 15 calls per product and shape.
 
 use std::time::Instant;

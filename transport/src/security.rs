@@ -138,7 +138,7 @@ impl Security {
     /// its `network.token_file` instead of the run's (`dronerace token --actor NAME`). It
     /// proves the actor's name to the learner and the task controller, and nothing else.
     pub fn actor_token(&self, actor: &str) -> Result<String, SecurityError> {
-        crate::transport::check_actor_name(actor).map_err(|e| SecurityError::Invalid(e.to_string()))?;
+        crate::link::check_actor_name(actor).map_err(|e| SecurityError::Invalid(e.to_string()))?;
         let token =
             self.token.as_deref().ok_or_else(|| SecurityError::Invalid("an actor token is made from network.token_file: set it".into()))?;
         if token.starts_with(ACTOR_TOKEN_PREFIX) {
@@ -277,7 +277,7 @@ impl TokenCheck {
         }
         let (actor, mac) = given.strip_prefix(ACTOR_TOKEN_PREFIX)?.rsplit_once(':')?;
         let mac = decode_hex(mac)?;
-        crate::transport::check_actor_name(actor).ok()?;
+        crate::link::check_actor_name(actor).ok()?;
         // Constant-time comparison of the MAC (hmac's verify).
         hmac::Mac::verify_slice(actor_mac(token, actor), &mac).ok()?;
         Some(Caller::Actor(actor.to_owned()))

@@ -7,9 +7,9 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use parking_lot::{Condvar, Mutex};
-use policy::RolloutChunk;
+use rollout::RolloutChunk;
 
-use crate::transport::{ActorLink, Admission, Delivery, LearnerLink, LinkError, Received, WeightsUpdate};
+use crate::link::{ActorLink, Admission, Delivery, LearnerLink, LinkError, Received, WeightsUpdate};
 
 #[derive(Default)]
 struct Channel {
@@ -79,7 +79,7 @@ impl LearnerLink for MemoryLearnerLink {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::transport::Refusal;
+    use crate::link::Refusal;
 
     #[test]
     fn rollouts_arrive_in_order_admitted_and_only_the_newest_weights_are_picked_up_once() {

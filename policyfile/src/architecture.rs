@@ -10,7 +10,7 @@ pub enum Agent {
     #[default]
     State,
     /// Vision-based: the actor reads the camera image and proprioception through a CNN
-    /// (`crate::vision`); the critic reads the state observation.
+    /// (the `policy` crate's `vision`); the critic reads the state observation.
     Vision,
 }
 

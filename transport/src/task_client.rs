@@ -13,8 +13,8 @@ use tonic::transport::Channel;
 use crate::convert::track_from_proto;
 use crate::security::{AddToken, MAX_MESSAGE_BYTES};
 use crate::task_grpc::{summary_from_proto, switch_from_proto, task_from_proto};
-use crate::v1;
-use crate::v1::task_controller_client::TaskControllerClient;
+use proto::v1;
+use proto::v1::task_controller_client::TaskControllerClient;
 
 /// The one place gRPC status codes are read on the client side (the adapter's `status` writes
 /// them): unreachable, restarting or slow is transient, a refusal is not.

@@ -8,7 +8,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::architecture::Agent;
 use crate::blob::{BlobError, WeightsBlob};
-use crate::vision::VisionActorCritic;
+use crate::shapes::{CONVOLUTION_COUNT, check_shapes, parameter_shapes};
 
 impl WeightsBlob {
     /// This vision policy with an actor that also reads its previous action
@@ -23,7 +23,7 @@ impl WeightsBlob {
         widened.architecture.vision_previous_action = true;
         // Convolutions and the embedding (weight and bias each), then the actor's first weight,
         // `[inputs, outputs]` row-major: the new inputs are rows appended at the end.
-        let first_actor_weight = 2 * VisionActorCritic::CONVOLUTION_COUNT + 2;
+        let first_actor_weight = 2 * CONVOLUTION_COUNT + 2;
         let weight = widened
             .params
             .get_mut(first_actor_weight)
@@ -33,7 +33,7 @@ impl WeightsBlob {
         };
         weight.values.resize((inputs + sim::ACTION_DIM) * outputs, 0.0);
         weight.shape = vec![inputs + sim::ACTION_DIM, outputs];
-        crate::network::check_shapes(&Self::shapes(&widened.architecture), &widened.params)?;
+        check_shapes(&parameter_shapes(&widened.architecture), &widened.params)?;
         Ok(widened)
     }
 
@@ -93,7 +93,7 @@ impl WeightsBlob {
                 widened.params[bias].values.resize(new_out, 0.0);
             }
         }
-        crate::network::check_shapes(&Self::shapes(&widened.architecture), &widened.params)?;
+        check_shapes(&parameter_shapes(&widened.architecture), &widened.params)?;
         Ok(widened)
     }
 }

@@ -13,11 +13,11 @@ use tokio_stream::Stream;
 use tonic::{Code, Request, Response, Status};
 
 use crate::convert::{track_from_proto, track_to_proto};
+use crate::link::check_actor_name;
 use crate::refusal;
 use crate::security::{Caller, MAX_MESSAGE_BYTES};
-use crate::transport::check_actor_name;
-use crate::v1;
-use crate::v1::task_controller_server::{TaskController as TaskControllerRpc, TaskControllerServer};
+use proto::v1;
+use proto::v1::task_controller_server::{TaskController as TaskControllerRpc, TaskControllerServer};
 
 /// The gRPC face of a [`LocalTasks`].
 pub struct TaskControllerService {

@@ -13,9 +13,9 @@ use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
-use policy::RolloutChunk;
+use rollout::RolloutChunk;
 
-use crate::transport::{ActorLink, Admission, Delivery, LearnerLink, LinkError, Received, Refusal, WeightsUpdate};
+use crate::link::{ActorLink, Admission, Delivery, LearnerLink, LinkError, Received, Refusal, WeightsUpdate};
 
 /// Longest actor name a rollout header carries.
 const NAME_BYTES: usize = 64;

@@ -4,7 +4,7 @@
 use sim::nalgebra::Vector3;
 use sim::{Arena, Gate, Pose, Track};
 
-use crate::v1;
+use proto::v1;
 
 fn vec3(v: &Vector3<f64>) -> v1::Vec3 {
     v1::Vec3 { x: v.x, y: v.y, z: v.z }

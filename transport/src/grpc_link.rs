@@ -11,8 +11,8 @@ use std::time::Duration;
 // parking_lot's lock does not poison: a panic in one request cannot fail every later one.
 use parking_lot::Mutex;
 
-use policy::RolloutChunk;
 use prost::bytes::Bytes;
+use rollout::RolloutChunk;
 use tokio::runtime::Handle;
 use tokio::sync::{mpsc, watch};
 use tokio_stream::Stream;
@@ -24,12 +24,12 @@ use tonic::{Code, Request, Response, Status, Streaming};
 use crate::board::LearnerBoard;
 use crate::budget::{ByteBudget, OverBudget, Reservation};
 use crate::chunking::{Reassembler, split};
+use crate::link::{ActorLink, Admission, Delivery, LearnerLink, LinkError, Received, Refusal, WeightsUpdate};
 use crate::refusal;
 use crate::security::{AddToken, Caller, MAX_MESSAGE_BYTES, Security, SecurityError};
-use crate::transport::{ActorLink, Admission, Delivery, LearnerLink, LinkError, Received, Refusal, WeightsUpdate};
-use crate::v1;
-use crate::v1::learner_client::LearnerClient;
-use crate::v1::learner_server::{Learner, LearnerServer};
+use proto::v1;
+use proto::v1::learner_client::LearnerClient;
+use proto::v1::learner_server::{Learner, LearnerServer};
 
 /// A learner client carrying the bearer token.
 pub type AuthedLearnerClient = LearnerClient<InterceptedService<Channel, AddToken>>;
@@ -42,12 +42,12 @@ pub fn learner_client(url: &str, security: &Security) -> Result<AuthedLearnerCli
 }
 
 /// The learner's `Status` at `url`, asked and waited for up to `timeout` (blocks).
-pub fn learner_status(url: &str, security: &Security, timeout: std::time::Duration) -> Result<crate::v1::StatusResponse, LinkError> {
+pub fn learner_status(url: &str, security: &Security, timeout: std::time::Duration) -> Result<proto::v1::StatusResponse, LinkError> {
     let context = format!("Learner/Status at {url}");
     let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().map_err(|e| LinkError::new(&context, e))?;
     rt.block_on(async {
         let mut client = learner_client(url, security).map_err(|e| LinkError::new(&context, e))?;
-        match tokio::time::timeout(timeout, client.status(crate::v1::StatusRequest {})).await {
+        match tokio::time::timeout(timeout, client.status(proto::v1::StatusRequest {})).await {
             Ok(Ok(reply)) => Ok(reply.into_inner()),
             Ok(Err(status)) => Err(LinkError::new(&context, status.message())),
             Err(_) => Err(LinkError::new(&context, format!("no answer within {} s", timeout.as_secs_f64()))),
@@ -369,8 +369,8 @@ impl Learner for LearnerService {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::link::LearnerStatus;
     use crate::security::Security;
-    use crate::transport::LearnerStatus;
     use std::alloc::{GlobalAlloc, Layout, System};
     use std::sync::atomic::{AtomicUsize, Ordering};
 

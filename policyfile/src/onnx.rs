@@ -204,7 +204,7 @@ pub fn actor_model(blob: &WeightsBlob) -> Result<Vec<u8>, BlobError> {
         node("Clip", &["scaled", "obs_clip_low", "obs_clip_high"], "normalized_f64", vec![]),
         node("Cast", &["normalized_f64"], "x0", vec![int_attribute("to", i64::from(FLOAT))]),
     ];
-    // The actor's layers are the blob's first (weight, bias) pairs (`ActorCritic::export` order).
+    // The actor's layers are the blob's first (weight, bias) pairs (export order).
     let layers = arch.hidden.len() + 1;
     let mut x = "x0".to_string();
     for (i, pair) in blob.params[..2 * layers].chunks(2).enumerate() {
@@ -244,8 +244,8 @@ pub fn actor_model(blob: &WeightsBlob) -> Result<Vec<u8>, BlobError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{ActorCritic, Architecture, ObsNormalizer};
-    use burn::tensor::Device;
+    use crate::test_blobs::pattern_blob;
+    use crate::{Architecture, ObsNormalizer};
 
     /// Width of the model's `observation` input and of its normaliser.
     fn input_widths(blob: &WeightsBlob) -> (i64, Vec<i64>) {
@@ -260,9 +260,7 @@ mod tests {
     fn the_model_reads_what_the_actor_reads() {
         let mut arch = Architecture { hidden: vec![8], ..Architecture::paper() };
         arch.set_observation_layout(sim::ObservationLayout { line_points: 4, ..arch.observation });
-        let blob = |arch: &Architecture| {
-            WeightsBlob::from_model(1, arch, &ObsNormalizer::new(arch.observation_dim), &ActorCritic::new(arch, -0.5, 1, &Device::flex()))
-        };
+        let blob = |arch: &Architecture| pattern_blob(arch, ObsNormalizer::new(arch.observation_dim), 1, 1);
         assert_eq!(input_widths(&blob(&arch)), (52, vec![52]));
     }
 }

@@ -10,9 +10,9 @@ use sim::Racer;
 use tokio_stream::Stream;
 use tonic::{Request, Response, Status, Streaming};
 
-use crate::v1::pilot_server::{Pilot as PilotRpc, PilotServer};
-use crate::v1::race_request::Kind;
-use crate::v1::{ActRequest, ActResponse, DescribeRequest, PilotDescription, RaceCommand, RaceRequest};
+use proto::v1::pilot_server::{Pilot as PilotRpc, PilotServer};
+use proto::v1::race_request::Kind;
+use proto::v1::{ActRequest, ActResponse, DescribeRequest, PilotDescription, RaceCommand, RaceRequest};
 
 /// Serves `pilot` as `dronerace.v1.Pilot` on `listener` until `shutdown`.
 pub async fn serve<P: Pilot + 'static>(

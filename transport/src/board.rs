@@ -6,7 +6,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 // parking_lot's lock does not poison: a panic in one request cannot fail every later one.
 use parking_lot::Mutex;
 
-use crate::transport::{Admission, LearnerStatus};
+use crate::link::{Admission, LearnerStatus};
 
 /// The learner's current admission, status and refused-rollout count.
 #[derive(Debug, Default)]

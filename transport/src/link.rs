@@ -4,7 +4,7 @@
 
 use std::time::Duration;
 
-use policy::{ChunkLimits, RolloutChunk};
+use rollout::{ChunkLimits, RolloutChunk};
 
 /// How rollouts and weights travel between actors and the learner.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

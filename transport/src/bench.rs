@@ -81,8 +81,8 @@ pub enum BenchError {
 const LEARNER_THREADS: &str = "learner-rpc";
 
 /// A benchmark chunk of `envs` × `steps` transitions.
-fn chunk(envs: usize, steps: usize) -> policy::RolloutChunk {
-    let mut chunk = policy::RolloutChunk::zeroed(0, 0, envs, steps, sim::STATE_OBS_DIM, sim::ACTION_DIM);
+fn chunk(envs: usize, steps: usize) -> rollout::RolloutChunk {
+    let mut chunk = rollout::RolloutChunk::zeroed(0, 0, envs, steps, sim::STATE_OBS_DIM, sim::ACTION_DIM);
     // Varied values, so nothing compresses or short-cuts a run of zeros.
     chunk.observations.iter_mut().enumerate().for_each(|(i, x)| *x = (i % 97) as f32 * 0.01);
     chunk
