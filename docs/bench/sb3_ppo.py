@@ -1,6 +1,6 @@
 """Stable-Baselines3 PPO with the paper profile (SPEC §10) on this machine.
 
-What a user would run instead of `dronerace train --profile paper --in-process`: 96
+What a user would run instead of `dronerace train --config docs/bench/paper-spec-ppo.toml --in-process`: 96
 environments × 250 steps per iteration, whole-rollout minibatch, 10 epochs, separate 512×512
 LeakyReLU actor and critic, log std −0.5, Adam eps 1e-5, clip 0.2, max grad norm 0.5. The
 environment is a trivial one with the race env's shapes (40 observations, 4 actions in [−1, 1])
