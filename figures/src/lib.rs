@@ -4,6 +4,7 @@
 
 pub mod flight;
 pub mod plot;
+pub mod robustness;
 
 /// Why a figure could not be drawn or written.
 #[derive(Debug, thiserror::Error)]

@@ -66,7 +66,7 @@ pub fn draw_tracks(tracks: &[Arc<Track>], out: &Path, layout: Layout) -> Result<
 }
 
 /// The font is compiled in, so drawings look the same on every machine.
-fn register_font() {
+pub(crate) fn register_font() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
         plotters::style::register_font("sans-serif", FontStyle::Normal, epaint_default_fonts::UBUNTU_LIGHT)

@@ -61,6 +61,9 @@ class RaceVecEnv(gymnasium.vector.VectorEnv):
         max_episode_steps: episode length (default 1,500 steps = 30 s at 50 Hz).
         switch_window, switch_alpha, switch_probability: SPEC §8's window l (rollouts), sensitivity
             α of the adaptive policy, and the random policy's switch probability per rollout.
+        disturbance: SPEC §13's disturbances as a dict, e.g. {"wind_speed": 3.0} (mean wind with
+            gusts), {"noise": 2.0, "dropout": 0.05}, {"latency_ms": 20}, {"thrust_loss": 0.1,
+            "thrust_loss_motor": 0}; None: the nominal world.
 
     Autoreset is gymnasium's default (next step): the step that ends an episode returns its last
     observation; the next step ignores that environment's action and returns the first
@@ -78,10 +81,12 @@ class RaceVecEnv(gymnasium.vector.VectorEnv):
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
 
     def __init__(self, num_envs, tracks=None, seed=0, switching=None, observation="state", rollout_steps=250,
-                 randomize=True, max_episode_steps=None, switch_window=600, switch_alpha=1000.0, switch_probability=1.616e-3):
+                 randomize=True, max_episode_steps=None, switch_window=600, switch_alpha=1000.0, switch_probability=1.616e-3,
+                 disturbance=None):
         self._core = _core.VecEnv(num_envs, _track_list(tracks), seed=seed, switching=switching, observation=observation,
                                   rollout_steps=rollout_steps, randomize=randomize, max_episode_steps=max_episode_steps,
-                                  switch_window=switch_window, switch_alpha=switch_alpha, switch_probability=switch_probability)
+                                  switch_window=switch_window, switch_alpha=switch_alpha, switch_probability=switch_probability,
+                                  disturbance=disturbance)
         self.num_envs = num_envs
         self.single_observation_space, self.single_action_space = _spaces(self._core, observation)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
@@ -137,11 +142,11 @@ class RaceEnv(gymnasium.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, track="Figure8", seed=0, switching="none", observation="state", randomize=True,
-                 max_episode_steps=None, render_mode=None):
+                 max_episode_steps=None, render_mode=None, disturbance=None):
         if render_mode is not None:
             raise ValueError(f"render_mode: {render_mode!r}; this environment does not render (see `dronerace sim render`)")
         self._envs = RaceVecEnv(1, [track], seed=seed, switching=switching, observation=observation, randomize=randomize,
-                                max_episode_steps=max_episode_steps)
+                                max_episode_steps=max_episode_steps, disturbance=disturbance)
         self.observation_space = self._envs.single_observation_space
         self.action_space = self._envs.single_action_space
         self.render_mode = None

@@ -145,11 +145,11 @@ impl VecEnv {
     #[pyo3(signature = (num_envs, tracks = None, seed = Int::Value(0), switching = None, observation = "state",
                         rollout_steps = Int::Value(250), randomize = true, max_episode_steps = None,
                         switch_window = Int::Value(600), switch_alpha = Float::Value(1000.0),
-                        switch_probability = Float::Value(1.616e-3)),
+                        switch_probability = Float::Value(1.616e-3), disturbance = None),
            // The defaults Python would otherwise see as `...` (an `Int`'s).
            text_signature = "(num_envs, tracks=None, seed=0, switching=None, observation=\"state\", rollout_steps=250, \
                              randomize=True, max_episode_steps=None, switch_window=600, switch_alpha=1000.0, \
-                             switch_probability=1.616e-3)")]
+                             switch_probability=1.616e-3, disturbance=None)")]
     #[allow(clippy::too_many_arguments, reason = "the Python constructor's keyword arguments")]
     fn new(
         py: Python<'_>,
@@ -164,6 +164,7 @@ impl VecEnv {
         switch_window: Int,
         switch_alpha: Float,
         switch_probability: Float,
+        disturbance: Option<Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
         let num_envs = num_envs.within("num_envs", 1..=MAX_ENVS)?;
         let seed = seed.within("seed", 0..=u64::MAX)?;
@@ -180,6 +181,9 @@ impl VecEnv {
         }
         if let Some(steps) = max_episode_steps {
             config.race.max_episode_steps = steps.within("max_episode_steps", 1..=MAX_STEPS)?;
+        }
+        if let Some(table) = &disturbance {
+            config.disturbance = crate::inputs::disturbances(table)?;
         }
         let given = match &tracks {
             Some(items) if items.is_empty() => return Err(PyValueError::new_err("tracks: an empty list (None draws generated tracks)")),

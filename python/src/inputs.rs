@@ -8,6 +8,7 @@ use std::ops::RangeInclusive;
 use numpy::{Element, PyReadonlyArray, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyOverflowError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 use sim::EnvConfig;
 
 /// Most environments one `VecEnv` steps (`num_envs`): training's profiles use 96; 4,096 hold
@@ -175,4 +176,31 @@ impl Observation {
             Self::Vision => EnvConfig::vision_agent(),
         }
     }
+}
+
+/// SPEC §13's disturbances from a dict of `sim::Disturbances`' fields (`{"wind_speed": 3.0}`);
+/// an unknown key or a value out of range is refused by name.
+pub fn disturbances(table: &Bound<'_, PyDict>) -> PyResult<sim::Disturbances> {
+    let mut fields = serde_json::Map::new();
+    for (key, value) in table.iter() {
+        let key: String = key.extract().map_err(|_| PyValueError::new_err("disturbance: keys must be strings"))?;
+        if value.is_none() {
+            continue;
+        }
+        let number = if key == "thrust_loss_motor" {
+            serde_json::Value::from(
+                value.extract::<u64>().map_err(|_| PyValueError::new_err(format!("disturbance[{key:?}]: a motor index 0-3")))?,
+            )
+        } else {
+            let x: f64 = value.extract().map_err(|_| PyValueError::new_err(format!("disturbance[{key:?}]: a number")))?;
+            serde_json::Number::from_f64(x)
+                .map(serde_json::Value::Number)
+                .ok_or_else(|| PyValueError::new_err(format!("disturbance[{key:?}]: {x} is not finite")))?
+        };
+        fields.insert(key, number);
+    }
+    let d: sim::Disturbances =
+        serde_json::from_value(serde_json::Value::Object(fields)).map_err(|e| PyValueError::new_err(format!("disturbance: {e}")))?;
+    d.check().map_err(|e| PyValueError::new_err(format!("disturbance.{}: {}", e.field, e.reason)))?;
+    Ok(d)
 }

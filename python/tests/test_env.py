@@ -51,6 +51,27 @@ def test_the_same_seed_and_actions_fly_the_same_and_another_seed_does_not():
     assert not np.array_equal(obs_a, obs_c)
 
 
+def test_a_noisy_estimate_changes_what_is_observed_not_the_flight_and_bad_disturbances_are_named():
+    def fly(disturbance):
+        envs = dronerace.RaceVecEnv(2, tracks="Figure8", seed=5, randomize=False, disturbance=disturbance)
+        obs, _ = envs.reset(seed=5)
+        hover = np.zeros((2, 4), dtype=np.float32)
+        seen, rewards = [obs.copy()], []
+        for _ in range(20):
+            obs, reward, *_ = envs.step(hover)
+            seen.append(obs.copy())
+            rewards.append(reward.copy())
+        return np.stack(seen), np.stack(rewards)
+
+    (nominal, r0), (noisy, r1) = fly(None), fly({"noise": 4.0})
+    assert not np.allclose(nominal, noisy), "the estimate has noise"
+    # The same actions fly the same states: progress rewards depend on the true state only.
+    assert np.allclose(r0, r1, atol=1e-6)
+    for bad, name in [({"wind": 3.0}, "wind"), ({"thrust_loss": 1.5}, "thrust_loss"), ({"noise": "x"}, "noise")]:
+        with pytest.raises(ValueError, match=name):
+            dronerace.RaceVecEnv(1, tracks="Figure8", disturbance=bad)
+
+
 def test_an_ended_episode_is_reported_then_restarts_at_the_next_step_ignoring_its_action():
     envs = dronerace.RaceVecEnv(8, tracks="Figure8", seed=1)
     obs, _ = envs.reset(seed=1)

@@ -4,6 +4,7 @@
 
 pub mod generator;
 pub mod library;
+pub mod ood;
 pub mod spline;
 pub mod track_file;
 pub mod track_sets;

@@ -277,6 +277,7 @@ impl TrainConfig {
             return Err(ConfigError::new("eval.average", "0 must be at least 1 (the last validated policy alone)"));
         }
         learner.ppo.check().map_err(|e| ConfigError::new(format!("ppo.{}", e.field), e.reason))?;
+        self.env.disturbance.check().map_err(|e| ConfigError::new(format!("env.disturbance.{}", e.field), e.reason))?;
         self.switching.check().map_err(|e| ConfigError::new(format!("switching.{}", e.field), e.reason))?;
         // A gRPC learner must be able to hold at least one rollout of every environment, as
         // sent and as decoded.
@@ -309,17 +310,24 @@ impl TrainConfig {
 }
 
 /// What `dronerace train`'s flags set over a config file; `None` keeps the file's value.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, clap::Args)]
 pub struct TrainFlags {
-    /// `--profile`.
+    /// Profile (overrides the config): cpu (256×256, 96 environments) or paper (SPEC §10's sizes).
+    #[arg(long, value_parser = ["cpu", "paper"])]
     pub profile: Option<String>,
-    /// `--track`: a library track's name or a track file; training and validation fly it alone.
+    /// Train on this one track instead of generated tracks: a library track's name (e.g.
+    /// Figure8) or a track file (e.g. my-track.toml); validation then flies it too.
+    #[arg(long)]
     pub track: Option<String>,
-    /// `--total-env-steps`.
+    /// Environment steps of the run (overrides the config).
+    #[arg(long)]
     pub total_env_steps: Option<u64>,
-    /// `--seed`.
+    /// Seed (overrides the config).
+    #[arg(long)]
     pub seed: Option<u64>,
-    /// `--init-from`.
+    /// Start from this trained policy (checkpoint or weights blob): fine-tuning. Pair it with
+    /// a lower learning rate in the config's [ppo] section.
+    #[arg(long)]
     pub init_from: Option<PathBuf>,
 }
 

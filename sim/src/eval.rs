@@ -253,6 +253,13 @@ impl Trajectory {
         ]);
     }
 
+    /// The file `dronerace eval --trajectories` writes deployment `run` of track `index`
+    /// (`track`) to: `<index>-<track>-<run>.csv`, the name kept to letters, digits, '-' and '_'.
+    pub fn file_name(index: usize, track: &str, run: usize) -> String {
+        let track: String = track.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' }).collect();
+        format!("{index:02}-{track}-{run:03}.csv")
+    }
+
     /// The rows as CSV under [`TRAJECTORY_HEADER`] (the last row's action cells empty).
     pub fn to_csv(&self) -> String {
         let mut out = String::from(TRAJECTORY_HEADER);
@@ -449,8 +456,10 @@ impl EvalReport {
     /// A Markdown table: one row per track, then the totals.
     pub fn to_markdown(&self) -> String {
         let secs = |t: Option<f64>| t.map_or("–".to_owned(), |t| format!("{t:.3}"));
+        let disturbance = &self.config.env.disturbance;
+        let flown_in = if disturbance.any() { format!("; flown in {}", disturbance.describe()) } else { String::new() };
         let mut out = format!(
-            "## Evaluation of `{}`\n\n{} deployments × {} steps per track, seed {}.\n\n",
+            "## Evaluation of `{}`\n\n{} deployments × {} steps per track, seed {}{flown_in}.\n\n",
             self.controller, self.config.runs, self.config.steps, self.config.seed
         );
         out.push_str(

@@ -2,6 +2,7 @@
 //! pilot and evaluation harness. Pure computation, no I/O.
 
 pub mod camera;
+pub mod disturbance;
 pub mod eval;
 pub mod mirror;
 pub mod observation;
@@ -20,6 +21,7 @@ pub mod track;
 pub mod vec_env;
 
 pub use camera::CameraPose;
+pub use disturbance::Disturbances;
 pub use mirror::{ACTION_MIRROR_SIGNS, ObservationMirror};
 pub use nalgebra;
 pub use observation::{

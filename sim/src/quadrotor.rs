@@ -122,6 +122,17 @@ pub struct Quadrotor {
     plant: QuadrotorParams,
     model_allocation_inverse: Matrix4<f64>,
     plant_allocation: Matrix4<f64>,
+    /// Wind (m/s, world): drag acts on the velocity relative to it. Zero in still air.
+    #[serde(default)]
+    pub wind: Vector3<f64>,
+    /// Share of its thrust map each motor delivers (SPEC §13's thrust loss); 1 when whole.
+    #[serde(default = "whole_motors")]
+    pub thrust_factors: Vector4<f64>,
+}
+
+/// Every motor delivering its whole thrust.
+fn whole_motors() -> Vector4<f64> {
+    Vector4::repeat(1.0)
 }
 
 impl Quadrotor {
@@ -135,6 +146,8 @@ impl Quadrotor {
             plant_allocation: plant.allocation(),
             model,
             plant,
+            wind: Vector3::zeros(),
+            thrust_factors: whole_motors(),
         }
     }
 
@@ -154,7 +167,7 @@ impl Quadrotor {
         let desired = self.desired_motor_speeds(command);
         let lag = 1.0 - (-h / self.plant.motor_time_constant).exp();
         self.motor_speeds += (desired - self.motor_speeds) * lag;
-        let thrusts = self.motor_speeds.map(|w| self.plant.motor_thrust(w));
+        let thrusts = self.motor_speeds.map(|w| self.plant.motor_thrust(w)).component_mul(&self.thrust_factors);
         let wrench = self.plant_allocation * thrusts;
         let thrust = wrench[0];
         let torque = Vector3::new(wrench[1], wrench[2], wrench[3]);
@@ -187,7 +200,7 @@ impl Quadrotor {
         // The attitude at an RK4 stage is not exactly unit; the unit-quaternion rotation formula
         // is what step-for-step agreement with other implementations (SPEC §12) expects.
         let rot = UnitQuaternion::new_unchecked(s.attitude);
-        let v_body = rot.inverse_transform_vector(&s.velocity);
+        let v_body = rot.inverse_transform_vector(&(s.velocity - self.wind));
         let drag_body = -Vector3::from(p.drag).component_mul(&v_body);
         let force_body = Vector3::new(0.0, 0.0, thrust) + drag_body;
         let velocity = rot.transform_vector(&force_body) / p.mass - Vector3::new(0.0, 0.0, GRAVITY);

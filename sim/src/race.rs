@@ -10,6 +10,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use crate::disturbance::{DisturbanceState, Disturbances};
 use crate::observation::{ObservationFrame, ObservationLayout, write_state_observation};
 use crate::params::{QuadrotorParams, RaceParams};
 use crate::quadrotor::{BodyState, Command, Quadrotor};
@@ -41,6 +42,9 @@ pub struct EnvConfig {
     pub race: RaceParams,
     /// Reward weights: SPEC §5's state-based column, progress measured the `approach` way.
     pub reward: RewardParams,
+    /// Wind, estimate noise, extra latency, thrust loss (SPEC §13); none by default.
+    #[serde(skip_serializing_if = "Disturbances::is_off")]
+    pub disturbance: Disturbances,
 }
 
 impl Default for EnvConfig {
@@ -53,6 +57,7 @@ impl Default for EnvConfig {
             // Chosen on 100 validation tracks over four proxy seeds (docs/notebook/generalist.md,
             // "Progress measured round a gate that faces the drone").
             reward: RewardParams { progress_distance: ProgressDistance::Approach, ..RewardParams::state_based() },
+            disturbance: Disturbances::default(),
         }
     }
 }
@@ -172,6 +177,10 @@ pub struct RaceEnv {
     /// first use.
     #[serde(skip)]
     racing_line: OnceLock<Arc<RacingLine>>,
+    /// Wind, estimate and commands in flight, when the config has disturbances (`None`
+    /// otherwise: the nominal environment keeps nothing for them).
+    #[serde(default)]
+    disturbance: Option<DisturbanceState>,
 }
 
 impl RaceEnv {
@@ -195,6 +204,7 @@ impl RaceEnv {
             last_gate0_pass: None,
             stats: EpisodeStats::default(),
             racing_line: OnceLock::new(),
+            disturbance: config.disturbance.any().then(|| DisturbanceState::new(seed, stream)),
         };
         env.reset();
         env
@@ -208,6 +218,10 @@ impl RaceEnv {
         // thrust-map draw is an error in collective thrust the policy must absorb unobserved.
         self.quad = Quadrotor::new(c.quadrotor, draw.plant, draw.start);
         self.delay_substeps = draw.delay_substeps;
+        if let Some(state) = &mut self.disturbance {
+            self.quad.thrust_factors = c.disturbance.thrust_factors();
+            state.reset(&c.disturbance, &self.quad.body);
+        }
         // Before the first action arrives the flight controller holds a hover.
         self.previous_command = Command::hover();
         self.target = 0;
@@ -246,7 +260,13 @@ impl RaceEnv {
         let distance_before = distance(&start);
 
         let command = Command::from_action(&action, &self.config.quadrotor);
+        if let Some(state) = &mut self.disturbance {
+            self.quad.wind = state.wind(&self.config.disturbance, self.config.race.dt);
+        }
         let crash = self.integrate(&command);
+        if let Some(state) = &mut self.disturbance {
+            state.observe(&self.config.disturbance, &self.quad.body);
+        }
         self.previous_command = command;
         self.steps += 1;
         self.time = f64::from(self.steps) * self.config.race.dt;
@@ -285,8 +305,15 @@ impl RaceEnv {
     fn integrate(&mut self, command: &Command) -> Option<CrashCause> {
         let h = self.config.race.substep();
         let mut crash = None;
-        for j in 0..self.config.race.substeps {
-            let applied = if j < self.delay_substeps { self.previous_command } else { *command };
+        let substeps = self.config.race.substeps;
+        for j in 0..substeps {
+            let applied = match &mut self.disturbance {
+                Some(state) if self.config.disturbance.latency_ms > 0.0 => {
+                    state.applied(&self.config.disturbance, command, self.delay_substeps, j, substeps, h)
+                }
+                _ if j < self.delay_substeps => self.previous_command,
+                _ => *command,
+            };
             self.quad.substep(&applied, h);
             crash = self.crash_cause();
             if crash.is_some() {
@@ -346,7 +373,7 @@ impl RaceEnv {
     /// Writes the state observation in `layout` (a policy evaluates in the layout it learned).
     pub fn observe_in(&self, layout: ObservationLayout, out: &mut [f32]) {
         let line = (layout.line_points > 0).then(|| self.racing_line());
-        write_state_observation(&self.quad.body, &self.previous_action, &self.track, line.as_deref(), self.target, layout, out);
+        write_state_observation(self.estimate(), &self.previous_action, &self.track, line.as_deref(), self.target, layout, out);
     }
 
     /// Renders the camera image of the current state (SPEC §5) into `out` (84×84 bytes).
@@ -376,6 +403,12 @@ impl RaceEnv {
     /// Rigid-body state.
     pub fn body(&self) -> &BodyState {
         &self.quad.body
+    }
+
+    /// The state the controller flies on: the true state, or its estimate under noise and
+    /// dropout (SPEC §13).
+    pub fn estimate(&self) -> &BodyState {
+        self.disturbance.as_ref().and_then(DisturbanceState::estimate).unwrap_or(&self.quad.body)
     }
 
     /// Actual motor speeds (rad/s), rotor order fr, bl, br, fl.

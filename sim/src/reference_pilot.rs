@@ -139,7 +139,7 @@ impl Controller for ReferencePilot {
     fn reset(&mut self, env: &RaceEnv) {
         let track = env.track();
         let racing_line = PilotPath::through_gates(track, &self.params.limits());
-        let from = env.body().position;
+        let from = env.estimate().position;
         self.lead_in = Some(PilotPath::lead_in(track, &from, &start_heading(track), racing_line.points[0].speed, &self.params.limits()));
         self.lead_in_from = Some(from);
         self.racing_line = Some(racing_line);
@@ -156,7 +156,7 @@ impl Controller for ReferencePilot {
             self.progress = 0;
         }
         let path = self.lead_in.as_ref().or(self.racing_line.as_ref()).expect("reset before act");
-        let body = env.body();
+        let body = env.estimate();
         // Progress only moves as far along the path as the drone can fly in a few steps, so a
         // crossing (figure eight) or a nearby reversal never makes it jump to another branch.
         self.progress = path.nearest_ahead(&body.position, self.progress, body.velocity.norm() * 0.1 + 0.3);

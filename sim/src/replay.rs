@@ -4,6 +4,7 @@
 use std::io::Write;
 use std::sync::Arc;
 
+use crate::disturbance::Disturbances;
 use crate::race::{EnvConfig, RaceEnv};
 use crate::randomization::RandomizationParams;
 use crate::reward::RewardParams;
@@ -40,15 +41,17 @@ pub struct ReplayRow {
 }
 
 /// Replays `actions` from rest at the start pose (or `start`), motors at hover, nominal
-/// dynamics; stops after the first terminated row.
-pub fn replay(track: Arc<Track>, start: Option<Pose>, actions: &[[f64; 4]]) -> Vec<ReplayRow> {
+/// dynamics in `disturbance` (SPEC §13; none for an exact replay); stops after the first
+/// terminated row.
+pub fn replay(track: Arc<Track>, start: Option<Pose>, actions: &[[f64; 4]], disturbance: Disturbances) -> Vec<ReplayRow> {
     let track = match start {
         Some(start) => Arc::new(Track { start, ..(*track).clone() }),
         None => track,
     };
     // SPEC §5's reward, not the training default: replays are what independent
     // implementations are checked against.
-    let mut config = EnvConfig { randomization: RandomizationParams::none(), reward: RewardParams::state_based(), ..EnvConfig::default() };
+    let mut config =
+        EnvConfig { randomization: RandomizationParams::none(), reward: RewardParams::state_based(), disturbance, ..EnvConfig::default() };
     // Replays run as long as their action file; only a crash ends them early.
     config.race.max_episode_steps = u32::MAX;
     let mut env = RaceEnv::new(track, config, 0, 0);
@@ -157,7 +160,7 @@ mod tests {
     #[test]
     fn hover_replay_starts_at_rest_at_hover_speed_and_stays() {
         let hover = Command::hover().to_action(&QuadrotorParams::default());
-        let rows = replay(track(), None, &vec![hover; 50]);
+        let rows = replay(track(), None, &vec![hover; 50], Disturbances::default());
         assert_eq!(rows.len(), 50);
         assert!((rows[0].t - 0.02).abs() < 1e-15);
         let hover_speed = QuadrotorParams::default().hover_motor_speed();
@@ -171,7 +174,7 @@ mod tests {
     #[test]
     fn replay_stops_after_the_crash_row_and_csv_has_every_column() {
         // No thrust: falls 2 m to the ground in well under 100 steps.
-        let rows = replay(track(), None, &vec![[-1.0, 0.0, 0.0, 0.0]; 100]);
+        let rows = replay(track(), None, &vec![[-1.0, 0.0, 0.0, 0.0]; 100], Disturbances::default());
         assert!(rows.len() < 100);
         let last = rows.last().unwrap();
         assert!(last.terminated && last.event == "crash");
@@ -189,7 +192,7 @@ mod tests {
     fn a_start_override_moves_the_start() {
         let start = Pose { position: Vector3::new(1.0, 2.0, 3.0), yaw: 0.5 };
         let hover = Command::hover().to_action(&QuadrotorParams::default());
-        let rows = replay(track(), Some(start), &[hover]);
+        let rows = replay(track(), Some(start), &[hover], Disturbances::default());
         assert!((rows[0].position[1] - 2.0).abs() < 1e-6 && (rows[0].position[2] - 3.0).abs() < 1e-6);
     }
 
@@ -199,5 +202,16 @@ mod tests {
         assert_eq!(parse_actions("0,0,0\n"), Err(ActionsError::BadRow { line: 1, found: "0,0,0".into() }));
         assert_eq!(parse_actions("0,0,0,0\n0,nan,0,0\n"), Err(ActionsError::BadRow { line: 2, found: "0,nan,0,0".into() }));
         assert_eq!(parse_actions("# nothing\n"), Err(ActionsError::Empty));
+    }
+
+    #[test]
+    fn a_replay_in_wind_drifts_downwind_and_the_same_replay_without_is_unchanged() {
+        let hover = crate::quadrotor::Command::hover().to_action(&crate::QuadrotorParams::default());
+        let still = replay(track(), None, &vec![hover; 100], Disturbances::default());
+        let wind = Disturbances { wind_speed: 5.0, wind_direction_deg: Some(90.0), gust_intensity: Some(0.0), ..Disturbances::default() };
+        let windy = replay(track(), None, &vec![hover; 100], wind);
+        assert_eq!(still, replay(track(), None, &vec![hover; 100], Disturbances::default()));
+        let drift = |rows: &[ReplayRow]| rows.last().unwrap().position[1] - rows[0].position[1];
+        assert!(drift(&windy) > drift(&still) + 0.1, "blown to +y: {} against {}", drift(&windy), drift(&still));
     }
 }

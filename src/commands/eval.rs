@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use ::sim::ReferencePilot;
-use ::sim::eval::{EvalConfig, evaluate_recording};
+use ::sim::eval::{EvalConfig, Trajectory, evaluate_recording};
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use learner::export::{ExportFormat, Exported};
@@ -36,6 +36,30 @@ impl ControllerKind {
     }
 }
 
+/// The disturbances a flight meets (SPEC §13), for `eval` and `sim replay`.
+#[derive(Args)]
+pub struct DisturbanceArgs {
+    /// Fly in a mean wind of this speed (m/s), direction drawn per deployment, with gusts of
+    /// 0.2 × its speed (SPEC §13).
+    #[arg(long)]
+    wind: Option<f64>,
+    /// Other disturbances (SPEC §13) as TOML key-values, e.g. `noise = 2, latency_ms = 20` or
+    /// `thrust_loss = 0.1, thrust_loss_motor = 0`.
+    #[arg(long)]
+    disturbance: Option<String>,
+}
+
+impl DisturbanceArgs {
+    /// The disturbances the flags name, checked.
+    pub fn parse(&self) -> anyhow::Result<::sim::Disturbances> {
+        let text = self.disturbance.as_deref().unwrap_or_default();
+        let mut d: ::sim::Disturbances = toml::from_str(&text.replace(',', "\n")).with_context(|| format!("--disturbance {text:?}"))?;
+        d.wind_speed = self.wind.unwrap_or(d.wind_speed);
+        d.check().context("--wind, --disturbance")?;
+        Ok(d)
+    }
+}
+
 /// Arguments of `dronerace eval`.
 #[derive(Args)]
 pub struct EvalArgs {
@@ -64,6 +88,8 @@ pub struct EvalArgs {
     /// Directory for `eval.json` and `eval.md`.
     #[arg(long, default_value = "runs/eval")]
     out: PathBuf,
+    #[command(flatten)]
+    disturbance: DisturbanceArgs,
     /// Also write every deployment's states, one CSV a deployment (`<t>-<track>-<run>.csv`:
     /// time, position, velocity, attitude, body rates, action, target gate, laps), into this
     /// directory.
@@ -90,7 +116,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.runs > 0, "--runs must be at least 1");
     anyhow::ensure!(args.steps > 0, "--steps must be at least 1");
     let tracks = load_tracks(&args.tracks)?;
-    let config = EvalConfig { runs: args.runs, steps: args.steps, seed: args.seed, ..EvalConfig::default() };
+    let mut config = EvalConfig { runs: args.runs, steps: args.steps, seed: args.seed, ..EvalConfig::default() };
+    config.env.disturbance = args.disturbance.parse()?;
     let kind = ControllerKind::resolve(args.controller, args.policy.is_some())?;
     let (name, make) = match (&args.pilot_tuning, kind) {
         (None, kind) => controller_factory(kind, args.policy.as_deref())?,
@@ -107,10 +134,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let (report, trajectories) = evaluate_recording(&name, &tracks, make.as_ref(), &config, args.trajectories.is_some());
     if let Some(dir) = &args.trajectories {
         for (i, trajectory) in trajectories.iter().enumerate() {
-            // Track names become file names: keep letters, digits, '-' and '_'.
-            let track: String =
-                tracks[i / args.runs].name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' }).collect();
-            write_atomic(&dir.join(format!("{:02}-{track}-{:03}.csv", i / args.runs, i % args.runs)), trajectory.to_csv().as_bytes())?;
+            let (track, run) = (i / args.runs, i % args.runs);
+            write_atomic(&dir.join(Trajectory::file_name(track, &tracks[track].name, run)), trajectory.to_csv().as_bytes())?;
         }
         println!("wrote {} trajectories into {}", trajectories.len(), dir.display());
     }

@@ -26,6 +26,8 @@ pub enum SimCommand {
         /// Start pose `x,y,z,yaw_deg` instead of the track's.
         #[arg(long, allow_hyphen_values = true)]
         start: Option<String>,
+        #[command(flatten)]
+        disturbance: super::eval::DisturbanceArgs,
     },
     /// Render what the vision agent sees: one frame from a pose (PNG), or a flight (GIF).
     Render(super::render::RenderArgs),
@@ -59,7 +61,7 @@ pub struct SimBenchArgs {
 /// Runs a simulator subcommand.
 pub fn run(command: SimCommand) -> anyhow::Result<()> {
     match command {
-        SimCommand::Replay { track, actions, out, start } => {
+        SimCommand::Replay { track, actions, out, start, disturbance } => {
             let track = Arc::new(racetracks::read_track(&track)?);
             let start =
                 start.as_deref().map(|t| ::sim::poses_text::parse_pose_yaw(t).with_context(|| format!("--start {t:?}"))).transpose()?;
@@ -68,7 +70,7 @@ pub fn run(command: SimCommand) -> anyhow::Result<()> {
                 ::sim::replay::ActionsError::BadRow { line, .. } => anyhow::anyhow!("{}:{line}: {e}", actions.display()),
                 ::sim::replay::ActionsError::Empty => anyhow::anyhow!("{}: {e}", actions.display()),
             })?;
-            let rows = ::sim::replay::replay(track, start, &actions);
+            let rows = ::sim::replay::replay(track, start, &actions, disturbance.parse()?);
             let mut csv = Vec::new();
             ::sim::replay::write_csv(&rows, &mut csv)?;
             write_atomic(&out, &csv)?;

@@ -69,6 +69,19 @@ pub enum TracksCommand {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Write an out-of-distribution family (SPEC §13): `many-gates` (8–12 gates), `steep` (a 14 m
+    /// tall arena), `tight` (a 14 × 14 m floor) or `races` (hand-made layouts, `tracks/ood/`).
+    Ood {
+        /// The family.
+        #[arg(long)]
+        family: racetracks::ood::Family,
+        /// Tracks of a generated family (from seed 9,500,000, held out from training).
+        #[arg(long, default_value_t = 40)]
+        count: usize,
+        /// Directory to write into.
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Make a track file from a CSV of gate poses, one gate a row in racing order:
     /// `x,y,z,yaw_deg` (a header row and `#` comments are skipped).
     Import {
@@ -155,13 +168,13 @@ pub fn run(command: TracksCommand) -> anyhow::Result<()> {
             Ok(())
         }
         TracksCommand::Testset { seed, out } => {
-            let tracks = racetracks::test_set(seed)?;
-            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-            // Numbered so the directory lists in test-set order.
-            for (i, track) in tracks.iter().enumerate() {
-                racetracks::write_track(track, &out.join(format!("{i:02}-{}.toml", track.name.to_lowercase())))?;
-            }
-            println!("wrote {} tracks (library, then generated from seed {seed}) to {}", tracks.len(), out.display());
+            let n = write_numbered(&racetracks::test_set(seed)?, &out)?;
+            println!("wrote {n} tracks (library, then generated from seed {seed}) to {}", out.display());
+            Ok(())
+        }
+        TracksCommand::Ood { family, count, out } => {
+            let n = write_numbered(&racetracks::ood::family_tracks(family, count)?, &out)?;
+            println!("wrote {n} tracks of the {} family to {}", family.name(), out.display());
             Ok(())
         }
         TracksCommand::Import { csv, name, out } => {
@@ -182,6 +195,15 @@ pub fn run(command: TracksCommand) -> anyhow::Result<()> {
     }
 }
 
+/// Writes `tracks` into `out` as `NN-<name>.toml`, numbered so the directory lists in order.
+fn write_numbered(tracks: &[::sim::Track], out: &Path) -> anyhow::Result<usize> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    for (i, track) in tracks.iter().enumerate() {
+        racetracks::write_track(track, &out.join(format!("{i:02}-{}.toml", track.name.to_lowercase())))?;
+    }
+    Ok(tracks.len())
+}
+
 /// `tracks fit`: reads `x,y,z` rows and prints scipy's tck layout as JSON.
 fn fit(points: &Path, smoothing: f64) -> anyhow::Result<()> {
     let text = read_text(points).with_context(|| format!("reading {}", points.display()))?;
@@ -197,17 +219,8 @@ fn fit(points: &Path, smoothing: f64) -> anyhow::Result<()> {
 /// Generation rate and acceptance for both generators; task-controller update cost.
 pub fn bench(args: TracksBenchArgs) -> anyhow::Result<()> {
     let TracksBenchArgs { count, envs, window } = args;
-    for t in taskctl::bench::time_generators(count)? {
-        println!(
-            "{:?} generator: {:.0} tracks/s on one thread ({} tracks in {:.2} s), acceptance {:.1} % ({} of {} candidates)",
-            t.kind,
-            t.tracks as f64 / t.seconds,
-            t.tracks,
-            t.seconds,
-            100.0 * t.tracks as f64 / t.candidates as f64,
-            t.tracks,
-            t.candidates
-        );
+    for timing in taskctl::bench::time_generators(count)? {
+        println!("{timing}");
     }
     let u = taskctl::bench::time_updates(envs, window)?;
     println!(

@@ -24,23 +24,8 @@ pub struct TrainArgs {
     /// Continue the run in this directory from its newest checkpoint.
     #[arg(long, conflicts_with_all = ["config", "out", "profile", "track", "total_env_steps", "seed", "init_from"])]
     resume: Option<PathBuf>,
-    /// Profile (overrides the config): cpu (256×256, 96 environments) or paper (SPEC §10).
-    #[arg(long, value_parser = ["cpu", "paper"])]
-    profile: Option<String>,
-    /// Train on this one track instead of generated tracks: a library track's name (e.g.
-    /// Figure8) or a track file (e.g. my-track.toml); validation then flies it too.
-    #[arg(long)]
-    track: Option<String>,
-    /// Environment steps of the run (overrides the config).
-    #[arg(long)]
-    total_env_steps: Option<u64>,
-    /// Seed (overrides the config).
-    #[arg(long)]
-    seed: Option<u64>,
-    /// Start from this trained policy (checkpoint or weights blob): fine-tuning. Pair it with
-    /// a lower learning rate in the config's [ppo] section.
-    #[arg(long)]
-    init_from: Option<PathBuf>,
+    #[command(flatten)]
+    flags: TrainFlags,
     /// Stop after this many iterations (a checkpoint is written on the way out).
     #[arg(long)]
     iterations: Option<u64>,
@@ -69,14 +54,7 @@ fn prepare(args: &TrainArgs) -> anyhow::Result<(PathBuf, ResolvedRun, bool)> {
         (None, Some(agent)) => TrainConfig::defaults_for(*agent),
         (None, None) => TrainConfig::default(),
     };
-    let flags = TrainFlags {
-        profile: args.profile.clone(),
-        track: args.track.clone(),
-        total_env_steps: args.total_env_steps,
-        seed: args.seed,
-        init_from: args.init_from.clone(),
-    };
-    let resolved = config.with_flags(&flags)?.resolve()?;
+    let resolved = config.with_flags(&args.flags)?.resolve()?;
     let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("runs").join(&resolved.config().name));
     Ok((dir, resolved, false))
 }

@@ -31,6 +31,19 @@ pub struct UpdateTiming {
     pub iterations: u64,
 }
 
+impl std::fmt::Display for GeneratorTiming {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (n, seconds, candidates) = (self.tracks, self.seconds, self.candidates);
+        write!(
+            f,
+            "{:?} generator: {:.0} tracks/s on one thread ({n} tracks in {seconds:.2} s), acceptance {:.1} % ({n} of {candidates} candidates)",
+            self.kind,
+            n as f64 / seconds,
+            100.0 * n as f64 / candidates as f64
+        )
+    }
+}
+
 /// Why the benchmark could not run.
 #[derive(Debug, thiserror::Error)]
 pub enum TrackBenchError {
