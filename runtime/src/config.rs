@@ -278,6 +278,10 @@ impl TrainConfig {
         }
         learner.ppo.check().map_err(|e| ConfigError::new(format!("ppo.{}", e.field), e.reason))?;
         self.env.disturbance.check().map_err(|e| ConfigError::new(format!("env.disturbance.{}", e.field), e.reason))?;
+        let weak = self.env.randomization.motor_thrust;
+        if !(weak.is_finite() && (0.0..0.9).contains(&weak)) {
+            return Err(ConfigError::new("env.randomization.motor_thrust", format!("{weak} must be a share of thrust in 0..0.9")));
+        }
         self.switching.check().map_err(|e| ConfigError::new(format!("switching.{}", e.field), e.reason))?;
         // A gRPC learner must be able to hold at least one rollout of every environment, as
         // sent and as decoded.

@@ -456,9 +456,12 @@ pub fn summarise(experiment: &Experiment, out: &Path) -> Result<Vec<VariantSumma
             }
             let path = dir.join("test.json");
             match std::fs::read(&path) {
-                Ok(bytes) => summary
-                    .results
-                    .push(serde_json::from_slice(&bytes).map_err(|e| ExperimentError::Io(format!("{}: {e}", path.display())))?),
+                Ok(bytes) => {
+                    let invalid = |e: serde_json::Error| ExperimentError::Io(format!("{}: {e}", path.display()));
+                    let mut result: serde_json::Value = serde_json::from_slice(&bytes).map_err(invalid)?;
+                    crate::overrides::retire_in_results(&mut result);
+                    summary.results.push(serde_json::from_value(result).map_err(invalid)?);
+                }
                 Err(_) => summary.unfinished.push(seed),
             }
         }

@@ -35,6 +35,28 @@ const RETIRED: [(&str, Option<&str>, &str); 19] = [
     ("ppo.clip_per_network", Some("false"), "fd57bb4"),
 ];
 
+/// Drops, anywhere in a results file written by an earlier commit (`test.json`), every retired
+/// option that holds the value every run had: results stay readable after an option leaves the
+/// core, while a config file that sets one is still refused by [`retire`].
+pub fn retire_in_results(value: &mut serde_json::Value) {
+    match value {
+        serde_json::Value::Object(fields) => {
+            for (key, kept, _) in RETIRED {
+                let name = key.rsplit('.').next().unwrap_or(key);
+                let kept = kept.and_then(|k| toml::from_str::<toml::Table>(&format!("v = {k}")).ok()).and_then(|t| t.get("v").cloned());
+                if let (Some(kept), Some(found)) = (kept, fields.get(name))
+                    && serde_json::to_value(&kept).ok().as_ref() == Some(found)
+                {
+                    fields.remove(name);
+                }
+            }
+            fields.values_mut().for_each(retire_in_results);
+        }
+        serde_json::Value::Array(items) => items.iter_mut().for_each(retire_in_results),
+        _ => {}
+    }
+}
+
 /// Values removed from an option that stays: the dotted key, the value (TOML) and the last
 /// commit that takes it.
 const RETIRED_VALUES: [(&str, &str, &str); 1] = [("env.reward.progress_distance", "\"line\"", "fd57bb4")];
@@ -234,5 +256,15 @@ mod tests {
         assert!(retire("[env.reward]\nprogress_distance = \"centre\"\n").is_ok());
         let both = "[env]\nline_points = 2\n[env.observation]\nline_points = 3\n";
         assert!(parse_over(&Tiny::default(), both).unwrap_err().to_string().contains("one setting"));
+    }
+
+    #[test]
+    fn results_of_earlier_commits_drop_retired_options_that_held_the_kept_value() {
+        let mut old = serde_json::json!({ "best": { "config": { "env": { "controller_model": "nominal", "seed": 1 } } }, "x": [{ "clip_per_network": false }] });
+        retire_in_results(&mut old);
+        assert_eq!(old, serde_json::json!({ "best": { "config": { "env": { "seed": 1 } } }, "x": [{}] }));
+        let mut other = serde_json::json!({ "controller_model": "compensating" });
+        retire_in_results(&mut other);
+        assert!(other.get("controller_model").is_some(), "another value stays, and the reader refuses it");
     }
 }

@@ -218,8 +218,9 @@ impl RaceEnv {
         // thrust-map draw is an error in collective thrust the policy must absorb unobserved.
         self.quad = Quadrotor::new(c.quadrotor, draw.plant, draw.start);
         self.delay_substeps = draw.delay_substeps;
+        self.quad.thrust_factors = draw.thrust_factors;
         if let Some(state) = &mut self.disturbance {
-            self.quad.thrust_factors = c.disturbance.thrust_factors();
+            self.quad.thrust_factors.component_mul_assign(&c.disturbance.thrust_factors());
             state.reset(&c.disturbance, &self.quad.body);
         }
         // Before the first action arrives the flight controller holds a hover.

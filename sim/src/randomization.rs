@@ -1,6 +1,6 @@
 //! Domain randomisation at every episode start (SPEC §3, thesis Table A.2).
 
-use nalgebra::{UnitQuaternion, Vector3};
+use nalgebra::{UnitQuaternion, Vector3, Vector4};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
@@ -33,6 +33,9 @@ pub struct RandomizationParams {
     pub start_attitude: f64,
     /// Start body rates per axis (rad/s). SB 45°/s.
     pub start_body_rates: f64,
+    /// Largest share of its thrust each motor may lose, drawn per motor `U(0, r)` (a weak or
+    /// damaged motor, SPEC §13). Beyond the thesis: 0 in SPEC's profiles.
+    pub motor_thrust: f64,
 }
 
 impl Default for RandomizationParams {
@@ -55,6 +58,7 @@ impl RandomizationParams {
             start_velocity: 0.8,
             start_attitude: 20f64.to_radians(),
             start_body_rates: 45f64.to_radians(),
+            motor_thrust: 0.0,
         }
     }
 
@@ -71,6 +75,7 @@ impl RandomizationParams {
             start_velocity: 0.4,
             start_attitude: 10f64.to_radians(),
             start_body_rates: 25f64.to_radians(),
+            motor_thrust: 0.0,
         }
     }
 
@@ -92,6 +97,7 @@ impl RandomizationParams {
             start_velocity: 0.0,
             start_attitude: 0.0,
             start_body_rates: 0.0,
+            motor_thrust: 0.0,
         }
     }
 }
@@ -105,6 +111,8 @@ pub struct EpisodeDraw {
     pub delay_substeps: u32,
     /// Start state.
     pub start: BodyState,
+    /// Share of its thrust map each motor delivers (1 unless `motor_thrust` is set).
+    pub thrust_factors: Vector4<f64>,
 }
 
 /// `U(-r, r)`, or exactly 0 without a draw when `r = 0`.
@@ -137,7 +145,11 @@ impl RandomizationParams {
             (symmetric(rng, self.start_attitude), symmetric(rng, self.start_attitude), symmetric(rng, self.start_attitude));
         let body_rates = Vector3::from_fn(|_, _| symmetric(rng, self.start_body_rates));
         let attitude = UnitQuaternion::from_euler_angles(0.0, 0.0, start.yaw) * UnitQuaternion::from_euler_angles(roll, pitch, yaw);
-        EpisodeDraw { plant, delay_substeps, start: BodyState { position, attitude: *attitude.quaternion(), velocity, body_rates } }
+        // Drawn last, and only when set, so that every earlier draw stays as it was.
+        let thrust_factors =
+            Vector4::from_fn(|_, _| if self.motor_thrust > 0.0 { 1.0 - rng.random_range(0.0..=self.motor_thrust) } else { 1.0 });
+        let start = BodyState { position, attitude: *attitude.quaternion(), velocity, body_rates };
+        EpisodeDraw { plant, delay_substeps, start, thrust_factors }
     }
 }
 
@@ -199,5 +211,21 @@ mod tests {
         assert_eq!(d.start.velocity, Vector3::zeros());
         assert_eq!(d.start.body_rates, Vector3::zeros());
         assert!((d.start.position - start.position).norm() > 0.0);
+    }
+
+    #[test]
+    fn weak_motors_are_drawn_last_and_within_their_range() {
+        use rand::SeedableRng;
+        let (nominal, start) = (QuadrotorParams::default(), Pose { position: Vector3::new(0.0, 0.0, 2.0), yaw: 0.0 });
+        let draw = |p: &RandomizationParams| p.sample(&nominal, &start, 0.0025, &mut rand_chacha::ChaCha8Rng::seed_from_u64(4));
+        let plain = draw(&RandomizationParams::state_based());
+        assert_eq!(plain.thrust_factors, Vector4::repeat(1.0));
+        let weak = draw(&RandomizationParams { motor_thrust: 0.15, ..RandomizationParams::state_based() });
+        assert_eq!(
+            (weak.plant, weak.start, weak.delay_substeps),
+            (plain.plant, plain.start, plain.delay_substeps),
+            "earlier draws unchanged"
+        );
+        assert!(weak.thrust_factors.iter().all(|f| (0.85..=1.0).contains(f)) && weak.thrust_factors != Vector4::repeat(1.0));
     }
 }
