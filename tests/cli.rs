@@ -104,6 +104,29 @@ fn eval_prints_and_writes_json_and_markdown() {
 }
 
 #[test]
+fn eval_flies_the_disturbance_asked_for_names_it_and_refuses_a_bad_one_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let eval = |extra: &[&str]| {
+        let out = dir.path().join("eval");
+        let mut args = vec!["eval", "--controller", "pilot", "--runs", "2", "--steps", "300", "--out", out.to_str().unwrap()];
+        args.extend(["--tracks", "tracks/kidney.toml"]);
+        args.extend(extra);
+        let o = Command::new(env!("CARGO_BIN_EXE_dronerace")).current_dir(env!("CARGO_MANIFEST_DIR")).args(&args).output().unwrap();
+        let report = std::fs::read(out.join("eval.json")).ok().map(|b| serde_json::from_slice::<serde_json::Value>(&b).unwrap());
+        (o, report)
+    };
+    let (o, report) = eval(&["--wind", "3", "--disturbance", "latency_ms = 10, thrust_loss = 0.05"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let printed = String::from_utf8_lossy(&o.stdout);
+    assert!(printed.contains("flown in wind 3 m/s") && printed.contains("latency +10 ms") && printed.contains("thrust −5 %"), "{printed}");
+    assert_eq!(report.unwrap()["config"]["env"]["disturbance"]["wind_speed"], 3.0);
+    let (o, _) = eval(&["--disturbance", "wind = 3"]);
+    assert!(!o.status.success() && stderr(&o).contains("--disturbance") && stderr(&o).contains("wind"), "{}", stderr(&o));
+    let (o, _) = eval(&["--disturbance", "thrust_loss = 1.5"]);
+    assert!(!o.status.success() && stderr(&o).contains("thrust_loss"), "{}", stderr(&o));
+}
+
+#[test]
 fn a_policy_given_is_the_policy_flown_and_asking_for_the_pilot_with_it_is_an_error() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("eval");
