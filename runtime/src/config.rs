@@ -364,6 +364,21 @@ impl ResolvedRun {
         self.learner.ppo.n_steps
     }
 
+    /// An actor of this run named `name` with `envs` environments: the run's seed, environment
+    /// and rollout length, waiting for new weights as long as the learner waits for rollouts.
+    pub fn actor_settings(&self, name: &str, envs: usize) -> crate::actor_process::ActorSettings {
+        let c = &self.config;
+        crate::actor_process::ActorSettings {
+            name: name.into(),
+            envs,
+            seed: c.seed,
+            env: c.env,
+            n_steps: self.n_steps(),
+            weights_timeout: std::time::Duration::from_secs_f64(c.learner.actor_timeout_seconds.max(0.1)),
+            max_rollouts: None,
+        }
+    }
+
     /// The text of the run directory's `config.toml`.
     #[allow(clippy::expect_used, reason = "a config always serialises")]
     pub fn to_toml(&self) -> String {

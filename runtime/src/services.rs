@@ -359,15 +359,8 @@ pub fn actor(resolved: ResolvedRun, options: ActorOptions, stop: Arc<AtomicBool>
     }
     let rt = async_runtime(1)?;
     let tasks = TaskClient::new(rt.handle().clone(), &options.taskctl, &security)?;
-    let settings = crate::actor_process::ActorSettings {
-        name: options.name.clone(),
-        envs: options.envs,
-        seed: config.seed,
-        env: config.env,
-        n_steps: resolved.n_steps(),
-        weights_timeout: Duration::from_secs_f64(config.learner.actor_timeout_seconds.max(0.1)),
-        max_rollouts: options.rollouts,
-    };
+    let settings =
+        crate::actor_process::ActorSettings { max_rollouts: options.rollouts, ..resolved.actor_settings(&options.name, options.envs) };
     match options.transport {
         Transport::Grpc => {
             let mut link = GrpcActorLink::connect(rt.handle().clone(), &options.learner, &security)?;

@@ -39,16 +39,9 @@ pub struct Trainer {
     stop: AtomicBool,
 }
 
+/// The one actor's settings: every environment, and no timeout (its learner never misses a turn).
 fn actor_settings(resolved: &ResolvedRun) -> ActorSettings {
-    ActorSettings {
-        name: ACTOR.into(),
-        envs: resolved.envs(),
-        seed: resolved.config().seed,
-        env: resolved.config().env,
-        n_steps: resolved.n_steps(),
-        weights_timeout: std::time::Duration::MAX,
-        max_rollouts: None,
-    }
+    ActorSettings { weights_timeout: std::time::Duration::MAX, ..resolved.actor_settings(ACTOR, resolved.envs()) }
 }
 
 impl Trainer {
